@@ -1,0 +1,1 @@
+"""The numerical core: meshes, linear elasticity, the clustered force kernel, integrators."""

@@ -1,0 +1,89 @@
+"""The clustered elastic-damping force, one fused numba pass (eqs. 4-6).
+
+    f = -D v - K u = -K (u + zeta v) - xi M v          (D = xi M + zeta K)
+
+so one sweep over the K clusters serves both matrices: f_i = f_s + f_b, the shared clusters'
+contribution plus the boundary clusters'. ``clustered_force`` is the checked public entry; the
+``_`` kernels take arrays and scalars only. tests/naive.py holds the plain numpy twin.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import prange
+
+from .clusters import Clusters
+from .numba_config import PARALLEL_MIN_VERTICES, serial_and_parallel
+
+
+def _force_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
+                  u, v, mass, zeta, xi, w, out):
+    n = u.shape[0]
+    for i in prange(n):
+        for c in range(3):
+            w[i, c] = u[i, c] + zeta * v[i, c]
+    for r in prange(sh_rows.shape[0]):
+        i = sh_rows[r]
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        for k in range(sh_ptr[r], sh_ptr[r + 1]):
+            j = sh_cols[k]
+            wx = w[j, 0]
+            wy = w[j, 1]
+            wz = w[j, 2]
+            fx += sh_blocks[k, 0, 0] * wx + sh_blocks[k, 0, 1] * wy + sh_blocks[k, 0, 2] * wz
+            fy += sh_blocks[k, 1, 0] * wx + sh_blocks[k, 1, 1] * wy + sh_blocks[k, 1, 2] * wz
+            fz += sh_blocks[k, 2, 0] * wx + sh_blocks[k, 2, 1] * wy + sh_blocks[k, 2, 2] * wz
+        d = xi * mass[i]
+        out[i, 0] = -fx - d * v[i, 0]
+        out[i, 1] = -fy - d * v[i, 1]
+        out[i, 2] = -fz - d * v[i, 2]
+    for r in prange(bd_rows.shape[0]):
+        i = bd_rows[r]
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        for k in range(4 * r, 4 * r + 4):
+            j = bd_cols[k]
+            wx = w[j, 0]
+            wy = w[j, 1]
+            wz = w[j, 2]
+            fx += bd_blocks[k, 0, 0] * wx + bd_blocks[k, 0, 1] * wy + bd_blocks[k, 0, 2] * wz
+            fy += bd_blocks[k, 1, 0] * wx + bd_blocks[k, 1, 1] * wy + bd_blocks[k, 1, 2] * wz
+            fz += bd_blocks[k, 2, 0] * wx + bd_blocks[k, 2, 1] * wy + bd_blocks[k, 2, 2] * wz
+        d = xi * mass[i]
+        out[i, 0] = -fx - d * v[i, 0]
+        out[i, 1] = -fy - d * v[i, 1]
+        out[i, 2] = -fz - d * v[i, 2]
+
+
+force_kernel_serial, force_kernel_parallel = serial_and_parallel(_force_kernel)
+
+
+def cluster_args(cl: Clusters) -> tuple:
+    """The cluster arrays in kernel argument order."""
+    return (cl.shared_rows, cl.shared_ptr, cl.shared_cols, cl.shared_blocks,
+            cl.boundary_rows, cl.boundary_cols, cl.boundary_blocks)
+
+
+def pick_kernel(n_vertices: int, threads: bool | None = None):
+    """The serial build for small meshes, the threaded one for large (``threads`` forces a choice)."""
+    use = n_vertices >= PARALLEL_MIN_VERTICES if threads is None else threads
+    return force_kernel_parallel if use else force_kernel_serial
+
+
+def clustered_force(cl: Clusters, u: np.ndarray, v: np.ndarray, mass: np.ndarray, zeta: float, xi: float,
+                    out: np.ndarray | None = None, threads: bool | None = None) -> np.ndarray:
+    """f = -K (u + zeta v) - xi M v, (n, 3), from the clusters. Checks shapes and finiteness."""
+    n = cl.n_vertices
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    for name, a in (("u", u), ("v", v)):
+        if a.shape != (n, 3):
+            raise ValueError(f"{name} has shape {a.shape}, expected ({n}, 3) for this mesh")
+    if out is None:
+        out = np.empty((n, 3))
+    w = np.empty((n, 3))
+    pick_kernel(n, threads)(*cluster_args(cl), u, v, np.ascontiguousarray(mass, dtype=np.float64),
+                            float(zeta), float(xi), w, out)
+    return out

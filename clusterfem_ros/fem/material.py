@@ -1,0 +1,50 @@
+"""Isotropic linear elastic material with Rayleigh damping, validated once at the edge."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class ParameterError(ValueError):
+    """A physical parameter out of its valid range; the message names the value and the range."""
+
+
+@dataclass(frozen=True)
+class Material:
+    """Young's modulus ``E`` [Pa], Poisson ratio ``nu`` [-], density ``rho`` [kg/m^3].
+
+    Rayleigh damping D = xi * M + zeta * K: ``xi`` [1/s] damps low frequencies, ``zeta`` [s] high ones.
+    """
+    E: float = 5.0e4
+    nu: float = 0.3
+    rho: float = 1000.0
+    xi: float = 1.0
+    zeta: float = 1.0e-3
+
+    def __post_init__(self) -> None:
+        check = [("E", self.E, 0.0, np.inf, "Pa"), ("nu", self.nu, -1.0, 0.5, "-"),
+                 ("rho", self.rho, 0.0, np.inf, "kg/m^3")]
+        for name, value, lo, hi, unit in check:
+            if not (np.isfinite(value) and lo < value < hi):
+                raise ParameterError(f"material {name} = {value!r} {unit} is outside ({lo}, {hi}): "
+                                     f"give a finite value inside the range")
+        for name, value in (("xi", self.xi), ("zeta", self.zeta)):
+            if not (np.isfinite(value) and value >= 0):
+                raise ParameterError(f"Rayleigh damping {name} = {value!r} must be finite and >= 0")
+
+    @property
+    def lame(self) -> tuple[float, float]:
+        """(lambda, mu) Lamé parameters [Pa]."""
+        mu = self.E / (2.0 * (1.0 + self.nu))
+        lam = self.E * self.nu / ((1.0 + self.nu) * (1.0 - 2.0 * self.nu))
+        return lam, mu
+
+    def elasticity_matrix(self) -> np.ndarray:
+        """6x6 Voigt matrix C (strain order xx, yy, zz, yz, xz, xy with engineering shear strains)."""
+        lam, mu = self.lame
+        C = np.zeros((6, 6))
+        C[:3, :3] = lam
+        C[np.arange(3), np.arange(3)] += 2.0 * mu
+        C[np.arange(3, 6), np.arange(3, 6)] = mu
+        return C

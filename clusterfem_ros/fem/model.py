@@ -1,0 +1,127 @@
+"""The fixed model, the changing state and the control input (warp.sim's Model / State / Control).
+
+``FemModel`` is built once and never changes while stepping; ``State`` is advanced by an
+integrator's ``step(state, control, h)``; ``Control`` carries what changes from outside each step.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from .assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
+from .clusters import Clusters, build_clusters
+from .material import Material, ParameterError
+from .tet_mesh import TetMesh
+
+
+@dataclass(frozen=True)
+class FemModel:
+    mesh: TetMesh
+    material: Material
+    mass: np.ndarray            # (n,) lumped [kg]
+    K: sp.csr_matrix            # (3n, 3n) assembled stiffness [N/m]
+    clusters: Clusters          # the same K as per-vertex clusters
+    fixed: np.ndarray           # (n,) bool: Dirichlet vertices held at zero displacement
+    gravity: np.ndarray         # (3,) [m/s^2]
+
+    @property
+    def n_vertices(self) -> int:
+        return self.mesh.n_vertices
+
+    @property
+    def rest(self) -> np.ndarray:
+        return self.mesh.vertices
+
+    @property
+    def free_dofs(self) -> np.ndarray:
+        return np.flatnonzero(np.repeat(~self.fixed, 3))
+
+    def gravity_force(self) -> np.ndarray:
+        return self.mass[:, None] * self.gravity[None, :]
+
+    def damping_matrix(self) -> sp.csr_matrix:
+        """D = xi M + zeta K, assembled (for the standard methods; the clustered one never forms it)."""
+        return (self.material.xi * sp.diags(np.repeat(self.mass, 3)) + self.material.zeta * self.K).tocsr()
+
+    def elastic_energy(self, u: np.ndarray) -> float:
+        x = u.reshape(-1)
+        return 0.5 * float(x @ (self.K @ x))
+
+    def kinetic_energy(self, v: np.ndarray) -> float:
+        return 0.5 * float((self.mass[:, None] * v * v).sum())
+
+
+def build_model(mesh: TetMesh, material: Material, fixed: np.ndarray | None = None,
+                gravity=(0.0, 0.0, -9.81)) -> FemModel:
+    """Validate the mesh, assemble K and M, and build the clusters."""
+    mesh.validate()
+    blocks = element_stiffness_blocks(mesh, material)
+    if fixed is None:
+        fixed = np.zeros(mesh.n_vertices, dtype=bool)
+    fixed = np.asarray(fixed)
+    if fixed.dtype != bool:
+        idx = fixed.astype(np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= mesh.n_vertices):
+            raise ParameterError(f"fixed vertex index {int(idx.max() if idx.max() >= mesh.n_vertices else idx.min())} "
+                                 f"is outside [0, {mesh.n_vertices - 1}]")
+        fixed = np.zeros(mesh.n_vertices, dtype=bool)
+        fixed[idx] = True
+    if fixed.shape != (mesh.n_vertices,):
+        raise ParameterError(f"fixed mask has shape {fixed.shape}, expected ({mesh.n_vertices},)")
+    g = np.asarray(gravity, dtype=np.float64)
+    if g.shape != (3,) or not np.isfinite(g).all():
+        raise ParameterError(f"gravity must be 3 finite numbers in m/s^2, got {gravity!r}")
+    return FemModel(mesh=mesh, material=material, mass=lumped_mass(mesh, material.rho),
+                    K=assemble_stiffness(mesh, material, blocks), clusters=build_clusters(mesh, blocks),
+                    fixed=fixed, gravity=g)
+
+
+@dataclass
+class State:
+    u: np.ndarray               # (n, 3) displacement from rest [m]
+    v: np.ndarray               # (n, 3) velocity [m/s]
+    t: float = 0.0
+
+    @classmethod
+    def rest(cls, model: FemModel) -> "State":
+        n = model.n_vertices
+        return cls(np.zeros((n, 3)), np.zeros((n, 3)), 0.0)
+
+    def positions(self, model: FemModel) -> np.ndarray:
+        return model.rest + self.u
+
+    def copy(self) -> "State":
+        return State(self.u.copy(), self.v.copy(), self.t)
+
+
+@dataclass
+class Attachments:
+    """Per-vertex constraint forces f_i = m_i (a_i + kp (u*_i - u_i) + kd (v*_i - v_i)) (eq. 9 + stabilisation).
+
+    Targets are displacements u* at the start of the step, moving with v* during it. ``kp`` [1/s^2]
+    and ``kd`` [1/s] are per vertex, so nested levels can carry their own gains.
+    """
+    index: np.ndarray                   # (k,) int64
+    target_u: np.ndarray                # (k, 3)
+    target_v: np.ndarray                # (k, 3)
+    target_a: np.ndarray                # (k, 3)
+    kp: np.ndarray                      # (k,)
+    kd: np.ndarray                      # (k,)
+
+    @classmethod
+    def none(cls) -> "Attachments":
+        z3 = np.zeros((0, 3))
+        return cls(np.zeros(0, np.int64), z3, z3.copy(), z3.copy(), np.zeros(0), np.zeros(0))
+
+
+@dataclass
+class Control:
+    """Inputs for one step: external forces (gravity is the model's and is added by the integrator),
+    constraint attachments, and prescribed (kinematic) vertices whose motion is set exactly."""
+    f_ext: np.ndarray | None = None                     # (n, 3) [N]
+    attachments: Attachments = field(default_factory=Attachments.none)
+    prescribed_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    prescribed_u: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    prescribed_v: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
