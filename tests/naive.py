@@ -1,0 +1,35 @@
+"""Plain numpy twins of the numba kernels, for tests only: slow, obvious, trusted."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def cluster_force(dense_rows: dict, n: int, u: np.ndarray, v: np.ndarray, mass: np.ndarray,
+                  zeta: float, xi: float) -> np.ndarray:
+    """f_i = -sum_j K_ij (u_j + zeta v_j) - xi m_i v_i, from {i: {j: K_ij}}."""
+    f = np.zeros((n, 3))
+    w = u + zeta * v
+    for i, row in dense_rows.items():
+        for j, B in row.items():
+            f[i] -= B @ w[j]
+        f[i] -= xi * mass[i] * v[i]
+    return f
+
+
+def element_stiffness(x: np.ndarray, E: float, nu: float) -> np.ndarray:
+    """12x12 stiffness of one tet as V B^T C B (textbook Voigt form)."""
+    lam = E * nu / ((1 + nu) * (1 - 2 * nu))
+    mu = E / (2 * (1 + nu))
+    C = np.zeros((6, 6))
+    C[:3, :3] = lam
+    C[range(3), range(3)] += 2 * mu
+    C[range(3, 6), range(3, 6)] = mu
+    Dm = np.column_stack([x[1] - x[0], x[2] - x[0], x[3] - x[0]])
+    V = np.linalg.det(Dm) / 6
+    G = np.linalg.inv(Dm)
+    g = np.vstack([-G.sum(axis=0), G])
+    B = np.zeros((6, 12))
+    for a in range(4):
+        gx, gy, gz = g[a]
+        B[:, 3 * a:3 * a + 3] = [[gx, 0, 0], [0, gy, 0], [0, 0, gz], [0, gz, gy], [gz, 0, gx], [gy, gx, 0]]
+    return V * B.T @ C @ B

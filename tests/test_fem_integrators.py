@@ -1,0 +1,97 @@
+"""The methods behind one interface: clustered == standard explicit, direct == CG, attachments, prescribed."""
+import numpy as np
+import pytest
+
+from clusterfem_ros.fem.integrators import make_integrator
+from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.model import Attachments, Control, State, build_model
+from clusterfem_ros.fem.voxel_mesh import paper_mesh
+
+MAT = Material(E=5e4, nu=0.35, rho=1000.0, xi=2.0, zeta=1e-3)
+
+
+def _run(method, model, steps, h, control=None, **opt):
+    integ = make_integrator(method, model, **opt)
+    s = State.rest(model)
+    for _ in range(steps):
+        info = integ.step(s, control or Control(), h)
+    return s, info
+
+
+def test_clustered_equals_standard_explicit_over_a_run():
+    mesh = paper_mesh("torus")
+    model = build_model(mesh, MAT, fixed=mesh.vertices[:, 0] > 0.12)
+    a, ia = _run("clustered", model, 300, 1e-3)
+    b, ib = _run("standard_explicit", model, 300, 1e-3)
+    assert ia.substeps == ib.substeps > 1
+    assert np.abs(a.u - b.u).max() <= 1e-11 * np.abs(b.u).max()
+    assert np.abs(a.v - b.v).max() <= 1e-11 * np.abs(b.v).max()
+
+
+def test_implicit_cg_equals_direct():
+    mesh = paper_mesh("sphere")
+    model = build_model(mesh, MAT, fixed=mesh.vertices[:, 2] < -0.08)
+    a, _ = _run("implicit_direct", model, 100, 2e-3)
+    b, info = _run("implicit_cg", model, 100, 2e-3, cg_rtol=1e-12)
+    assert info.iterations > 0
+    assert np.abs(a.u - b.u).max() <= 1e-8 * np.abs(a.u).max()
+
+
+def test_explicit_and_implicit_agree_on_the_static_sag():
+    mesh = paper_mesh("cube")
+    model = build_model(mesh, Material(E=5e4, nu=0.3, xi=20.0, zeta=1e-3), fixed=mesh.vertices[:, 2] < -0.049)
+    a, _ = _run("clustered", model, 1500, 1e-3)
+    b, _ = _run("implicit_direct", model, 1500, 1e-3)
+    assert np.abs(a.u - b.u).max() <= 1e-3 * np.abs(b.u).max()
+
+
+def test_implicit_reuses_its_factorization_while_h_is_fixed():
+    mesh = paper_mesh("cube")
+    model = build_model(mesh, MAT, fixed=mesh.vertices[:, 2] < -0.049)
+    integ = make_integrator("implicit_direct", model)
+    s = State.rest(model)
+    integ.step(s, Control(), 1e-3)
+    lu = integ._lu
+    integ.step(s, Control(), 1e-3)
+    assert integ._lu is lu
+    integ.step(s, Control(), 2e-3)
+    assert integ._lu is not lu
+
+
+@pytest.mark.parametrize("method", ["clustered", "standard_explicit", "implicit_direct"])
+def test_attachment_pulls_vertices_to_a_moving_target(method):
+    mesh = paper_mesh("cube")
+    # no mass-proportional damping: it would drag the free flesh against the absolute velocity
+    model = build_model(mesh, Material(E=5e4, nu=0.35, xi=0.0, zeta=1e-3), gravity=(0, 0, 0))
+    idx = np.flatnonzero(np.abs(mesh.vertices).max(axis=1) < 0.03)
+    vel = np.array([0.1, 0.0, 0.0])
+    integ = make_integrator(method, model)
+    s = State.rest(model)
+    h = 1e-3
+    for k in range(1500):
+        t = k * h
+        att = Attachments(idx, np.tile(vel * t, (len(idx), 1)), np.tile(vel, (len(idx), 1)),
+                          np.zeros((len(idx), 3)), np.full(len(idx), 400.0), np.full(len(idx), 40.0))
+        integ.step(s, Control(attachments=att), h)
+    # the whole body follows the attached core at the target velocity
+    assert np.abs(s.u[idx] - vel * 1.5).max() < 2e-3
+    assert np.abs(s.v.mean(axis=0) - vel).max() < 5e-3
+
+
+@pytest.mark.parametrize("method", ["clustered", "implicit_direct"])
+def test_prescribed_vertices_move_exactly(method):
+    mesh = paper_mesh("cube")
+    model = build_model(mesh, MAT, gravity=(0, 0, 0))
+    idx = np.flatnonzero(mesh.vertices[:, 2] < -0.049)
+    integ = make_integrator(method, model)
+    s = State.rest(model)
+    v = np.tile([0.0, 0.0, 0.05], (len(idx), 1))
+    for k in range(100):
+        integ.step(s, Control(prescribed_index=idx, prescribed_u=v * k * 1e-3, prescribed_v=v), 1e-3)
+    np.testing.assert_allclose(s.u[idx], v * 0.1, rtol=0, atol=1e-15)
+
+
+def test_unknown_method_is_named():
+    model = build_model(paper_mesh("cube"), MAT)
+    with pytest.raises(ValueError, match="unknown method 'rk4'"):
+        make_integrator("rk4", model)

@@ -1,0 +1,115 @@
+"""Meshes: voxel generation near the paper's sizes, validation errors, surface, vertex classes, I/O."""
+import meshio
+import numpy as np
+import pytest
+
+from clusterfem_ros.fem.mesh_io import read_mesh, write_mesh
+from clusterfem_ros.fem.tet_mesh import (MeshError, TetMesh, boundary_triangles, elements_per_vertex,
+                                         vertex_classes)
+from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
+
+PAPER = {"sphere": (376, 1091), "cube": (453, 1198), "torus": (609, 1823)}
+
+
+@pytest.mark.parametrize("name", PAPER)
+def test_paper_meshes_are_valid_and_near_the_papers_size(name):
+    mesh = paper_mesh(name).validate()
+    nv, nt = PAPER[name]
+    print(f"{name}: {mesh.n_vertices} vertices / {mesh.n_tets} tets (paper {nv} / {nt})")
+    assert abs(mesh.n_tets - nt) / nt < 0.15
+    assert abs(mesh.n_vertices - nv) / nv < 0.25
+
+
+def test_refined_mesh_scales_as_the_cube_of_the_resolution():
+    a, b = paper_mesh("cube", 1.0), paper_mesh("cube", 2.0)
+    assert b.n_tets == 8 * a.n_tets
+
+
+def test_box_volume_is_exact():
+    mesh = box_mesh((0.3, 0.2, 0.1), (3, 4, 5))
+    assert mesh.volumes().sum() == pytest.approx(0.3 * 0.2 * 0.1, rel=1e-13)
+    assert (mesh.volumes() > 0).all()
+
+
+@pytest.mark.parametrize("name", PAPER)
+def test_boundary_surface_is_closed_and_outward(name):
+    mesh = paper_mesh(name)
+    tri = boundary_triangles(mesh)
+    edges = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert (counts == 2).all(), "every surface edge borders exactly two triangles"
+    x = mesh.vertices[tri]
+    n2 = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])     # 2 * area * outward normal
+    # divergence theorem: integral of x.n over the surface = 3 V (outward normals)
+    flux = np.einsum("ij,ij->", x.mean(axis=1), n2) / 2.0
+    assert flux == pytest.approx(3.0 * mesh.volumes().sum(), rel=1e-12)
+
+
+def test_vertex_classes_follow_the_paper():
+    mesh = paper_mesh("sphere")
+    shared, boundary = vertex_classes(mesh)
+    count = elements_per_vertex(mesh)
+    assert len(shared) + len(boundary) == mesh.n_vertices
+    assert (count[boundary] == 1).all() and (count[shared] >= 2).all()
+    assert len(boundary) > 0
+
+
+def _tiny():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], float)
+    t = np.array([[0, 1, 2, 3], [1, 3, 2, 4]])    # the second is inverted
+    return v, t
+
+
+def test_inverted_tet_is_named_with_its_signed_volume():
+    v, t = _tiny()
+    with pytest.raises(MeshError, match=r"tet 1 has signed volume -0\.\d+"):
+        TetMesh(v, t).validate()
+
+
+def test_zero_volume_tet_is_refused():
+    v, t = _tiny()
+    v[4] = [0.5, 0.5, 0.0]                       # coplanar with 1, 2 and on the z = 0 plane
+    t = np.array([[0, 1, 2, 3], [1, 2, 4, 0]])
+    with pytest.raises(MeshError, match="tet 1 has signed volume"):
+        TetMesh(v, t).validate()
+
+
+def test_unreferenced_vertex_and_out_of_range_and_nan_are_named():
+    v, t = _tiny()
+    t = t[:1]
+    assert TetMesh(v[:4], t).validate().n_tets == 1
+    with pytest.raises(MeshError, match="vertex 4 is not used"):
+        TetMesh(v, t).validate()
+    with pytest.raises(MeshError, match=r"tet 0 has vertex indices \[0, 1, 2, 9\] outside \[0, 4\]"):
+        TetMesh(v, np.array([[0, 1, 2, 9]])).validate()
+    v[2, 1] = np.nan
+    with pytest.raises(MeshError, match="vertex 2 has non-finite coordinates"):
+        TetMesh(v, t).validate()
+
+
+@pytest.mark.parametrize("ext", [".msh", ".vtk", ".vtu", ".mesh"])
+def test_meshio_round_trip(tmp_path, ext):
+    mesh = paper_mesh("torus")
+    path = tmp_path / f"torus{ext}"
+    write_mesh(path, mesh)
+    back = read_mesh(path)
+    np.testing.assert_allclose(back.vertices, mesh.vertices, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(back.tets, mesh.tets)
+
+
+def test_reading_a_surface_only_file_says_what_is_missing(tmp_path):
+    path = tmp_path / "surface.vtu"
+    meshio.write_points_cells(str(path), np.eye(3), [("triangle", np.array([[0, 1, 2]]))])
+    with pytest.raises(MeshError, match="no tetrahedra"):
+        read_mesh(path)
+
+
+def test_reading_flips_inverted_tets_only_when_asked(tmp_path):
+    mesh = box_mesh((1, 1, 1), (2, 2, 2))
+    t = mesh.tets.copy()
+    t[3, [2, 3]] = t[3, [3, 2]]
+    path = tmp_path / "flipped.vtu"
+    meshio.write_points_cells(str(path), mesh.vertices, [("tetra", t)])
+    with pytest.raises(MeshError, match="tet 3 has signed volume"):
+        read_mesh(path)
+    assert (read_mesh(path, orient=True).volumes() > 0).all()
