@@ -1,0 +1,190 @@
+"""Skeleton constraint kinds (the paper's eqs. 7-9) as attachment targets for ``fem.model.Control``.
+
+Conventions. A bone pose is the placement x = R c + p of bone-local points c (``rotation`` (nb, 3, 3),
+``translation`` (nb, 3)) and its spatial velocity Phi = (omega, v) (``twist`` (nb, 6)), world-aligned,
+with v the velocity of the bone origin p. With r = R c = x - p, a point fixed on the bone moves with
+
+    x' = omega x r + v = (-[r]x  I) Phi                                  (eq. 7)
+    x'' = (-[r]x  I) Phi' + omega x (omega x r)                          (eq. 8 + the centripetal term)
+
+The paper's eq. 8 keeps only the first term; for a bone spinning at constant omega about its origin
+Phi' = 0 and the point's acceleration is all centripetal, so the term is added here. Phi' is a finite
+difference supplied by the caller (see ``driver.SkeletonDriver``). Eq. 9's force m_i x''_i is the
+attachment's feed-forward ``m_i a*``; the attachment adds m_i (kp (u* - u) + kd (v* - v)) so bound
+vertices do not drift (the paper notes none; an acceleration-only force drifts in position).
+
+Targets are *displacements* from rest (u* = x* - X), as ``Attachments`` expects.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, Sequence
+
+import numpy as np
+
+
+class PoseLike(Protocol):
+    """What the constraints read from ``skeleton.kinematics.BonePoses``."""
+    rotation: np.ndarray        # (nb, 3, 3)
+    translation: np.ndarray     # (nb, 3)
+    twist: np.ndarray           # (nb, 6) = (omega, v), world-aligned at the bone origin
+
+
+def check_poses(poses: PoseLike, n_bones: int, bone_names: Sequence[str] | None = None,
+                what: str = "bone poses") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validate shapes and finiteness; return (R, p, twist) as float64 arrays.
+
+    Raises ValueError naming the first bone with a non-finite rotation, translation or twist.
+    """
+    out = []
+    for name, shape in (("rotation", (n_bones, 3, 3)), ("translation", (n_bones, 3)), ("twist", (n_bones, 6))):
+        a = np.asarray(getattr(poses, name), dtype=np.float64)
+        if a.shape != shape:
+            raise ValueError(f"{what}: {name} has shape {a.shape}, expected {shape} (the binding has {n_bones} bones)")
+        bad = ~np.isfinite(a.reshape(n_bones, -1)).all(axis=1)
+        if bad.any():
+            b = int(np.flatnonzero(bad)[0])
+            label = bone_names[b] if bone_names is not None else f"bone {b}"
+            raise ValueError(f"{what}: {name} of {label} (index {b}) is not finite ({int(bad.sum())} bones "
+                             "affected): check the joint state and the trajectory feeding the skeleton")
+        out.append(a)
+    return out[0], out[1], out[2]
+
+
+def rigid_point_motion(R: np.ndarray, p: np.ndarray, twist: np.ndarray, dtwist: np.ndarray,
+                       bone: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World position, velocity and acceleration (each (k, 3)) of points ``local`` (k, 3) fixed on bones ``bone`` (k,).
+
+    ``dtwist`` (nb, 6) is d(Phi)/dt = (alpha, a_origin); see the module docstring for the formulas.
+    """
+    r = np.einsum("kij,kj->ki", R[bone], local)
+    w, vo = twist[bone, :3], twist[bone, 3:]
+    al, ao = dtwist[bone, :3], dtwist[bone, 3:]
+    wxr = np.cross(w, r)
+    return r + p[bone], wxr + vo, np.cross(al, r) + ao + np.cross(w, wxr)
+
+
+@dataclass(frozen=True)
+class LevelGains:
+    """Stabilisation gains per binding level (level 0 innermost): ``kp`` [1/s^2], ``kd`` [1/s].
+
+    The attachment force is m_i (a* + kp (u* - u) + kd (v* - v)): kp is a squared tracking frequency, so
+    an error e under a load of g_eff m/s^2 settles at about g_eff / kp. Explicit integrators fold max kp
+    into omega^2 and max kd into the damping when planning sub-steps, so very stiff gains cost sub-steps.
+    """
+    kp: tuple[float, ...]
+    kd: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        kp, kd = tuple(float(k) for k in self.kp), tuple(float(k) for k in self.kd)
+        object.__setattr__(self, "kp", kp)
+        object.__setattr__(self, "kd", kd)
+        if len(kp) != len(kd) or not kp:
+            raise ValueError(f"LevelGains needs one kp and one kd per level, got {len(kp)} kp and {len(kd)} kd")
+        for name, vals in (("kp", kp), ("kd", kd)):
+            if not all(np.isfinite(v) and v >= 0 for v in vals):
+                raise ValueError(f"LevelGains {name} = {vals} must be finite and >= 0")
+
+    @classmethod
+    def default(cls, n_levels: int, kp_inner: float = 4.0e4, ratio: float = 0.25) -> "LevelGains":
+        """kp_k = kp_inner * ratio**k, kd_k = 2 sqrt(kp_k) (critically damped tracking of each level).
+
+        kp_inner = 4e4 1/s^2 (200 rad/s) tracks a walking skeleton to about a millimetre and leaves the
+        explicit critical step of a jelly body near 1 ms almost unchanged.
+        """
+        if n_levels < 1:
+            raise ValueError(f"n_levels = {n_levels}: a binding has at least one level")
+        kp = tuple(kp_inner * ratio ** k for k in range(n_levels))
+        return cls(kp, tuple(2.0 * np.sqrt(k) for k in kp))
+
+    @property
+    def n_levels(self) -> int:
+        return len(self.kp)
+
+
+@dataclass(frozen=True)
+class PointConstraint:
+    """Vertex ``vertex`` held at a point: on bone ``bone`` at ``local`` (bone frame; default: the vertex's rest
+    position in that frame), or, with ``bone=None``, at the world point ``world`` moving with ``world_velocity``."""
+    vertex: int
+    bone: int | None = None
+    local: tuple[float, float, float] | None = None
+    world: tuple[float, float, float] | None = None
+    world_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    kp: float = 4.0e4
+    kd: float = 400.0
+
+    def __post_init__(self) -> None:
+        if (self.bone is None) == (self.world is None):
+            raise ValueError(f"point constraint on vertex {self.vertex}: give exactly one of bone= (a point on a "
+                             f"bone) or world= (a world point), got bone={self.bone!r}, world={self.world!r}")
+        for name, val in (("local", self.local), ("world", self.world), ("world_velocity", self.world_velocity)):
+            if val is not None and not (np.shape(val) == (3,) and np.isfinite(val).all()):
+                raise ValueError(f"point constraint on vertex {self.vertex}: {name} = {val!r} must be 3 finite numbers")
+        if not (np.isfinite([self.kp, self.kd]).all() and self.kp >= 0 and self.kd >= 0):
+            raise ValueError(f"point constraint on vertex {self.vertex}: kp = {self.kp}, kd = {self.kd} must be >= 0")
+
+
+@dataclass(frozen=True)
+class LineConstraint:
+    """Vertex ``vertex`` kept at its rest offset from the axis of bone ``bone`` but free to slide along it.
+
+    Implemented as an attachment whose target is re-projected every step: the target is the vertex's rest
+    point in the bone frame slid along the axis to the vertex's current axial coordinate, and the target
+    velocity keeps the vertex's current axial velocity relative to the bone. So the force has no axial
+    component at the start of each step; inside a step it only sees the O(h^2) drift between the linear
+    target motion and the vertex's, so the slide is free to first order. A vertex on the axis (offset 0)
+    is the paper's line constraint.
+    """
+    vertex: int
+    bone: int
+    kp: float = 4.0e4
+    kd: float = 400.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite([self.kp, self.kd]).all() and self.kp >= 0 and self.kd >= 0):
+            raise ValueError(f"line constraint on vertex {self.vertex}: kp = {self.kp}, kd = {self.kd} must be >= 0")
+
+
+def point_targets(points: Sequence[PointConstraint], rest: np.ndarray, rest_R: np.ndarray, rest_p: np.ndarray,
+                  R: np.ndarray, p: np.ndarray, twist: np.ndarray, dtwist: np.ndarray):
+    """(index, x*, v*, a*, kp, kd) of point constraints; x*, v*, a* are world (k, 3)."""
+    k = len(points)
+    idx = np.array([c.vertex for c in points], dtype=np.int64)
+    x, v, a = np.zeros((k, 3)), np.zeros((k, 3)), np.zeros((k, 3))
+    on_bone = np.array([c.bone is not None for c in points], dtype=bool)
+    if on_bone.any():
+        sel = np.flatnonzero(on_bone)
+        bone = np.array([points[i].bone for i in sel], dtype=np.int64)
+        local = np.array([points[i].local if points[i].local is not None else
+                          rest_R[points[i].bone].T @ (rest[points[i].vertex] - rest_p[points[i].bone])
+                          for i in sel]).reshape(-1, 3)
+        x[sel], v[sel], a[sel] = rigid_point_motion(R, p, twist, dtwist, bone, local)
+    for i in np.flatnonzero(~on_bone):
+        x[i], v[i] = points[i].world, points[i].world_velocity
+    return (idx, x, v, a, np.array([c.kp for c in points], dtype=np.float64),
+            np.array([c.kd for c in points], dtype=np.float64))
+
+
+def line_targets(lines: Sequence[LineConstraint], rest: np.ndarray, axis_local: np.ndarray, rest_R: np.ndarray,
+                 rest_p: np.ndarray, R: np.ndarray, p: np.ndarray, twist: np.ndarray, dtwist: np.ndarray,
+                 x_now: np.ndarray, v_now: np.ndarray):
+    """(index, x*, v*, a*, kp, kd) of line constraints given the current world positions/velocities (n, 3)."""
+    idx = np.array([c.vertex for c in lines], dtype=np.int64)
+    bone = np.array([c.bone for c in lines], dtype=np.int64)
+    axis = axis_local[bone, 1] - axis_local[bone, 0]
+    length = np.linalg.norm(axis, axis=1)
+    if (length <= 0).any():
+        j = int(np.flatnonzero(length <= 0)[0])
+        raise ValueError(f"line constraint on vertex {lines[j].vertex}: bone {lines[j].bone} has zero length, "
+                         "so it has no axis; use a point constraint instead")
+    a_hat = axis / length[:, None]                                          # (k, 3) local
+    c_rest = np.einsum("kji,kj->ki", rest_R[bone], rest[idx] - rest_p[bone])
+    c_now = np.einsum("kji,kj->ki", R[bone], x_now[idx] - p[bone])
+    slide = np.einsum("ki,ki->k", c_now - c_rest, a_hat)
+    x, v, a = rigid_point_motion(R, p, twist, dtwist, bone, c_rest + slide[:, None] * a_hat)
+    a_w = np.einsum("kij,kj->ki", R[bone], a_hat)
+    v_rel = np.einsum("ki,ki->k", v_now[idx] - v, a_w)[:, None] * a_w     # axial velocity relative to the bone
+    a = a + 2.0 * np.cross(twist[bone, :3], v_rel)                          # Coriolis of the slide
+    return (idx, x, v + v_rel, a, np.array([c.kp for c in lines], dtype=np.float64),
+            np.array([c.kd for c in lines], dtype=np.float64))

@@ -1,0 +1,170 @@
+"""``SkeletonDriver``: bone poses in, one ``Control`` per physics step out (the paper's eqs. 7-9).
+
+Call ``control(poses_t, dt)`` once per step, before ``integrator.step(state, control, dt)``. The driver
+keeps the previous twists to differentiate Phi = (omega, v):
+
+* ``difference="backward"`` (default, streaming): the 3-point one-sided formula
+  Phi'(t) ~ (3 Phi_t - 4 Phi_{t-1} + Phi_{t-2}) / 2h (non-uniform spacing handled), O(h^2) at t; it
+  needs no future pose. The first two steps fall back to (Phi_t - Phi_{t-1}) / h and to Phi' = 0.
+* ``difference="central"`` (a known trajectory): pass ``next_poses`` (the poses at t + dt) and get
+  Phi'(t) ~ (Phi_{t+1} - Phi_{t-1}) / 2h, O(h^2). The paper's eq. 9 prints this with 1/h instead of
+  1/(2h): that would double the feed-forward acceleration, so we read it as a typo and use 2h (the test
+  ``test_body_constraints`` checks the O(h^2) error against the exact centripetal acceleration).
+
+Gains per level come from ``LevelGains``; ``kinematic=True`` prescribes the innermost level exactly
+(``Control.prescribed_*``) and drives the outer levels with attachments. The driver only produces
+forces and targets, so it works unchanged with or without stiffness warping.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..fem.model import Attachments, Control, State
+from .binding import Binding
+from .constraints import (LevelGains, LineConstraint, PointConstraint, PoseLike, check_poses, line_targets,
+                          point_targets, rigid_point_motion)
+
+DIFFERENCES = ("backward", "central")
+
+
+def _derivative_backward(f: list[np.ndarray], gaps: list[float]) -> np.ndarray:
+    """d/dt at the last of the samples f (oldest first), spaced by gaps; order len(f) - 1 (at most 2)."""
+    if len(f) == 1:
+        return np.zeros_like(f[0])
+    if len(f) == 2:
+        return (f[1] - f[0]) / gaps[0]
+    h1, h2 = gaps[-2], gaps[-1]
+    return (f[-3] * h2 / (h1 * (h1 + h2)) - f[-2] * (h1 + h2) / (h1 * h2)
+            + f[-1] * (h1 + 2.0 * h2) / (h2 * (h1 + h2)))
+
+
+def _derivative_central(fm: np.ndarray, f0: np.ndarray, fp: np.ndarray, hb: float, hf: float) -> np.ndarray:
+    """d/dt at the middle sample for back/forward gaps hb, hf; (fp - fm) / 2h when hb = hf."""
+    return (hb * hb * fp - hf * hf * fm - (hb * hb - hf * hf) * f0) / (hb * hf * (hb + hf))
+
+
+class SkeletonDriver:
+    """Turns bone poses into constraint targets for the bound vertices of one body.
+
+    ``rest_vertices`` (n, 3) are the body's rest positions (``FemModel.rest``). ``points`` / ``lines`` add
+    point and line constraints (line constraints need ``state`` in ``control``). A vertex in several
+    constraints gets the sum of their forces; a prescribed vertex ignores forces.
+    """
+
+    def __init__(self, binding: Binding, rest_vertices: np.ndarray, gains: LevelGains | None = None, *,
+                 kinematic: bool = False, difference: str = "backward",
+                 points: Sequence[PointConstraint] = (), lines: Sequence[LineConstraint] = (),
+                 bone_names: Sequence[str] | None = None):
+        rest = np.asarray(rest_vertices, dtype=np.float64)
+        if rest.shape != (binding.level.size, 3):
+            raise ValueError(f"rest_vertices has shape {rest.shape}, but the binding is for "
+                             f"{binding.level.size} vertices: bind the same mesh you simulate")
+        if difference not in DIFFERENCES:
+            raise ValueError(f"difference = {difference!r}: choose 'backward' (streaming) or 'central' "
+                             "(needs next_poses)")
+        self.gains = LevelGains.default(binding.n_levels) if gains is None else gains
+        if self.gains.n_levels != binding.n_levels:
+            raise ValueError(f"{self.gains.n_levels} levels of gains for a binding with {binding.n_levels} levels")
+        if bone_names is not None and len(bone_names) != binding.n_bones:
+            raise ValueError(f"{len(bone_names)} bone names for {binding.n_bones} bones")
+        n, nb = rest.shape[0], binding.n_bones
+        for c in list(points) + list(lines):
+            if not 0 <= c.vertex < n:
+                raise ValueError(f"{type(c).__name__} vertex {c.vertex} is outside [0, {n - 1}]")
+            if c.bone is not None and not 0 <= c.bone < nb:
+                raise ValueError(f"{type(c).__name__} on vertex {c.vertex}: bone {c.bone} is outside [0, {nb - 1}]")
+        self.binding = binding
+        self.rest = rest
+        self.kinematic = bool(kinematic)
+        self.difference = difference
+        self.points = tuple(points)
+        self.lines = tuple(lines)
+        self.bone_names = list(bone_names) if bone_names is not None else None
+        order = np.argsort(binding.level + (binding.level < 0) * (binding.n_levels + 1), kind="stable")
+        self.bound = order[binding.level[order] >= 0]            # bound vertices, innermost level first
+        lev = binding.level[self.bound]
+        self._kp = np.asarray(self.gains.kp)[lev]
+        self._kd = np.asarray(self.gains.kd)[lev]
+        self._inner = lev == 0
+        self._twists: list[np.ndarray] = []
+        self._gaps: list[float] = []
+        self._last_dt: float | None = None
+        self.target_u = np.zeros((self.bound.size, 3))          # last bone targets, displacements
+        self.target_v = np.zeros((self.bound.size, 3))
+        self.target_a = np.zeros((self.bound.size, 3))
+
+    def reset(self) -> None:
+        """Forget the twist history (after a jump in the trajectory); the next steps use lower-order differences."""
+        self._twists, self._gaps, self._last_dt = [], [], None
+
+    def _poses(self, poses: PoseLike, what: str):
+        return check_poses(poses, self.binding.n_bones, self.bone_names, what)
+
+    def twist_rate(self, twist: np.ndarray, dt: float, next_twist: np.ndarray | None) -> np.ndarray:
+        """Phi'(t) (nb, 6) from the history and the new twist; appends the new twist to the history."""
+        if self._last_dt is not None:
+            self._twists.append(twist)
+            self._gaps.append(self._last_dt)
+        else:
+            self._twists, self._gaps = [twist], []
+        self._twists, self._gaps = self._twists[-3:], self._gaps[-2:]
+        self._last_dt = dt
+        if self.difference == "central":
+            if next_twist is None:
+                raise ValueError("difference='central' needs next_poses (the bone poses at t + dt); pass them "
+                                 "or use difference='backward'")
+            if len(self._twists) == 1:
+                return (next_twist - twist) / dt
+            return _derivative_central(self._twists[-2], twist, next_twist, self._gaps[-1], dt)
+        return _derivative_backward(self._twists, self._gaps)
+
+    def control(self, poses: PoseLike, dt: float, *, next_poses: PoseLike | None = None,
+                state: State | None = None, f_ext: np.ndarray | None = None) -> Control:
+        """The Control for the step [t, t + dt] given the bone poses at t (and at t + dt for 'central').
+
+        ``state`` (the body's state at t) is needed only by line constraints. Raises ValueError on
+        non-finite poses, naming the bone.
+        """
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt = {dt!r} s must be a positive finite step")
+        R, p, twist = self._poses(poses, "bone poses")
+        next_twist = None
+        if next_poses is not None:
+            next_twist = self._poses(next_poses, "next bone poses")[2]
+        dtwist = self.twist_rate(twist, float(dt), next_twist)
+        b = self.binding
+        x, v, a = rigid_point_motion(R, p, twist, dtwist, b.bone[self.bound], b.local[self.bound])
+        self.target_u = x - self.rest[self.bound]
+        self.target_v, self.target_a = v, a
+
+        att = ~self._inner if self.kinematic else np.ones(self.bound.size, dtype=bool)
+        parts = [(self.bound[att], x[att], v[att], a[att], self._kp[att], self._kd[att])]
+        if self.points:
+            parts.append(point_targets(self.points, self.rest, b.rest_rotation, b.rest_translation,
+                                       R, p, twist, dtwist))
+        if self.lines:
+            if state is None:
+                raise ValueError("line constraints need the body's current state: call control(..., state=state)")
+            parts.append(line_targets(self.lines, self.rest, b.axis_local, b.rest_rotation, b.rest_translation,
+                                      R, p, twist, dtwist, self.rest + state.u, state.v))
+        idx = np.concatenate([q[0] for q in parts])
+        attachments = Attachments(index=idx,
+                                  target_u=np.concatenate([q[1] for q in parts]) - self.rest[idx],
+                                  target_v=np.ascontiguousarray(np.concatenate([q[2] for q in parts])),
+                                  target_a=np.ascontiguousarray(np.concatenate([q[3] for q in parts])),
+                                  kp=np.concatenate([q[4] for q in parts]),
+                                  kd=np.concatenate([q[5] for q in parts]))
+        control = Control(f_ext=f_ext, attachments=attachments)
+        if self.kinematic:
+            control.prescribed_index = self.bound[self._inner]
+            control.prescribed_u = np.ascontiguousarray(self.target_u[self._inner])
+            control.prescribed_v = np.ascontiguousarray(v[self._inner])
+        return control
+
+    def tracking_error(self, state: State) -> np.ndarray:
+        """(L,) max |u - u*| per level [m], against the targets of the last ``control`` call (same time t)."""
+        err = np.linalg.norm(state.u[self.bound] - self.target_u, axis=1)
+        lev = self.binding.level[self.bound]
+        return np.array([err[lev == k].max() if (lev == k).any() else 0.0 for k in range(self.binding.n_levels)])
