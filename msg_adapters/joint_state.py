@@ -1,0 +1,67 @@
+"""sensor_msgs/JointState <-> arrays, and exact CDR bytes for it.
+
+Use `joint_state_cdr` for recording and pre-serialized publishing: rclpy's `serialize_message`
+(Fast DDS) appends 4 uninitialised bytes per empty float64[] that is followed by nothing but other
+empty sequences (e.g. 44 B instead of 36 B for an empty JointState; 60 B instead of 52 B with no
+velocity or effort) and `rosbags` rejects such records ("CDR message size mismatch").
+"""
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import numpy as np
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Header
+
+from msg_adapters._cdr import CdrWriter
+from msg_adapters.time import StampLike, as_ns, ns_to_stamp, split_ns, stamp_to_seconds
+
+
+def _check(names: Sequence[str], positions: np.ndarray, velocities: Optional[np.ndarray]
+           ) -> tuple[list[str], np.ndarray, np.ndarray]:
+    names = [str(n) for n in names]
+    if len(set(names)) != len(names):
+        raise ValueError(f"joint names must be unique, got {names}")
+    q = np.asarray(positions, dtype=np.float64)
+    if q.shape != (len(names),):
+        raise ValueError(f"positions must have shape ({len(names)},) (one per joint name), got {q.shape}")
+    v = np.zeros(0) if velocities is None else np.asarray(velocities, dtype=np.float64)
+    if velocities is not None and v.shape != (len(names),):
+        raise ValueError(f"velocities must be None or have shape ({len(names)},), got {v.shape}")
+    if not (np.isfinite(q).all() and np.isfinite(v).all()):
+        raise ValueError(f"joint positions/velocities must be finite, got {q.tolist()} / {v.tolist()}")
+    return names, q, v
+
+
+def arrays_to_joint_state(names: Sequence[str], positions: np.ndarray,
+                          velocities: Optional[np.ndarray] = None, stamp: StampLike = 0,
+                          frame_id: str = "") -> JointState:
+    """JointState with name/position (and velocity if given); effort left empty."""
+    names, q, v = _check(names, positions, velocities)
+    return JointState(header=Header(stamp=ns_to_stamp(as_ns(stamp)), frame_id=frame_id),
+                      name=names, position=q.tolist(), velocity=v.tolist(), effort=[])
+
+
+def joint_state_to_arrays(msg: JointState) -> tuple[float, list[str], np.ndarray, Optional[np.ndarray]]:
+    """(stamp in seconds, names, positions (n,), velocities (n,) or None if the message has none)."""
+    n = len(msg.name)
+    q = np.asarray(msg.position, dtype=np.float64)
+    if q.shape != (n,):
+        raise ValueError(f"JointState has {n} names but {len(q)} positions")
+    v = np.asarray(msg.velocity, dtype=np.float64)
+    if len(v) not in (0, n):
+        raise ValueError(f"JointState has {n} names but {len(v)} velocities (expected 0 or {n})")
+    return stamp_to_seconds(msg.header.stamp), list(msg.name), q, (v if len(v) else None)
+
+
+def joint_state_cdr(names: Sequence[str], positions: np.ndarray, velocities: Optional[np.ndarray] = None,
+                    stamp: StampLike = 0, frame_id: str = "") -> bytes:
+    """Exact CDR bytes of `arrays_to_joint_state(...)` (what goes on the wire, no garbage tail)."""
+    names, q, v = _check(names, positions, velocities)
+    w = CdrWriter()
+    w.header(*split_ns(as_ns(stamp)), frame_id)
+    w.string_seq(names)
+    w.array_seq(q, "<f8", 8)
+    w.array_seq(v, "<f8", 8)
+    w.u32(0)  # effort
+    return w.getvalue()
