@@ -1,0 +1,181 @@
+"""The scene configuration: every parameter typed, described, range-checked once, at the edge.
+
+The same table serves the ROS node (declared as parameters with descriptors, so rclpy refuses
+out-of-range values itself) and headless runs (``load_scene_file`` reads the ROS 2 parameter YAML).
+A scene says what exists: outputs and features it does not ask for are neither built nor computed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg", "modal")
+BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh")
+SKELETONS = ("builtin", "urdf_file", "robot_description", "none")
+COLORMAPS = ("turbo", "viridis", "coolwarm")
+NODE_NAME = "clusterfem"
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    default: Any
+    description: str
+    lo: float | None = None          # numeric range (inclusive), checked by rclpy and by validate()
+    hi: float | None = None
+    choices: tuple[str, ...] | None = None
+
+
+PARAMS: tuple[Param, ...] = (
+    Param("body.kind", "jelly_man", "soft body: built around the skeleton, a paper shape, or a mesh file", choices=BODIES),
+    Param("body.mesh_file", "", "volume mesh (.msh/.vtu/.vtk/.mesh) when body.kind is 'mesh', in the skeleton's rest pose"),
+    Param("body.target_tets", 4800, "approximate tet count of the jelly man", 100, 400000),
+    Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
+    Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
+    Param("material.young_modulus", 3.0e4, "Young's modulus E [Pa]", 1.0, 1.0e10),
+    Param("material.poisson_ratio", 0.3, "Poisson ratio nu [-]", 0.0, 0.499),
+    Param("material.density", 1000.0, "density [kg/m^3]", 1.0, 1.0e5),
+    Param("material.mass_damping", 2.0, "Rayleigh xi [1/s]: D = xi M + zeta K", 0.0, 1.0e3),
+    Param("material.stiffness_damping", 1.0e-5, "Rayleigh zeta [s]", 0.0, 1.0),
+    Param("method", "clustered", "integrator", choices=METHODS),
+    Param("modal.k", 30, "number of modes for method 'modal'", 1, 2000),
+    Param("warping", True, "stiffness warping (eq. 10): removes the linear model's volume growth under rotation"),
+    Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
+    Param("physics.timer_hz", 100.0, "rate of the physics timer; each tick advances the steps due since the last", 1.0, 2000.0),
+    Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
+    Param("physics.max_substeps", 64, "refuse a step needing more explicit sub-steps than this", 1, 100000),
+    Param("physics.clock", "wall", "'wall': physics follows the ROS clock; 'input': it follows the newest joint-state "
+          "stamp (deterministic replay of a recording)", choices=("wall", "input")),
+    Param("physics.max_catchup_steps", 200, "most steps one timer tick may run when behind; the rest is dropped", 1, 100000),
+    Param("physics.gravity", -9.81, "gravity along world z [m/s^2]", -100.0, 100.0),
+    Param("skeleton.source", "builtin", "skeleton URDF: built-in humanoid, a file, the robot_description topic, or none", choices=SKELETONS),
+    Param("skeleton.urdf_file", "", "URDF path when skeleton.source is 'urdf_file'"),
+    Param("binding.level_radii", [0.035, 0.06], "nested constraint levels: distance to the bone axis [m], increasing"),
+    Param("binding.kp", [4.0e4, 4.0e3], "per-level position gain [1/s^2]"),
+    Param("binding.kd", [400.0, 120.0], "per-level velocity gain [1/s]"),
+    Param("binding.kinematic_core", False, "prescribe the innermost level exactly instead of by forces"),
+    Param("input.max_age", 1.0, "reject joint states older than this relative to the newest [s]", 0.0, 3600.0),
+    Param("input.max_future", 0.5, "reject joint states stamped this far ahead of the clock [s]", 0.0, 3600.0),
+    Param("input.teleport_distance", 0.5, "a root jump larger than this between samples is a teleport [m]", 0.0, 100.0),
+    Param("output.frame_id", "world", "frame of every published message"),
+    Param("output.marker_rate_hz", 30.0, "surface Marker rate (0 = off)", 0.0, 1000.0),
+    Param("output.stress_rate_hz", 10.0, "stress PointCloud2 rate (0 = off)", 0.0, 1000.0),
+    Param("output.diagnostics_rate_hz", 2.0, "DiagnosticArray rate (0 = off)", 0.0, 100.0),
+    Param("output.colormap", "turbo", "colour map of the stress on the surface", choices=COLORMAPS),
+    Param("output.stress_max", 0.0, "von Mises stress mapped to the top colour [Pa]; 0 = E / 20", 0.0, 1.0e12),
+    Param("recording.enabled", False, "record inputs and outputs to an MCAP bag"),
+    Param("recording.dir", "bags", "folder for recordings (a timestamped bag folder is made inside)"),
+    Param("recording.prefix", "clusterfem", "bag folder name prefix"),
+)
+_BY_NAME = {p.name: p for p in PARAMS}
+
+
+class ConfigError(ValueError):
+    """A scene parameter with an invalid value; the message names it, the value and the valid range."""
+
+
+def check_value(name: str, value: Any) -> Any:
+    """Validate one parameter; returns the value coerced to the default's type."""
+    if name not in _BY_NAME:
+        close = [n for n in _BY_NAME if n.split(".")[-1] == name.split(".")[-1]]
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ConfigError(f"unknown scene parameter {name!r}{hint}")
+    p = _BY_NAME[name]
+    d = p.default
+    try:
+        if isinstance(d, bool):
+            if not isinstance(value, bool):
+                raise TypeError
+        elif isinstance(d, int):
+            if isinstance(value, bool) or int(value) != value:
+                raise TypeError
+            value = int(value)
+        elif isinstance(d, float):
+            if isinstance(value, bool):
+                raise TypeError
+            value = float(value)
+        elif isinstance(d, list):
+            value = [float(x) for x in value]
+        elif isinstance(d, str) and not isinstance(value, str):
+            raise TypeError
+    except (TypeError, ValueError):
+        raise ConfigError(f"{name} = {value!r}: expected {type(d).__name__} like {d!r}") from None
+    if p.choices is not None and value not in p.choices:
+        raise ConfigError(f"{name} = {value!r}: choose one of {', '.join(p.choices)}")
+    if p.lo is not None and not (p.lo <= value <= p.hi):
+        raise ConfigError(f"{name} = {value!r} is outside [{p.lo:g}, {p.hi:g}]: {p.description}")
+    if isinstance(d, float) and value != value:
+        raise ConfigError(f"{name} = nan: give a finite number")
+    return value
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    values: dict = field(default_factory=lambda: {p.name: p.default for p in PARAMS})
+
+    def __getitem__(self, name: str) -> Any:
+        return self.values[name]
+
+    def with_values(self, **overrides: Any) -> "SceneConfig":
+        """A copy with parameters replaced; keys use '__' for '.' (body__kind='sphere')."""
+        return from_mapping({**self.values, **{k.replace("__", "."): v for k, v in overrides.items()}})
+
+
+def from_mapping(values: dict[str, Any]) -> SceneConfig:
+    """Validate a flat {name: value} mapping (missing names take their defaults) and cross-check it."""
+    out = {p.name: p.default for p in PARAMS}
+    for name, value in values.items():
+        out[name] = check_value(name, value)
+    radii, kp, kd = out["binding.level_radii"], out["binding.kp"], out["binding.kd"]
+    if not radii or any(b <= a for a, b in zip(radii, radii[1:])) or radii[0] <= 0:
+        raise ConfigError(f"binding.level_radii = {radii}: give positive, strictly increasing radii in metres")
+    if not (len(kp) == len(kd) == len(radii)):
+        raise ConfigError(f"binding.kp ({len(kp)} values) and binding.kd ({len(kd)}) need one value per level "
+                          f"of binding.level_radii ({len(radii)})")
+    if out["body.kind"] == "mesh" and not out["body.mesh_file"]:
+        raise ConfigError("body.kind = 'mesh' needs body.mesh_file: the path of a volume mesh")
+    if out["skeleton.source"] == "urdf_file" and not out["skeleton.urdf_file"]:
+        raise ConfigError("skeleton.source = 'urdf_file' needs skeleton.urdf_file: the path of a URDF")
+    if out["body.kind"] == "jelly_man" and out["skeleton.source"] == "none":
+        raise ConfigError("body.kind = 'jelly_man' is built around a skeleton: set skeleton.source")
+    return SceneConfig(out)
+
+
+def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, name + "."))
+        else:
+            out[name] = v
+    return out
+
+
+def load_scene_file(path: str | Path, node_name: str = NODE_NAME) -> SceneConfig:
+    """Read a ROS 2 parameter YAML (``<node>: ros__parameters: ...``, nested or dotted keys)."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"cannot read scene file {str(path)!r}: {exc}") from exc
+    section = (doc or {}).get(node_name) or (doc or {}).get("/**") or {}
+    params = section.get("ros__parameters")
+    if params is None:
+        raise ConfigError(f"{str(path)!r} has no '{node_name}: ros__parameters:' section")
+    return from_mapping(_flatten(params))
+
+
+def default_scene_path() -> Path:
+    """config/default_scene.yaml from the source tree, or from share/ when installed."""
+    here = Path(__file__).resolve().parent.parent / "config" / "default_scene.yaml"
+    if here.exists():
+        return here
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        return Path(get_package_share_directory("clusterfem_ros")) / "config" / "default_scene.yaml"
+    except Exception:  # not installed through ament either
+        return here
