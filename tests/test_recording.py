@@ -1,0 +1,177 @@
+"""Bags written by Rosbag2McapWriter open in rosbags (with the bag's own schemas), mcap and mcap_ros2."""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rclpy.serialization import serialize_message
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from clusterfem_ros.recording import Rosbag2McapWriter, default_bag_path
+from msg_adapters.colormap import map_scalars
+from msg_adapters.diagnostics import diagnostic_array
+from msg_adapters.joint_state import joint_state_cdr
+from msg_adapters.marker import surface_marker, surface_marker_cdr
+from msg_adapters.pointcloud import stress_cloud_cdr
+
+T0 = 1_700_000_000_000_000_000
+TOPICS = {"/joint_states": ("sensor_msgs/msg/JointState", "sensor_data"),
+          "/surface": ("visualization_msgs/msg/Marker", "reliable"),
+          "/stress": ("sensor_msgs/msg/PointCloud2", "reliable"),
+          "/diagnostics": ("diagnostic_msgs/msg/DiagnosticArray", "reliable"),
+          "/robot_description_dummy": ("std_msgs/msg/String", "transient_local")}
+N_STEPS = 20
+
+
+def read_with_own_schemas(folder: Path) -> tuple[dict[str, list], Reader]:
+    """Every message decoded by rosbags with types registered from the bag's msgdefs only."""
+    store = get_typestore(Stores.EMPTY)
+    out: dict[str, list] = {}
+    with Reader(folder) as reader:
+        for conn in reader.connections:
+            assert conn.msgdef.format.name == "MSG"
+            store.register(get_types_from_msg(conn.msgdef.data, conn.msgtype))
+        for conn, t, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((t, store.deserialize_cdr(raw, conn.msgtype)))
+        return out, reader
+
+
+def write_sample_bag(folder: Path, **kw) -> None:
+    rng = np.random.default_rng(3)
+    v, tri = rng.normal(size=(30, 3)), rng.integers(0, 30, size=(40, 3))
+    with Rosbag2McapWriter(folder, **kw) as w:
+        for topic, (msg_type, qos) in TOPICS.items():
+            w.add_topic(topic, msg_type, qos)
+        for i in range(N_STEPS):
+            t = T0 + i * 10_000_000
+            vel = np.full(3, float(i)) if i % 2 else None  # alternately with and without velocities
+            w.write("/joint_states", t, joint_state_cdr(["a", "b", "c"], np.arange(3.0) + i, vel, t))
+            rgba = map_scalars(rng.random(30), "viridis", 0, 1)
+            cdr = surface_marker_cdr(v + i, tri, rgba, "world", t, "body", 0) if i % 2 else \
+                serialize_message(surface_marker(v + i, tri, rgba, "world", t, "body", 0))
+            w.write("/surface", t + 1, cdr)
+            w.write("/stress", t + 2, stress_cloud_cdr(v, rng.random(30), "world", t, {"s1": rng.random(30)}))
+            w.write("/diagnostics", t + 3, serialize_message(diagnostic_array(t, "clusterfem", "sim", {"step": i})),
+                    publish_time_ns=t)
+        w.write("/robot_description_dummy", T0, b"\x00\x01\x00\x00\x06\x00\x00\x00<urdf\x00")
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("bags") / "sample"
+    write_sample_bag(folder)
+    return folder
+
+
+def test_folder_layout_and_metadata_yaml(bag):
+    assert sorted(p.name for p in bag.iterdir()) == ["metadata.yaml", "sample_0.mcap"]
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert (info["version"], info["storage_identifier"], info["ros_distro"]) == (9, "mcap", "jazzy")
+    assert info["relative_file_paths"] == ["sample_0.mcap"] and info["files"][0]["path"] == "sample_0.mcap"
+    assert info["message_count"] == 4 * N_STEPS + 1
+    assert info["starting_time"]["nanoseconds_since_epoch"] == T0
+    assert info["duration"]["nanoseconds"] == (N_STEPS - 1) * 10_000_000 + 3
+    topics = {t["topic_metadata"]["name"]: t for t in info["topics_with_message_count"]}
+    assert topics["/surface"]["message_count"] == N_STEPS
+    assert re.fullmatch(r"RIHS01_[0-9a-f]{64}", topics["/stress"]["topic_metadata"]["type_description_hash"])
+    qos = topics["/robot_description_dummy"]["topic_metadata"]["offered_qos_profiles"][0]
+    assert (qos["durability"], qos["reliability"]) == ("transient_local", "reliable")
+
+
+def test_rosbags_decodes_every_message_with_the_bags_own_schemas(bag):
+    msgs, reader = read_with_own_schemas(bag)
+    assert {k: len(v) for k, v in msgs.items()} == {"/joint_states": N_STEPS, "/surface": N_STEPS, "/stress": N_STEPS,
+                                                    "/diagnostics": N_STEPS, "/robot_description_dummy": 1}
+    for i, (t, js) in enumerate(msgs["/joint_states"]):
+        assert t == T0 + i * 10_000_000 and list(js.name) == ["a", "b", "c"]
+        np.testing.assert_array_equal(js.position, np.arange(3.0) + i)
+        assert len(js.velocity) == (3 if i % 2 else 0)
+    marker = msgs["/surface"][-1][1]
+    assert marker.type == 11 and len(marker.points) == 120 and len(marker.colors) == 120
+    cloud = msgs["/stress"][0][1]
+    assert [f.name for f in cloud.fields] == ["x", "y", "z", "von_mises", "s1"] and cloud.width == 30
+    assert msgs["/diagnostics"][5][1].status[0].values[0].value == "5"
+    assert msgs["/robot_description_dummy"][0][1].data == "<urdf"
+
+
+def test_mcap_reader_sees_summary_statistics_chunk_indexes_and_rosbag2_metadata(bag):
+    with open(bag / "sample_0.mcap", "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_header().profile == "ros2"
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics.message_count == 4 * N_STEPS + 1
+        assert summary.statistics.channel_count == len(TOPICS) and len(summary.chunk_indexes) >= 1
+        assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
+        assert {s.name: s.encoding for s in summary.schemas.values()}["sensor_msgs/msg/JointState"] == "ros2msg"
+        marker_schema = next(s for s in summary.schemas.values() if s.name == "visualization_msgs/msg/Marker")
+        text = marker_schema.data.decode()
+        assert text.count("=" * 80 + "\nMSG: std_msgs/Header\n") == 1 and "MSG: visualization_msgs/MeshFile" in text
+        for ch in summary.channels.values():
+            assert ch.message_encoding == "cdr" and set(ch.metadata) == {"offered_qos_profiles", "topic_type_hash"}
+        meta = list(reader.iter_metadata())
+        assert [m.name for m in meta] == ["rosbag2"]
+        assert yaml.safe_load(meta[0].metadata["serialized_metadata"])["message_count"] == 4 * N_STEPS + 1
+    with open(bag / "sample_0.mcap", "rb") as f:  # mcap_ros2's own decoder accepts the schemas too
+        n = sum(1 for _ in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages())
+    assert n == 4 * N_STEPS + 1
+
+
+@pytest.mark.parametrize("compression", ["lz4", "none"])
+def test_other_chunk_compressions_open_in_rosbags(tmp_path, compression):
+    write_sample_bag(tmp_path / "c", compression=compression, chunk_size=4096)
+    msgs, _ = read_with_own_schemas(tmp_path / "c")
+    assert sum(len(v) for v in msgs.values()) == 4 * N_STEPS + 1
+
+
+def test_writer_api_errors_and_idempotent_close(tmp_path):
+    w = Rosbag2McapWriter(tmp_path / "b")
+    assert w.add_topic("/js", "sensor_msgs/JointState") == w.add_topic("/js", "sensor_msgs/msg/JointState")
+    with pytest.raises(ValueError, match="already added"):
+        w.add_topic("/js", "std_msgs/msg/String")
+    with pytest.raises(ValueError, match="add_topic"):
+        w.write("/nope", T0, b"\x00\x01\x00\x00")
+    with pytest.raises(ValueError, match="not CDR"):
+        w.write("/js", T0, b"hello")
+    with pytest.raises(ValueError, match="qos|QoS"):
+        w.add_topic("/x", "std_msgs/msg/String", qos="fast")
+    with pytest.raises(FileNotFoundError, match="no nope_msgs/msg/Foo.msg"):
+        w.add_topic("/y", "nope_msgs/msg/Foo")
+    assert w.close() is True and w.close() is True and w.closed
+    with pytest.raises(RuntimeError, match="closed"):
+        w.write("/js", T0, joint_state_cdr([], np.zeros(0)))
+    with pytest.raises(FileExistsError, match="not empty"):
+        Rosbag2McapWriter(tmp_path / "b")
+    _, reader = read_with_own_schemas(tmp_path / "b")  # an empty bag still opens
+
+
+def test_close_from_a_handler_interrupting_write_is_deferred_not_deadlocked(tmp_path):
+    """What a SIGTERM handler calling close() during write() does (same thread, lock already held)."""
+    w = Rosbag2McapWriter(tmp_path / "b")
+    w.add_topic("/js", "sensor_msgs/msg/JointState")
+    real_add, results = w._mcap.add_message, []
+
+    def add_then_signal(**kw):
+        real_add(**kw)
+        results.append(w.close())  # as if the signal arrived right here
+
+    w._mcap.add_message = add_then_signal
+    w.write("/js", T0, joint_state_cdr(["a"], np.ones(1)))
+    assert results == [False] and w.closed
+    msgs, _ = read_with_own_schemas(tmp_path / "b")
+    assert len(msgs["/js"]) == 1
+
+
+def test_default_bag_path(tmp_path):
+    p = default_bag_path("clusterfem", root=tmp_path)
+    assert p.parent == tmp_path and re.fullmatch(r"clusterfem_\d{8}_\d{6}", p.name)
+    p.mkdir()
+    q = default_bag_path("clusterfem", root=tmp_path)
+    assert q != p and not q.exists()  # same second: p.name + "_1"; else a later timestamp
+    with pytest.raises(ValueError, match="prefix"):
+        default_bag_path("a/b")
