@@ -1,0 +1,190 @@
+"""Constraint targets (eqs. 7-9): kinematic consistency, the finite-difference order, point and line
+constraints, the kinematic mode, and bad input."""
+import numpy as np
+import pytest
+
+from clusterfem_ros.body import (LevelGains, LineConstraint, PointConstraint, SkeletonDriver, bind_to_skeleton,
+                                 rigid_point_motion)
+from clusterfem_ros.fem.integrators import make_integrator
+from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.model import State, build_model
+from tests.test_body_support import LEVELS, ChainSkeleton, Motion, box_body
+
+SK = ChainSkeleton()
+MESH = box_body()
+
+
+def _binding():
+    q, v = Motion().qv(0.0)
+    s, e = SK.bone_segments(q)
+    P = SK.forward(q, v)
+    return bind_to_skeleton(MESH.vertices, s, e, LEVELS, rest_rotation=P.rotation, rest_translation=P.translation)
+
+
+BINDING = _binding()
+
+
+def _spin(omega: float) -> Motion:
+    """Joint j1 (at x = 0.2) turning at constant omega; the root and j2 still."""
+    return Motion(theta=lambda t: np.array([omega * t, 0.0]), dtheta=lambda t: np.array([omega, 0.0]))
+
+
+def _drive(driver, motion, t, h, steps_before=2, central=False):
+    """Feed the driver the poses at t - k h, ..., t; return the last control."""
+    for k in range(steps_before, -1, -1):
+        tk = t - k * h
+        nxt = SK.forward(*motion.qv(tk + h)) if central else None
+        c = driver.control(SK.forward(*motion.qv(tk)), h, next_poses=nxt)
+    return c
+
+
+@pytest.mark.parametrize("difference", ["backward", "central"])
+def test_target_acceleration_is_centripetal_to_second_order(difference):
+    """b2's origin circles j1, so its twist changes although omega is constant: the differenced Phi plus
+    the centripetal term must give omega x (omega x (x - j1)) with an O(h^2) error."""
+    omega, t = 6.0, 0.37
+    x = SK.forward(*_spin(omega).qv(t))
+    on_b2 = np.flatnonzero(BINDING.bone == 2)
+    errs, hs = [], np.array([4e-3, 2e-3, 1e-3, 5e-4])
+    for h in hs:
+        drv = SkeletonDriver(BINDING, MESH.vertices, difference=difference)
+        _drive(drv, _spin(omega), t, h, central=difference == "central")
+        sel = np.isin(drv.bound, on_b2)
+        xw = MESH.vertices[drv.bound[sel]] + drv.target_u[sel]
+        w = np.array([0.0, 0.0, omega])
+        exact = np.cross(w, np.cross(w, xw - x.translation[1]))
+        errs.append(np.abs(drv.target_a[sel] - exact).max() / np.abs(exact).max())
+    rate = np.polyfit(np.log(hs), np.log(errs), 1)[0]
+    print(f"{difference}: relative acceleration error {errs} for h = {hs}; observed order {rate:.2f}")
+    assert rate == pytest.approx(2.0, abs=0.15)
+    assert errs[2] < 1e-3
+
+
+def test_printed_eq9_with_1_over_h_would_double_the_tangential_acceleration():
+    """The root turning with uniform angular acceleration alpha about its origin: the central (2h) difference
+    gives alpha x r + omega x (omega x r) exactly; the printed 1/h form adds a second alpha x r."""
+    alpha, t, h = 3.0, 0.5, 1e-3
+    m = Motion(phi=lambda t: 0.5 * alpha * t * t, dphi=lambda t: alpha * t)
+    drv = SkeletonDriver(BINDING, MESH.vertices, difference="central")
+    _drive(drv, m, t, h, central=True)
+    P = SK.forward(*m.qv(t))
+    on_b0 = BINDING.bone[drv.bound] == 0
+    r = MESH.vertices[drv.bound] + drv.target_u - P.translation[0]
+    w = np.array([0, 0, alpha * t])
+    tangential = np.cross([0, 0, alpha], r)
+    exact = tangential + np.cross(w, np.cross(w, r))
+    scale = np.abs(exact[on_b0]).max()
+    np.testing.assert_allclose(drv.target_a[on_b0], exact[on_b0], atol=1e-9 * scale)
+    tw = [SK.forward(*m.qv(tk)).twist for tk in (t - h, t + h)]
+    bone, local = BINDING.bone[drv.bound], BINDING.local[drv.bound]
+    a_printed = rigid_point_motion(P.rotation, P.translation, P.twist, (tw[1] - tw[0]) / h, bone, local)[2]
+    np.testing.assert_allclose(a_printed[on_b0] - exact[on_b0], tangential[on_b0], atol=1e-9 * scale)
+
+
+def test_target_velocity_is_the_time_derivative_of_the_target_position():
+    m = Motion(T=lambda t: np.array([0.2 * t, np.sin(t), 0]), dT=lambda t: np.array([0.2, np.cos(t), 0]),
+               phi=lambda t: 0.8 * t, dphi=lambda t: 0.8, axis=(0.6, 0.0, 0.8),
+               theta=lambda t: np.array([np.sin(3 * t), 0.4 * t]), dtheta=lambda t: np.array([3 * np.cos(3 * t), 0.4]))
+    t, e = 0.6, 1e-6
+    drv = SkeletonDriver(BINDING, MESH.vertices)
+    u = []
+    for tk in (t - e, t + e, t):
+        drv.reset()
+        drv.control(SK.forward(*m.qv(tk)), 1e-3)
+        u.append(drv.target_u.copy())
+    np.testing.assert_allclose(drv.target_v, (u[1] - u[0]) / (2 * e), atol=1e-7)
+
+
+def test_nan_bone_pose_is_refused_naming_the_bone():
+    drv = SkeletonDriver(BINDING, MESH.vertices, bone_names=SK.bone_names)
+    P = SK.forward(*Motion().qv(0.0))
+    P.translation[1, 2] = np.nan
+    with pytest.raises(ValueError, match=r"translation of b1 \(index 1\) is not finite"):
+        drv.control(P, 1e-3)
+    P = SK.forward(*Motion().qv(0.0))
+    P.twist[2, 0] = np.inf
+    with pytest.raises(ValueError, match=r"twist of b2"):
+        drv.control(P, 1e-3)
+    with pytest.raises(ValueError, match="rotation has shape"):
+        drv.control(type(P)(rotation=P.rotation[:2], translation=P.translation, twist=P.twist), 1e-3)
+    with pytest.raises(ValueError, match="dt = 0"):
+        drv.control(SK.forward(*Motion().qv(0.0)), 0)
+
+
+def test_central_difference_needs_the_next_poses():
+    drv = SkeletonDriver(BINDING, MESH.vertices, difference="central")
+    with pytest.raises(ValueError, match="next_poses"):
+        drv.control(SK.forward(*Motion().qv(0.0)), 1e-3)
+
+
+def test_control_layout_gains_and_kinematic_mode():
+    gains = LevelGains((9e4, 1e4), (600.0, 200.0))
+    P = SK.forward(*_spin(2.0).qv(0.1))
+    c = SkeletonDriver(BINDING, MESH.vertices, gains).control(P, 1e-3)
+    a = c.attachments
+    assert sorted(a.index) == sorted(BINDING.bound) and c.prescribed_index.size == 0
+    lev = BINDING.level[a.index]
+    np.testing.assert_array_equal(a.kp, np.where(lev == 0, 9e4, 1e4))
+    np.testing.assert_array_equal(a.kd, np.where(lev == 0, 600.0, 200.0))
+    k = SkeletonDriver(BINDING, MESH.vertices, gains, kinematic=True).control(P, 1e-3)
+    assert set(k.prescribed_index) == set(BINDING.level_set(0))
+    assert set(k.attachments.index) == set(np.flatnonzero(BINDING.level == 1))
+    pos = dict(zip(a.index, a.target_u))
+    np.testing.assert_array_equal(k.prescribed_u, [pos[i] for i in k.prescribed_index])
+    with pytest.raises(ValueError, match="1 levels of gains for a binding with 2 levels"):
+        SkeletonDriver(BINDING, MESH.vertices, LevelGains.default(1))
+
+
+def test_point_on_bone_matches_the_bone_target():
+    i = int(BINDING.bound[5])
+    drv = SkeletonDriver(BINDING, MESH.vertices, points=[PointConstraint(i, bone=int(BINDING.bone[i]))])
+    a = _drive(drv, _spin(3.0), 0.2, 1e-3).attachments
+    rows = np.flatnonzero(a.index == i)
+    assert rows.size == 2
+    for name in ("target_u", "target_v", "target_a"):
+        np.testing.assert_allclose(getattr(a, name)[rows[0]], getattr(a, name)[rows[1]], atol=1e-12)
+    with pytest.raises(ValueError, match="exactly one of bone= .* or world="):
+        PointConstraint(3)
+
+
+def _model(gravity, E=5e4, xi=1.0):
+    return build_model(MESH, Material(E=E, nu=0.3, rho=1000.0, xi=xi, zeta=1e-3), gravity=gravity)
+
+
+def test_world_point_constraints_hold_the_end_faces_of_a_sagging_beam():
+    """A soft beam held by its end faces: they stay put up to about the reaction load / kp."""
+    model = _model((0.0, 0.0, -9.81), E=5e5)
+    ends = np.flatnonzero(np.isclose(MESH.vertices[:, 0], -0.03) | np.isclose(MESH.vertices[:, 0], 0.63))
+    P = SK.forward(*Motion().qv(0.0))
+    errs = []
+    for kp in (1e5, 4e5):
+        pts = [PointConstraint(int(i), world=tuple(MESH.vertices[i]), kp=kp, kd=2 * np.sqrt(kp)) for i in ends]
+        drv = SkeletonDriver(BINDING, MESH.vertices, LevelGains((0.0, 0.0), (0.0, 0.0)), points=pts)
+        integ, state = make_integrator("clustered", model), State.rest(model)
+        for _ in range(400):
+            integ.step(state, drv.control(P, 1e-3), 1e-3)
+        sag = -state.u[:, 2].min()
+        errs.append(np.abs(state.u[ends]).max())
+        print(f"kp {kp:.0e}: beam sag {sag * 1e3:.1f} mm, held faces moved {errs[-1] * 1e3:.3f} mm")
+    assert sag > 0.01 and errs[-1] < 0.2 * sag
+    assert errs[0] / errs[1] > 2.0       # not 4: the softer hold also lets the beam sag more (a larger load)
+
+
+def test_line_constraint_lets_the_body_slide_along_the_bone_only():
+    """Gravity along the bone (x) and across it (z): line-constrained axis vertices slide freely in x and hold in z."""
+    g = np.array([-3.0, 0.0, -9.81])
+    model = _model(tuple(g), xi=0.0)         # no mass damping: it would brake the slide
+    axis = np.flatnonzero(np.hypot(MESH.vertices[:, 1], MESH.vertices[:, 2]) < 1e-9)
+    lines = [LineConstraint(int(i), bone=int(BINDING.bone[i]), kp=4e4, kd=400.0) for i in axis]
+    drv = SkeletonDriver(BINDING, MESH.vertices, LevelGains((0.0, 0.0), (0.0, 0.0)), lines=lines)
+    integ, state, P = make_integrator("clustered", model), State.rest(model), SK.forward(*Motion().qv(0.0))
+    T = 0.3
+    for _ in range(int(round(T / 1e-3))):
+        integ.step(state, drv.control(P, 1e-3, state=state), 1e-3)
+    ux = state.u[axis, 0].mean()
+    perp = np.abs(state.u[axis, 1:]).max()
+    print(f"axial slide {ux * 1e3:.2f} mm (free fall {0.5 * g[0] * T * T * 1e3:.2f} mm), off-axis {perp * 1e3:.3f} mm")
+    assert ux == pytest.approx(0.5 * g[0] * T * T, rel=0.02)
+    assert perp < 0.05 * abs(ux)
+    with pytest.raises(ValueError, match="need the body's current state"):
+        drv.control(P, 1e-3)
