@@ -163,6 +163,17 @@ class SkeletonDriver:
             control.prescribed_v = np.ascontiguousarray(v[self._inner])
         return control
 
+    def rigid_state(self, poses: PoseLike, t: float = 0.0) -> State:
+        """Every vertex (bound or free) carried rigidly by its nearest bone: a start without a jump.
+
+        Starting a moving skeleton from ``State.rest`` yanks the bound vertices at the first step; start
+        from this state instead (u = R c + p - X, v = omega x (x - p) + v for each vertex's bone).
+        """
+        R, p, twist = self._poses(poses, "bone poses")
+        b = self.binding
+        x, v, _ = rigid_point_motion(R, p, twist, np.zeros_like(twist), b.bone, b.local)
+        return State(x - self.rest, v, float(t))
+
     def tracking_error(self, state: State) -> np.ndarray:
         """(L,) max |u - u*| per level [m], against the targets of the last ``control`` call (same time t)."""
         err = np.linalg.norm(state.u[self.bound] - self.target_u, axis=1)
