@@ -4,19 +4,23 @@ Layout written: `<folder>/<name>_0.mcap` + `<folder>/metadata.yaml`, as `ros2 ba
 profile `ros2`, zstd-compressed chunks, schemas `pkg/msg/Type` in `ros2msg` encoding, channels
 `cdr` with `offered_qos_profiles` and `topic_type_hash`, Statistics, a `rosbag2` metadata record.
 
-Durability: the open chunk is closed, written, flushed and fsync'ed at least every
-`flush_interval_s` (by a background thread, also when no message arrives) and whenever the MCAP
-writer closes a chunk on size; metadata.yaml is rewritten then too. After SIGKILL the file holds
-every chunk up to the last flush but no summary/footer: `recover_bag()` makes it whole.
+Threads: `write()` validates and appends to a lock-free deque; one I/O thread owns the MCAP writer
+and the file (compression, writes and fsync never run on the caller's thread). Python runs signal
+handlers only on the main thread, so a handler that raises (SystemExit, KeyboardInterrupt) can
+interrupt `write()` but never the MCAP internals: the bag stays consistent.
 
-Signals: `close()` may be called from a signal handler. The lock is re-entrant, so a handler that
-interrupts `write()` on the same thread cannot deadlock; in that case the close is deferred and done
-as soon as the interrupted call returns (or unwinds), and `close()` returns False. A lock held by the
-flusher thread is released within one chunk write + fsync.
+Durability: the I/O thread closes the open chunk, writes, flushes and fsyncs it at least every
+`flush_interval_s` (and whenever a chunk fills up), then rewrites metadata.yaml. After SIGKILL the
+file holds every chunk up to the last flush, without summary/footer: `recover_bag()` completes it.
+
+Signals: `close()` takes no lock the caller could already hold; it asks the I/O thread to finish
+(summary, footer, metadata.yaml) and joins it, so it is safe in a SIGTERM/SIGINT handler (also
+when the handler interrupted `write()` or another `close()`).
 """
 from __future__ import annotations
 
 import atexit
+import collections
 import os
 import threading
 import time
@@ -26,14 +30,16 @@ from typing import Optional, Union
 
 from mcap.writer import CompressionType, IndexType, Writer
 
-from clusterfem_ros.recording.bag_metadata import (METADATA_FILE, BagInfo, TopicInfo, bag_information,
-                                                   dump_yaml, write_metadata_yaml)
+from clusterfem_ros.recording.bag_metadata import BagInfo, TopicInfo, bag_information, dump_yaml, write_metadata_yaml
 from clusterfem_ros.recording.msgdef import message_definition, normalize_type, type_hash
 from clusterfem_ros.recording.qos import qos_profile, qos_yaml
 
 CHUNK_SIZE = 768 * 1024  # bytes of uncompressed records per chunk (rosbag2's mcap default)
 FLUSH_INTERVAL_S = 0.5
+MAX_PENDING = 10_000  # queued messages before write() waits for the I/O thread
+_IDLE_SLEEP_S = 0.002
 _CDR_HEADERS = (b"\x00\x01", b"\x00\x00")  # CDR little endian / big endian
+_COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 
 
 def default_bag_path(prefix: str, root: Path = Path("bags")) -> Path:
@@ -60,41 +66,35 @@ class Rosbag2McapWriter:
                                   f"(e.g. default_bag_path(prefix))")
         if flush_interval_s <= 0:
             raise ValueError(f"flush_interval_s {flush_interval_s} must be > 0")
-        kinds = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-        if compression not in kinds:
-            raise ValueError(f"compression {compression!r}: choose one of {list(kinds)}")
+        if compression not in _COMPRESSIONS:
+            raise ValueError(f"compression {compression!r}: choose one of {list(_COMPRESSIONS)}")
         self.folder.mkdir(parents=True, exist_ok=True)
-        name = storage_name or self.folder.name
-        self.path = self.folder / f"{name}_0.mcap"
-        self._info = BagInfo(storage_file=self.path.name)
-        self._topics: dict[str, tuple[int, TopicInfo]] = {}
+        self.path = self.folder / f"{storage_name or self.folder.name}_0.mcap"
+        self._flush_interval = flush_interval_s
+        # caller side (any thread): topic table, the queue, flags
+        self._topics: dict[str, tuple[int, str]] = {}  # name -> (channel id, msg type)
         self._schemas: dict[str, int] = {}
-        self._sequence: dict[int, int] = {}
-        self._lock = threading.RLock()
-        self._depth = 0  # nesting of public calls on the thread holding the lock
-        self._close_pending = False
-        self._closing = False
-        self._closed = False
-        self._dirty = False  # messages since the last flush
+        self._ops: collections.deque[tuple] = collections.deque()
+        self._topic_lock = threading.Lock()  # add_topic only; never taken by write()/close()
+        self._close_requested = False
+        self._error: Optional[BaseException] = None
+        # I/O thread side
+        self._info = BagInfo(storage_file=self.path.name)
         self._file = open(self.path, "xb")
-        self._mcap = Writer(self._file, chunk_size=chunk_size, compression=kinds[compression],
+        self._mcap = Writer(self._file, chunk_size=chunk_size, compression=_COMPRESSIONS[compression],
                             index_types=IndexType.ALL, use_chunking=True, use_statistics=True,
                             use_summary_offsets=True, enable_crcs=True)
         self._mcap.start(profile="ros2", library="clusterfem_ros.recording")
         self._sync()
         write_metadata_yaml(self.folder, self._info)
-        self._flushed_at = time.monotonic()
-        self._stop = threading.Event()
-        self._flusher = threading.Thread(target=self._flush_loop, args=(flush_interval_s,),
-                                         name=f"bag-flush:{self.folder.name}", daemon=True)
-        self._flush_interval = flush_interval_s
-        self._flusher.start()
+        self._thread = threading.Thread(target=self._run, name=f"bag-io:{self.folder.name}", daemon=True)
+        self._thread.start()
         atexit.register(self.close)  # a forgotten close() still ends in a complete bag at normal exit
 
-    # -- public API ---------------------------------------------------------------------------
+    # -- public API (caller threads) ----------------------------------------------------------
     @property
     def closed(self) -> bool:
-        return self._closed
+        return self._close_requested and not self._thread.is_alive()
 
     def add_topic(self, name: str, msg_type: str, qos: str = "reliable") -> int:
         """Register a topic (once; again with the same type returns the same channel id)."""
@@ -102,61 +102,43 @@ class Rosbag2McapWriter:
         return self._add_channel(name, full, message_definition(full), [qos_profile(qos)], type_hash(full))
 
     def write(self, topic: str, log_time_ns: int, cdr_bytes: bytes, publish_time_ns: Optional[int] = None) -> None:
-        """Append one CDR-serialized message (log time = receive time, ns since the epoch)."""
-        with self._lock:
-            self._depth += 1
-            try:
-                self._check_open()
-                if topic not in self._topics:
-                    raise ValueError(f"topic {topic!r} was not added: call add_topic({topic!r}, msg_type) first "
-                                     f"(known: {sorted(self._topics)})")
-                if not isinstance(cdr_bytes, (bytes, bytearray, memoryview)) or bytes(cdr_bytes[:2]) not in _CDR_HEADERS:
-                    raise ValueError(f"message for {topic!r} is not CDR bytes (first bytes {bytes(cdr_bytes[:4])!r}, "
-                                     "expected b'\\x00\\x01\\x00\\x00'): pass serialize_message(msg) or a *_cdr() result")
-                log_time_ns = int(log_time_ns)
-                if log_time_ns < 0:
-                    raise ValueError(f"log time {log_time_ns} ns is negative")
-                channel, info = self._topics[topic]
-                seq = self._sequence[channel]
-                self._sequence[channel] = seq + 1
-                before = self._file.tell()
-                self._mcap.add_message(channel_id=channel, log_time=log_time_ns, data=bytes(cdr_bytes),
-                                       publish_time=log_time_ns if publish_time_ns is None else int(publish_time_ns),
-                                       sequence=seq)
-                info.count += 1
-                i = self._info
-                i.start_ns = log_time_ns if i.message_count == 1 else min(i.start_ns, log_time_ns)
-                i.end_ns = max(i.end_ns, log_time_ns)
-                self._dirty = True
-                if self._file.tell() != before:  # the mcap writer closed a chunk on size
-                    self._flush_locked(finalize=False)
-            finally:
-                self._exit()
+        """Queue one CDR-serialized message (log time = receive time, ns since the epoch)."""
+        self._check_open()
+        entry = self._topics.get(topic)
+        if entry is None:
+            raise ValueError(f"topic {topic!r} was not added: call add_topic({topic!r}, msg_type) first "
+                             f"(known: {sorted(self._topics)})")
+        if not isinstance(cdr_bytes, (bytes, bytearray, memoryview)) or bytes(cdr_bytes[:2]) not in _CDR_HEADERS:
+            raise ValueError(f"message for {topic!r} is not CDR bytes (first bytes {bytes(cdr_bytes[:4])!r}, "
+                             "expected b'\\x00\\x01\\x00\\x00'): pass serialize_message(msg) or a *_cdr() result")
+        log_time_ns = int(log_time_ns)
+        if log_time_ns < 0:
+            raise ValueError(f"log time {log_time_ns} ns is negative")
+        publish = log_time_ns if publish_time_ns is None else int(publish_time_ns)
+        while len(self._ops) > MAX_PENDING and self._thread.is_alive():  # back-pressure, no lock
+            time.sleep(_IDLE_SLEEP_S)
+        self._ops.append(("msg", entry[0], topic, log_time_ns, publish, bytes(cdr_bytes)))
 
-    def flush(self) -> None:
-        """Close the open chunk and make everything written so far durable (fsync)."""
-        with self._lock:
-            self._depth += 1
-            try:
-                self._check_open()
-                self._flush_locked(finalize=True)
-            finally:
-                self._exit()
+    def flush(self, timeout_s: float = 10.0) -> None:
+        """Block until everything queued so far is written, in a closed chunk, and fsync'ed."""
+        self._check_open()
+        done = threading.Event()
+        self._ops.append(("flush", done))
+        if not done.wait(timeout_s):
+            self._check_open()
+            raise TimeoutError(f"bag {self.folder}: flush not done after {timeout_s} s")
 
-    def close(self) -> bool:
-        """Finish the file (summary, footer) and write the final metadata.yaml. Idempotent.
-
-        Returns True once the bag is closed; False if the close was deferred because the call
-        interrupted a `write()` of this thread (signal handler): it completes when that call returns."""
-        with self._lock:
-            if self._closed or self._closing:
-                return self._closed
-            if self._depth > 0:
-                self._close_pending = True
-                return False
-            self._close_locked()
-        self._stop_flusher()
-        return True
+    def close(self, timeout_s: float = 30.0) -> bool:
+        """Write everything queued, the summary, the footer and the final metadata.yaml. Idempotent.
+        Returns True when the bag is closed (False only if the I/O thread did not finish in time)."""
+        self._close_requested = True
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout_s)
+        atexit.unregister(self.close)
+        if self._error is not None and not isinstance(self._error, _Reported):
+            err, self._error = self._error, _Reported()
+            raise RuntimeError(f"bag {self.folder}: the I/O thread failed: {err!r}") from err
+        return not self._thread.is_alive()
 
     def __enter__(self) -> "Rosbag2McapWriter":
         return self
@@ -167,78 +149,93 @@ class Rosbag2McapWriter:
     # -- internals ----------------------------------------------------------------------------
     def _add_channel(self, name: str, msg_type: str, schema_text: str, qos_profiles: list[dict],
                      topic_hash: str) -> int:
-        with self._lock:
-            self._depth += 1
-            try:
-                self._check_open()
-                if not name.startswith("/"):
-                    raise ValueError(f"topic name {name!r} must be absolute (start with '/'), as rosbag2 records it")
-                if name in self._topics:
-                    channel, info = self._topics[name]
-                    if info.msg_type != msg_type:
-                        raise ValueError(f"topic {name!r} already added with type {info.msg_type}, not {msg_type}")
-                    return channel
-                if msg_type not in self._schemas:
-                    self._schemas[msg_type] = self._mcap.register_schema(
-                        name=msg_type, encoding="ros2msg", data=schema_text.encode("utf-8"))
-                channel = self._mcap.register_channel(
-                    topic=name, message_encoding="cdr", schema_id=self._schemas[msg_type],
-                    metadata={"offered_qos_profiles": qos_yaml(qos_profiles), "topic_type_hash": topic_hash})
-                info = TopicInfo(name, msg_type, qos_profiles, topic_hash)
-                self._topics[name] = (channel, info)
-                self._sequence[channel] = 0
-                self._info.topics.append(info)
-                write_metadata_yaml(self.folder, self._info)
+        self._check_open()
+        if not name.startswith("/"):
+            raise ValueError(f"topic name {name!r} must be absolute (start with '/'), as rosbag2 records it")
+        with self._topic_lock:
+            if name in self._topics:
+                channel, known = self._topics[name]
+                if known != msg_type:
+                    raise ValueError(f"topic {name!r} already added with type {known}, not {msg_type}")
                 return channel
-            finally:
-                self._exit()
-
-    def _exit(self) -> None:
-        self._depth -= 1
-        if self._depth == 0 and self._close_pending and not self._closed:
-            self._close_pending = False
-            self._close_locked()
+            if msg_type not in self._schemas:  # ids as the mcap Writer assigns them: 1, 2, ...
+                self._schemas[msg_type] = len(self._schemas) + 1
+                self._ops.append(("schema", self._schemas[msg_type], msg_type, schema_text))
+            channel = len(self._topics) + 1
+            self._ops.append(("channel", channel, name, self._schemas[msg_type],
+                              TopicInfo(name, msg_type, qos_profiles, topic_hash)))
+            self._topics[name] = (channel, msg_type)
+            return channel
 
     def _check_open(self) -> None:
-        if self._closed or self._closing:
-            raise RuntimeError(f"bag {self.folder} is closed (perhaps by a shutdown handler): stop writing to it")
+        if self._close_requested or not self._thread.is_alive():
+            why = f" (I/O error: {self._error!r})" if self._error and not isinstance(self._error, _Reported) else ""
+            raise RuntimeError(f"bag {self.folder} is closed{why} (perhaps by a shutdown handler): stop writing to it")
+
+    # -- I/O thread -----------------------------------------------------------------------------
+    def _run(self) -> None:
+        infos: dict[str, TopicInfo] = {}
+        dirty, flushed_at = False, time.monotonic()
+        try:
+            while True:
+                closing = self._close_requested  # read before draining: nothing queued before close is lost
+                while self._ops:
+                    op = self._ops.popleft()
+                    if op[0] == "msg":
+                        _, channel, topic, log_ns, pub_ns, data = op
+                        info = infos[topic]
+                        self._mcap.add_message(channel_id=channel, log_time=log_ns, data=data,
+                                               publish_time=pub_ns, sequence=info.count)
+                        info.count += 1
+                        i = self._info
+                        i.start_ns = log_ns if i.message_count == 1 else min(i.start_ns, log_ns)
+                        i.end_ns = max(i.end_ns, log_ns)
+                        dirty = True
+                    elif op[0] == "schema":
+                        got = self._mcap.register_schema(name=op[2], encoding="ros2msg", data=op[3].encode("utf-8"))
+                        assert got == op[1], f"schema id {got} != {op[1]}"
+                    elif op[0] == "channel":
+                        _, channel, topic, schema_id, info = op
+                        got = self._mcap.register_channel(
+                            topic=topic, message_encoding="cdr", schema_id=schema_id,
+                            metadata={"offered_qos_profiles": qos_yaml(info.qos_profiles),
+                                      "topic_type_hash": info.type_hash})
+                        assert got == channel, f"channel id {got} != {channel}"
+                        infos[topic] = info
+                        self._info.topics.append(info)
+                        write_metadata_yaml(self.folder, self._info)
+                    elif op[0] == "flush":
+                        self._flush_chunk()
+                        dirty, flushed_at = False, time.monotonic()
+                        op[1].set()
+                if closing:
+                    break
+                if dirty and time.monotonic() - flushed_at >= self._flush_interval:
+                    self._flush_chunk()
+                    dirty, flushed_at = False, time.monotonic()
+                time.sleep(_IDLE_SLEEP_S)
+            self._finish()
+        except BaseException as exc:  # keep the error for the caller; the file is left for recover_bag
+            self._error = exc
+            self._close_requested = True
 
     def _sync(self) -> None:
         self._file.flush()
         os.fsync(self._file.fileno())
 
-    def _flush_locked(self, finalize: bool) -> None:
-        if finalize and self._dirty:
-            self._mcap.flush()  # closes the open chunk and writes it
+    def _flush_chunk(self) -> None:
+        self._mcap.flush()  # closes the open chunk and writes it
         self._sync()
-        self._dirty = False if finalize else self._dirty
-        self._flushed_at = time.monotonic()
         write_metadata_yaml(self.folder, self._info)
 
-    def _flush_loop(self, interval: float) -> None:
-        while not self._stop.wait(interval / 2):
-            with self._lock:
-                if self._closed or self._closing:
-                    return
-                if self._dirty and time.monotonic() - self._flushed_at >= interval:
-                    self._flush_locked(finalize=True)
+    def _finish(self) -> None:
+        self._mcap.flush()  # last chunk, then the metadata record, then the summary
+        self._mcap.add_metadata("rosbag2", {"serialized_metadata": dump_yaml(bag_information(self._info)).strip()})
+        self._mcap.finish()
+        self._sync()
+        self._file.close()
+        write_metadata_yaml(self.folder, self._info)
 
-    def _close_locked(self) -> None:
-        self._closing = True
-        try:
-            self._mcap.flush()  # last chunk first, then the metadata record, then the summary
-            self._mcap.add_metadata("rosbag2", {"serialized_metadata": dump_yaml(bag_information(self._info)).strip()})
-            self._mcap.finish()
-            self._sync()
-            self._file.close()
-            write_metadata_yaml(self.folder, self._info)
-        finally:
-            self._closed = True
-            self._closing = False
-            self._stop.set()
 
-    def _stop_flusher(self) -> None:
-        self._stop.set()
-        atexit.unregister(self.close)
-        if self._flusher is not threading.current_thread() and self._flusher.is_alive():
-            self._flusher.join(timeout=5.0)
+class _Reported(Exception):
+    """Marks an I/O error already raised once from close()."""
