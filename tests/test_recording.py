@@ -193,3 +193,12 @@ def test_default_bag_path(tmp_path):
     assert q != p and not q.exists()  # same second: p.name + "_1"; else a later timestamp
     with pytest.raises(ValueError, match="prefix"):
         default_bag_path("a/b")
+
+
+def test_recording_layer_imports_no_rclpy_and_no_msgs():
+    import subprocess
+    import sys
+    code = ("import sys, clusterfem_ros.recording; "
+            "bad = [m for m in sys.modules if m.split('.')[0] == 'rclpy' or m.split('.')[0].endswith('_msgs')]; "
+            "assert not bad, bad")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[1])
