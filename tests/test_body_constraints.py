@@ -24,6 +24,20 @@ def _binding():
 BINDING = _binding()
 
 
+def test_rigid_motion_kernel_matches_the_numpy_formula():
+    rng = np.random.default_rng(11)
+    nb, k = 4, 50
+    R = np.array([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(nb)])
+    p, tw, dtw = rng.normal(size=(nb, 3)), rng.normal(size=(nb, 6)), rng.normal(size=(nb, 6))
+    bone, local = rng.integers(0, nb, k), rng.normal(size=(k, 3))
+    x, v, a = rigid_point_motion(R, p, tw, dtw, bone, local)
+    r = np.einsum("kij,kj->ki", R[bone], local)
+    w = tw[bone, :3]
+    np.testing.assert_allclose(x, r + p[bone], atol=1e-14)
+    np.testing.assert_allclose(v, np.cross(w, r) + tw[bone, 3:], atol=1e-14)
+    np.testing.assert_allclose(a, np.cross(dtw[bone, :3], r) + dtw[bone, 3:] + np.cross(w, np.cross(w, r)), atol=1e-13)
+
+
 def _spin(omega: float) -> Motion:
     """Joint j1 (at x = 0.2) turning at constant omega; the root and j2 still."""
     return Motion(theta=lambda t: np.array([omega * t, 0.0]), dtheta=lambda t: np.array([omega, 0.0]))

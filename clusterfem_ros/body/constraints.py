@@ -20,7 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol, Sequence
 
+import numba
 import numpy as np
+
+from ..fem.numba_config import SERIAL
 
 
 class PoseLike(Protocol):
@@ -41,6 +44,9 @@ def check_poses(poses: PoseLike, n_bones: int, bone_names: Sequence[str] | None 
         a = np.asarray(getattr(poses, name), dtype=np.float64)
         if a.shape != shape:
             raise ValueError(f"{what}: {name} has shape {a.shape}, expected {shape} (the binding has {n_bones} bones)")
+        if np.isfinite(a).all():
+            out.append(a)
+            continue
         bad = ~np.isfinite(a.reshape(n_bones, -1)).all(axis=1)
         if bad.any():
             b = int(np.flatnonzero(bad)[0])
@@ -51,17 +57,43 @@ def check_poses(poses: PoseLike, n_bones: int, bone_names: Sequence[str] | None 
     return out[0], out[1], out[2]
 
 
+@numba.njit(**SERIAL)
+def _rigid_motion(R, p, twist, dtwist, bone, local, x, v, a):
+    """Kernel of ``rigid_point_motion``: fills x, v, a (k, 3); arrays and scalars only."""
+    for k in range(bone.shape[0]):
+        b = bone[k]
+        r0 = R[b, 0, 0] * local[k, 0] + R[b, 0, 1] * local[k, 1] + R[b, 0, 2] * local[k, 2]
+        r1 = R[b, 1, 0] * local[k, 0] + R[b, 1, 1] * local[k, 1] + R[b, 1, 2] * local[k, 2]
+        r2 = R[b, 2, 0] * local[k, 0] + R[b, 2, 1] * local[k, 1] + R[b, 2, 2] * local[k, 2]
+        w0, w1, w2 = twist[b, 0], twist[b, 1], twist[b, 2]
+        c0, c1, c2 = w1 * r2 - w2 * r1, w2 * r0 - w0 * r2, w0 * r1 - w1 * r0          # omega x r
+        al0, al1, al2 = dtwist[b, 0], dtwist[b, 1], dtwist[b, 2]
+        x[k, 0], x[k, 1], x[k, 2] = r0 + p[b, 0], r1 + p[b, 1], r2 + p[b, 2]
+        v[k, 0], v[k, 1], v[k, 2] = c0 + twist[b, 3], c1 + twist[b, 4], c2 + twist[b, 5]
+        a[k, 0] = al1 * r2 - al2 * r1 + dtwist[b, 3] + w1 * c2 - w2 * c1
+        a[k, 1] = al2 * r0 - al0 * r2 + dtwist[b, 4] + w2 * c0 - w0 * c2
+        a[k, 2] = al0 * r1 - al1 * r0 + dtwist[b, 5] + w0 * c1 - w1 * c0
+
+
 def rigid_point_motion(R: np.ndarray, p: np.ndarray, twist: np.ndarray, dtwist: np.ndarray,
                        bone: np.ndarray, local: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World position, velocity and acceleration (each (k, 3)) of points ``local`` (k, 3) fixed on bones ``bone`` (k,).
 
-    ``dtwist`` (nb, 6) is d(Phi)/dt = (alpha, a_origin); see the module docstring for the formulas.
+    ``R`` (nb, 3, 3), ``p`` (nb, 3), ``twist`` and ``dtwist`` = d(Phi)/dt = (alpha, a_origin) (nb, 6);
+    x = R c + p, v = omega x r + v_o, a = alpha x r + a_o + omega x (omega x r) with r = R c.
     """
-    r = np.einsum("kij,kj->ki", R[bone], local)
-    w, vo = twist[bone, :3], twist[bone, 3:]
-    al, ao = dtwist[bone, :3], dtwist[bone, 3:]
-    wxr = np.cross(w, r)
-    return r + p[bone], wxr + vo, np.cross(al, r) + ao + np.cross(w, wxr)
+    bone = np.ascontiguousarray(bone, dtype=np.int64)
+    local = np.ascontiguousarray(local, dtype=np.float64)
+    if local.shape != (bone.size, 3):
+        raise ValueError(f"local has shape {local.shape}, expected ({bone.size}, 3) for {bone.size} bone indices")
+    if bone.size and (bone.min() < 0 or bone.max() >= R.shape[0]):
+        raise ValueError(f"bone index {int(bone.max() if bone.max() >= R.shape[0] else bone.min())} is outside "
+                         f"[0, {R.shape[0] - 1}]")
+    x, v, a = np.empty((bone.size, 3)), np.empty((bone.size, 3)), np.empty((bone.size, 3))
+    _rigid_motion(np.ascontiguousarray(R, dtype=np.float64), np.ascontiguousarray(p, dtype=np.float64),
+                  np.ascontiguousarray(twist, dtype=np.float64), np.ascontiguousarray(dtwist, dtype=np.float64),
+                  bone, local, x, v, a)
+    return x, v, a
 
 
 @dataclass(frozen=True)

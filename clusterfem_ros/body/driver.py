@@ -23,7 +23,7 @@ import numpy as np
 
 from ..fem.model import Attachments, Control, State
 from .binding import Binding
-from .constraints import (LevelGains, LineConstraint, PointConstraint, PoseLike, check_poses, line_targets,
+from .constraints import (LevelGains, _rigid_motion, LineConstraint, PointConstraint, PoseLike, check_poses, line_targets,
                           point_targets, rigid_point_motion)
 
 DIFFERENCES = ("backward", "central")
@@ -87,7 +87,10 @@ class SkeletonDriver:
         lev = binding.level[self.bound]
         self._kp = np.asarray(self.gains.kp)[lev]
         self._kd = np.asarray(self.gains.kd)[lev]
-        self._inner = lev == 0
+        self._n_inner = int((lev == 0).sum())                    # level 0 is the prefix bound[:n_inner]
+        self._bone_b = np.ascontiguousarray(binding.bone[self.bound])
+        self._local_b = np.ascontiguousarray(binding.local[self.bound])
+        self._rest_b = rest[self.bound]
         self._twists: list[np.ndarray] = []
         self._gaps: list[float] = []
         self._last_dt: float | None = None
@@ -135,12 +138,15 @@ class SkeletonDriver:
             next_twist = self._poses(next_poses, "next bone poses")[2]
         dtwist = self.twist_rate(twist, float(dt), next_twist)
         b = self.binding
-        x, v, a = rigid_point_motion(R, p, twist, dtwist, b.bone[self.bound], b.local[self.bound])
-        self.target_u = x - self.rest[self.bound]
+        n = self.bound.size
+        x, v, a = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        _rigid_motion(np.ascontiguousarray(R), np.ascontiguousarray(p), np.ascontiguousarray(twist),
+                      np.ascontiguousarray(dtwist), self._bone_b, self._local_b, x, v, a)
+        self.target_u = x - self._rest_b
         self.target_v, self.target_a = v, a
 
-        att = ~self._inner if self.kinematic else np.ones(self.bound.size, dtype=bool)
-        parts = [(self.bound[att], x[att], v[att], a[att], self._kp[att], self._kd[att])]
+        k0 = self._n_inner if self.kinematic else 0        # kinematic: level 0 is prescribed, not attached
+        parts = [(self.bound[k0:], self.target_u[k0:], v[k0:], a[k0:], self._kp[k0:], self._kd[k0:])]
         if self.points:
             parts.append(point_targets(self.points, self.rest, b.rest_rotation, b.rest_translation,
                                        R, p, twist, dtwist))
@@ -149,18 +155,17 @@ class SkeletonDriver:
                 raise ValueError("line constraints need the body's current state: call control(..., state=state)")
             parts.append(line_targets(self.lines, self.rest, b.axis_local, b.rest_rotation, b.rest_translation,
                                       R, p, twist, dtwist, self.rest + state.u, state.v))
-        idx = np.concatenate([q[0] for q in parts])
-        attachments = Attachments(index=idx,
-                                  target_u=np.concatenate([q[1] for q in parts]) - self.rest[idx],
-                                  target_v=np.ascontiguousarray(np.concatenate([q[2] for q in parts])),
-                                  target_a=np.ascontiguousarray(np.concatenate([q[3] for q in parts])),
-                                  kp=np.concatenate([q[4] for q in parts]),
-                                  kd=np.concatenate([q[5] for q in parts]))
-        control = Control(f_ext=f_ext, attachments=attachments)
+        for j in range(1, len(parts)):                      # point and line targets are world positions
+            parts[j] = (parts[j][0], parts[j][1] - self.rest[parts[j][0]]) + tuple(parts[j][2:])
+        if len(parts) == 1:
+            cols = [np.ascontiguousarray(c) for c in parts[0]]
+        else:
+            cols = [np.concatenate([q[i] for q in parts]) for i in range(6)]
+        control = Control(f_ext=f_ext, attachments=Attachments(*cols))
         if self.kinematic:
-            control.prescribed_index = self.bound[self._inner]
-            control.prescribed_u = np.ascontiguousarray(self.target_u[self._inner])
-            control.prescribed_v = np.ascontiguousarray(v[self._inner])
+            control.prescribed_index = self.bound[:k0]
+            control.prescribed_u = self.target_u[:k0]
+            control.prescribed_v = v[:k0]
         return control
 
     def rigid_state(self, poses: PoseLike, t: float = 0.0) -> State:
