@@ -106,7 +106,11 @@ class SkeletonDriver:
         return check_poses(poses, self.binding.n_bones, self.bone_names, what)
 
     def twist_rate(self, twist: np.ndarray, dt: float, next_twist: np.ndarray | None) -> np.ndarray:
-        """Phi'(t) (nb, 6) from the history and the new twist; appends the new twist to the history."""
+        """Phi'(t) (nb, 6) from the history and the new twist; appends (a copy of) the new twist to the history."""
+        if self.difference == "central" and next_twist is None:
+            raise ValueError("difference='central' needs next_poses (the bone poses at t + dt); pass them "
+                             "or use difference='backward'")
+        twist = np.array(twist, dtype=np.float64)          # the skeleton may reuse its output buffers
         if self._last_dt is not None:
             self._twists.append(twist)
             self._gaps.append(self._last_dt)
@@ -115,9 +119,6 @@ class SkeletonDriver:
         self._twists, self._gaps = self._twists[-3:], self._gaps[-2:]
         self._last_dt = dt
         if self.difference == "central":
-            if next_twist is None:
-                raise ValueError("difference='central' needs next_poses (the bone poses at t + dt); pass them "
-                                 "or use difference='backward'")
             if len(self._twists) == 1:
                 return (next_twist - twist) / dt
             return _derivative_central(self._twists[-2], twist, next_twist, self._gaps[-1], dt)
