@@ -1,0 +1,111 @@
+"""Mapping JointState-like inputs (names, positions, optional velocities) onto a skeleton's q and v by name.
+
+Policy (what a node needs to warn well and keep running):
+
+* a joint missing from a message keeps its last value (split publishers, partial messages);
+* an unknown name is reported once (``unknown_joint``; ``JointMapResult.new_unknown`` lists the names
+  first seen in this message) and otherwise ignored;
+* fatal, the message is dropped (``accepted`` False): names and positions of different length
+  (``length_mismatch``), a name given twice (``duplicate_joint``), no known joint at all (``no_known_joint``);
+* repaired: a non-finite position leaves that joint at its last value (``non_finite``); velocities of
+  the wrong length or with a non-finite entry are dropped (``bad_velocity``) and v is None.
+
+v is returned only when the message gives a finite velocity for every skeleton joint; otherwise it is
+None and the interpolator derives velocities by finite differences. Units: radians and metres (and /s).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+FATAL = frozenset({"length_mismatch", "duplicate_joint", "no_known_joint"})
+
+
+@dataclass
+class JointMapResult:
+    """Outcome of one ``JointMap.update``: the new q (n,), v (n,) or None, and the problems found."""
+    accepted: bool
+    q: np.ndarray
+    v: np.ndarray | None
+    updated: np.ndarray                                     # (n,) bool: joints set by this message
+    problems: list[tuple[str, str]] = field(default_factory=list)   # (kind, message)
+    new_unknown: list[str] = field(default_factory=list)
+
+
+class JointMap:
+    """Holds the last known q of ``joint_names`` and merges JointState-like messages into it."""
+
+    def __init__(self, joint_names: Sequence[str], q0: np.ndarray | None = None):
+        self.joint_names = list(joint_names)
+        if len(set(self.joint_names)) != len(self.joint_names):
+            dup = sorted({n for n in self.joint_names if self.joint_names.count(n) > 1})
+            raise ValueError(f"joint names {dup} appear twice in the skeleton: joint names must be unique")
+        self._index = {n: i for i, n in enumerate(self.joint_names)}
+        n = len(self.joint_names)
+        q0 = np.zeros(n) if q0 is None else np.asarray(q0, dtype=np.float64).copy()
+        if q0.shape != (n,) or not np.isfinite(q0).all():
+            raise ValueError(f"q0 must be {n} finite values (one per joint), got shape {q0.shape}")
+        self.q = q0
+        self.unknown: set[str] = set()
+
+    def update(self, names: Sequence[str], positions, velocities=None) -> JointMapResult:
+        """Merge one message; see the module docstring for what is kept, repaired or rejected."""
+        names = list(names)
+        pos = np.asarray(positions, dtype=np.float64).reshape(-1)
+        vel = None if velocities is None else np.asarray(velocities, dtype=np.float64).reshape(-1)
+        n = len(self.joint_names)
+
+        def reject(kind: str, text: str) -> JointMapResult:
+            return JointMapResult(False, self.q.copy(), None, np.zeros(n, dtype=bool), [(kind, text)])
+
+        if pos.size != len(names):
+            return reject("length_mismatch", f"joint state has {len(names)} names but {pos.size} positions: "
+                          "send one position per name (message dropped)")
+        if len(set(names)) != len(names):
+            dup = sorted({x for x in names if names.count(x) > 1})
+            return reject("duplicate_joint", f"joint state names {dup} more than once: send each joint once "
+                          "(message dropped)")
+        problems: list[tuple[str, str]] = []
+        new_unknown = [x for x in names if x not in self._index and x not in self.unknown]
+        for x in new_unknown:
+            self.unknown.add(x)
+            problems.append(("unknown_joint", f"joint {x!r} is not in the skeleton ({n} joints): ignored "
+                                              "(reported once per name)"))
+        known = [(k, self._index[x]) for k, x in enumerate(names) if x in self._index]
+        if not known:
+            out = reject("no_known_joint", f"joint state names none of the skeleton's joints (got {names[:5]}): "
+                         "check the publisher's joint names against the URDF (message dropped)")
+            out.problems = problems + out.problems
+            out.new_unknown = new_unknown
+            return out
+        if vel is not None and vel.size not in (0, len(names)):
+            problems.append(("bad_velocity", f"joint state has {len(names)} names but {vel.size} velocities: "
+                                             "velocities ignored, derived from positions instead"))
+            vel = None
+        elif vel is not None and vel.size and not np.isfinite(vel).all():
+            k = int(np.flatnonzero(~np.isfinite(vel))[0])
+            problems.append(("bad_velocity", f"joint {names[k]!r} velocity is {vel[k]}: velocities ignored, "
+                                             "derived from positions instead; send finite values"))
+            vel = None
+        if vel is not None and vel.size == 0:
+            vel = None
+        updated = np.zeros(n, dtype=bool)
+        q = self.q.copy()
+        for k, i in known:
+            if np.isfinite(pos[k]):
+                q[i] = pos[k]
+                updated[i] = True
+            else:
+                problems.append(("non_finite", f"joint {names[k]!r} position is {pos[k]} at index {k}: kept its "
+                                               "last value; drop the sample or send a finite value"))
+        if not updated.any():
+            return JointMapResult(False, self.q.copy(), None, updated, problems, new_unknown)
+        v = None
+        if vel is not None and updated.all():
+            v = np.zeros(n)
+            for k, i in known:
+                v[i] = vel[k]
+        self.q = q
+        return JointMapResult(True, q.copy(), v, updated, problems, new_unknown)

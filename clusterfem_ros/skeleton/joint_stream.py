@@ -1,0 +1,182 @@
+"""``JointStreamInterpolator``: joint samples arriving at any rate in, q(t) and v(t) at physics times out.
+
+``push(stamp_s, q, v=None)`` stores a sample; ``sample(t)`` interpolates linearly between the samples
+bracketing t. Revolute angles are unwrapped on arrival (each new angle is moved by a multiple of 2 pi
+to within pi of the previous one), so 179 deg -> -179 deg passes through 180 deg, never through 0; the
+stored angles are continuous and may leave [-pi, pi]. Without message velocities, v is the slope of the
+interpolating segment (the finite difference of the bracketing samples); with them, v is interpolated.
+
+No wild extrapolation: after the newest sample the pose moves on with the newest velocity for at most
+``horizon`` seconds (default 0: held), then is held with v = 0. Before the oldest sample it is held.
+
+``push`` returns the problems found as (kind, message). Rejected (kinds in ``FATAL``): a sample not
+newer than the newest (``out_of_order``), older than newest - ``max_age`` (``stale``), newer than newest
++ ``max_future`` (``future``), of the wrong shape or non-finite (``bad_sample``). A stream that really
+restarted (a replayed bag, a clock jump) is not locked out: ``restart_after`` consecutive rejected
+samples with increasing stamps restart the stream from them (reported as ``restart``). A prismatic jump
+larger than ``teleport_distance`` between consecutive samples is accepted but reported (``teleport``)
+and interpolation does not sweep across it: the older samples are dropped.
+
+Arrays: q, v (n,) float64 [rad, m, rad/s, m/s]; stamps float seconds. The buffer holds at most
+``capacity`` samples.
+"""
+from __future__ import annotations
+
+from collections import deque
+from typing import Sequence
+
+import numpy as np
+
+FATAL = frozenset({"out_of_order", "stale", "future", "bad_sample"})
+
+
+class StaleSample(ValueError):
+    """Raised by ``push_or_raise`` for a rejected sample; ``kind`` is one of ``FATAL``."""
+
+    def __init__(self, kind: str, message: str):
+        super().__init__(message)
+        self.kind = kind
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Angles mapped to [-pi, pi)."""
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+class JointStreamInterpolator:
+    """Bounded buffer of joint samples with unwrapped linear interpolation (see the module docstring)."""
+
+    FATAL = FATAL
+
+    def __init__(self, joint_names: Sequence[str], revolute: np.ndarray | None = None, *, max_age: float = 1.0,
+                 max_future: float = 0.5, teleport_distance: float = 0.5, prismatic: np.ndarray | None = None,
+                 horizon: float = 0.0, capacity: int = 256, restart_after: int = 3):
+        self.joint_names = list(joint_names)
+        n = len(self.joint_names)
+        self.revolute = np.ones(n, bool) if revolute is None else np.asarray(revolute, dtype=bool).reshape(-1)
+        self.prismatic = ~self.revolute if prismatic is None else np.asarray(prismatic, dtype=bool).reshape(-1)
+        for name, m in (("revolute", self.revolute), ("prismatic", self.prismatic)):
+            if m.shape != (n,):
+                raise ValueError(f"{name} mask has shape {m.shape}, expected ({n},) for {n} joints")
+        for name, val in (("max_age", max_age), ("max_future", max_future), ("teleport_distance", teleport_distance),
+                          ("horizon", horizon)):
+            if not (np.isfinite(val) and val >= 0):
+                raise ValueError(f"{name} = {val!r} must be a finite time/distance >= 0")
+        if capacity < 2 or restart_after < 1:
+            raise ValueError(f"capacity = {capacity} must be >= 2 and restart_after = {restart_after} >= 1")
+        self.max_age, self.max_future = float(max_age), float(max_future)
+        self.teleport_distance, self.horizon = float(teleport_distance), float(horizon)
+        self.restart_after = int(restart_after)
+        self._t: deque[float] = deque(maxlen=capacity)
+        self._q: deque[np.ndarray] = deque(maxlen=capacity)
+        self._v: deque[np.ndarray | None] = deque(maxlen=capacity)
+        self._rejected: list[tuple[float, np.ndarray, np.ndarray | None]] = []
+        self.teleports = 0
+
+    # -- state ---------------------------------------------------------------------------------------
+    @property
+    def ready(self) -> bool:
+        return len(self._t) > 0
+
+    @property
+    def newest(self) -> float | None:
+        """Stamp [s] of the newest accepted sample (None before the first)."""
+        return self._t[-1] if self._t else None
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    # -- input ---------------------------------------------------------------------------------------
+    def _store(self, stamp: float, q: np.ndarray, v: np.ndarray | None, problems: list) -> None:
+        if self._t:
+            prev = self._q[-1]
+            q = q.copy()
+            q[self.revolute] = prev[self.revolute] + wrap_angle(q[self.revolute] - prev[self.revolute])
+            jump = float(np.linalg.norm(q[self.prismatic] - prev[self.prismatic]))
+            if self.prismatic.any() and jump > self.teleport_distance:
+                self.teleports += 1
+                problems.append(("teleport", f"prismatic joints jumped {jump:.3g} m in {stamp - self._t[-1]:.3g} s "
+                                             f"(> teleport_distance {self.teleport_distance:g} m): not "
+                                             "interpolated across; older samples dropped"))
+                self._t.clear(), self._q.clear(), self._v.clear()
+        self._t.append(stamp)
+        self._q.append(q)
+        self._v.append(v)
+
+    def push(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None) -> list[tuple[str, str]]:
+        """Offer one sample; returns the problems found as (kind, message), empty when all is well."""
+        n = len(self.joint_names)
+        stamp = float(stamp_s)
+        q = np.asarray(q, dtype=np.float64).reshape(-1)
+        v = None if v is None else np.asarray(v, dtype=np.float64).reshape(-1)
+        if q.shape != (n,) or (v is not None and v.shape != (n,)):
+            return [("bad_sample", f"sample has {q.size} positions / {None if v is None else v.size} velocities, "
+                                   f"expected {n}: map it through JointMap first")]
+        if not (np.isfinite(stamp) and np.isfinite(q).all() and (v is None or np.isfinite(v).all())):
+            bad = int(np.flatnonzero(~np.isfinite(q))[0]) if not np.isfinite(q).all() else -1
+            what = f"joint {self.joint_names[bad]!r} = {q[bad]}" if bad >= 0 else f"stamp {stamp} or a velocity"
+            return [("bad_sample", f"sample rejected: {what} is not finite; send finite values")]
+        problems: list[tuple[str, str]] = []
+        if self._t:
+            newest = self._t[-1]
+            kind = None
+            if stamp < newest - self.max_age:
+                kind, text = "stale", f"stamp {stamp:.6f} s is {newest - stamp:.3g} s older than the newest " \
+                                      f"(max_age {self.max_age:g} s): sample dropped"
+            elif stamp <= newest:
+                kind, text = "out_of_order", f"stamp {stamp:.6f} s is not newer than the newest {newest:.6f} s: " \
+                                             "sample dropped; publish in stamp order"
+            elif stamp > newest + self.max_future:
+                kind, text = "future", f"stamp {stamp:.6f} s is {stamp - newest:.3g} s ahead of the newest " \
+                                       f"(max_future {self.max_future:g} s): sample dropped"
+            if kind is not None:
+                if self._rejected and stamp <= self._rejected[-1][0]:
+                    self._rejected.clear()
+                self._rejected.append((stamp, q, v))
+                if len(self._rejected) < self.restart_after:
+                    return [(kind, text)]
+                kept = self._rejected
+                self._rejected = []
+                self._t.clear(), self._q.clear(), self._v.clear()
+                for s, qq, vv in kept:
+                    self._store(s, qq, vv, problems)
+                return [(kind, text), ("restart", f"{len(kept)} consecutive samples from {kept[0][0]:.6f} s agree "
+                                                  "with each other: the stream restarts from them")]
+        self._rejected.clear()
+        self._store(stamp, q, v, problems)
+        return problems
+
+    def push_or_raise(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None) -> list[tuple[str, str]]:
+        """Like ``push`` but raises ``StaleSample`` for a rejected sample."""
+        problems = self.push(stamp_s, q, v)
+        for kind, text in problems:
+            if kind in FATAL and not any(k == "restart" for k, _ in problems):
+                raise StaleSample(kind, text)
+        return problems
+
+    # -- output --------------------------------------------------------------------------------------
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(q (n,), v (n,)) at time t [s]; see the module docstring for the hold / horizon rules."""
+        if not self._t:
+            raise RuntimeError("no joint sample yet: push one before sampling (check .ready)")
+        times = self._t
+        n = len(times)
+        if t >= times[-1]:
+            q_last = self._q[-1]
+            v_last = self._v[-1]
+            if v_last is None:
+                v_last = (q_last - self._q[-2]) / (times[-1] - times[-2]) if n >= 2 else np.zeros_like(q_last)
+            dt = t - times[-1]
+            if dt <= self.horizon:
+                return q_last + dt * v_last, v_last.copy()
+            return q_last + self.horizon * v_last, np.zeros_like(q_last)
+        if t <= times[0]:
+            return self._q[0].copy(), np.zeros_like(self._q[0])
+        k = int(np.searchsorted(np.fromiter(times, float, n), t, side="right")) - 1
+        t0, t1 = times[k], times[k + 1]
+        s = (t - t0) / (t1 - t0)
+        q0, q1 = self._q[k], self._q[k + 1]
+        q = q0 + s * (q1 - q0)
+        v0, v1 = self._v[k], self._v[k + 1]
+        v = (q1 - q0) / (t1 - t0) if v0 is None or v1 is None else v0 + s * (v1 - v0)
+        return q, v

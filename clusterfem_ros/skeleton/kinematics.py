@@ -1,0 +1,248 @@
+"""A skeleton from a URDF: scalar joints by name, bones, and their world poses and twists (Pinocchio).
+
+``Skeleton`` wraps a fixed pinocchio ``Model`` and a scratch ``Data``. Its configuration is *scalar*:
+one entry per revolute, continuous or prismatic joint, in ``joint_names`` order (pinocchio's q order),
+so a ``sensor_msgs/JointState`` maps onto it by name; ``nq == nv``. A continuous joint's angle is
+turned into pinocchio's (cos, sin) pair internally.
+
+Floating base: the URDF's root joints define it. Our generated URDFs use 3 prismatic + 3 revolute
+scalar root joints. A ``floating``, ``planar`` or spherical joint raises ``NotImplementedError``
+(it has no scalar name per degree of freedom; replace it by scalar joints).
+
+Bones (``bone_names``) are the URDF links except helpers and tips (see ``urdf_builder``): a link whose
+``<inertial>`` mass is <= 1e-6 kg is a helper between the scalar joints of one multi-axis joint; a leaf
+link named ``*_tip`` on a fixed joint marks the end of its parent bone. A bone's segment runs from its
+origin to its tip if it has one, else to the origin of its farthest child bone, else it has zero length.
+
+Array conventions: q, v (n,) float64 [rad, m, rad/s, m/s]; rotation (nb, 3, 3) and translation (nb, 3)
+place bone-local points in the world, x = R c + p [m]; twist (nb, 6) = (omega, v) [rad/s, m/s] in
+world-aligned axes, v the velocity of the bone origin, so a point x on the bone moves with
+x' = omega x (x - p) + v (``point_velocity``; the paper's eq. 7).
+"""
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from .urdf_builder import HELPER_MASS, TIP_SUFFIX
+
+SCALAR_KINDS = ("revolute", "continuous", "prismatic")
+
+
+class UrdfError(ValueError):
+    """A URDF that cannot become a skeleton; the message names the element and the way out."""
+
+
+@dataclass(frozen=True)
+class BonePoses:
+    """World placement and spatial velocity of every bone (see the module docstring for conventions)."""
+    rotation: np.ndarray        # (nb, 3, 3)
+    translation: np.ndarray     # (nb, 3) [m]
+    twist: np.ndarray           # (nb, 6) = (omega [rad/s], v of the origin [m/s]), world-aligned
+
+
+def point_velocity(poses: BonePoses, bone: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Velocity (k, 3) of world points ``points`` (k, 3) moving rigidly with bones ``bone`` (k,): omega x (x - p) + v."""
+    bone = np.asarray(bone, dtype=np.int64)
+    tw = poses.twist[bone]
+    return np.cross(tw[:, :3], np.asarray(points, dtype=np.float64) - poses.translation[bone]) + tw[:, 3:]
+
+
+@dataclass(frozen=True)
+class _Link:
+    name: str
+    mass: float | None
+    parent_joint: str | None
+
+
+def _parse_tree(xml: str) -> tuple[dict[str, _Link], dict[str, dict]]:
+    """Links and joints of a URDF as plain data (for bones and error messages; pinocchio does the maths)."""
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError as e:
+        raise UrdfError(f"URDF is not well-formed XML ({e}): check the file or the robot_description text") from e
+    if root.tag != "robot":
+        raise UrdfError(f"URDF root element is <{root.tag}>, expected <robot>")
+    joints: dict[str, dict] = {}
+    child_of: dict[str, str] = {}
+    for j in root.findall("joint"):
+        name, kind = j.get("name"), j.get("type")
+        p, c = j.find("parent"), j.find("child")
+        if name is None or kind is None or p is None or c is None:
+            raise UrdfError(f"URDF joint {name!r} lacks a name, type, parent or child: fix the URDF")
+        o = j.find("origin")
+        xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
+        joints[name] = {"type": kind, "parent": p.get("link"), "child": c.get("link"), "xyz": xyz}
+        child_of[c.get("link")] = name
+    links: dict[str, _Link] = {}
+    for link in root.findall("link"):
+        m = link.find("inertial/mass")
+        links[link.get("name")] = _Link(link.get("name"), float(m.get("value")) if m is not None else None,
+                                        child_of.get(link.get("name")))
+    return links, joints
+
+
+class Skeleton:
+    """Forward kinematics of a URDF skeleton by joint name (see the module docstring)."""
+
+    def __init__(self, xml: str):
+        links, joints = _parse_tree(xml)
+        for name, j in joints.items():
+            if j["type"] not in SCALAR_KINDS + ("fixed",):
+                raise NotImplementedError(
+                    f"URDF joint {name!r} is of type {j['type']!r}: only revolute, continuous, prismatic and "
+                    "fixed joints are supported; model a floating root as 3 prismatic + 3 revolute joints")
+        try:
+            self.model = pin.buildModelFromXML(xml)
+        except (ValueError, RuntimeError) as e:
+            raise UrdfError(f"pinocchio cannot build a model from this URDF: {e}") from e
+        self.data = self.model.createData()
+        m = self.model
+        self.joint_names: list[str] = []
+        q_index, continuous = [], []
+        for jid in range(1, m.njoints):
+            jm = m.joints[jid]
+            if jm.nv != 1:
+                raise NotImplementedError(f"joint {m.names[jid]!r} has {jm.nv} degrees of freedom: use scalar joints")
+            self.joint_names.append(m.names[jid])
+            q_index.append(jm.idx_q)
+            continuous.append(jm.nq == 2)
+        self._q_index = np.array(q_index, dtype=np.int64)
+        self._continuous = np.array(continuous, dtype=bool)
+        self._kinds = [joints[n]["type"] for n in self.joint_names]
+        self.nq = self.nv = len(self.joint_names)
+
+        children: dict[str, list[str]] = {n: [] for n in links}
+        for j in joints.values():
+            children.setdefault(j["parent"], []).append(j["child"])
+
+        def is_tip(n: str) -> bool:
+            pj = links[n].parent_joint
+            return n.endswith(TIP_SUFFIX) and not children[n] and pj is not None and joints[pj]["type"] == "fixed"
+
+        def is_bone(n: str) -> bool:
+            mass = links[n].mass
+            return not is_tip(n) and not (mass is not None and mass <= HELPER_MASS)
+
+        self.bone_names: list[str] = [n for n in links if is_bone(n)]
+        if not self.bone_names:
+            raise UrdfError("the URDF has no bone links (every link is a helper or a tip): give links real masses")
+        index = {n: b for b, n in enumerate(self.bone_names)}
+
+        def parent_bone(n: str) -> int:
+            pj = links[n].parent_joint
+            while pj is not None:
+                p = joints[pj]["parent"]
+                if p in index:
+                    return index[p]
+                pj = links[p].parent_joint
+            return -1
+
+        def child_targets(n: str) -> list[str]:
+            """Bones (or tips) reached from n through helpers only."""
+            out = []
+            for c in children[n]:
+                out += [c] if (c in index or is_tip(c)) else child_targets(c)
+            return out
+
+        self.bone_parent = np.array([parent_bone(n) for n in self.bone_names], dtype=np.int64)
+        self._frame = [int(m.getFrameId(n, pin.BODY)) for n in self.bone_names]
+        self._ends: list[list[int]] = []
+        for n in self.bone_names:
+            targets = child_targets(n)
+            tips = [t for t in targets if is_tip(t)]
+            chosen = tips if tips else targets
+            self._ends.append([int(m.getFrameId(t, pin.BODY)) for t in chosen])
+        self._q_pin = pin.neutral(m)
+        self._v_pin = np.zeros(m.nv)
+
+    # -- construction --------------------------------------------------------------------------------
+    @classmethod
+    def from_urdf_string(cls, xml: str) -> "Skeleton":
+        if not isinstance(xml, str) or not xml.strip():
+            raise UrdfError("the URDF text is empty: pass the robot_description string or use from_urdf_file")
+        return cls(xml)
+
+    @classmethod
+    def from_urdf_file(cls, path: str | Path) -> "Skeleton":
+        try:
+            text = Path(path).read_text()
+        except OSError as e:
+            raise UrdfError(f"cannot read URDF file {str(path)!r}: {e.strerror}; check the path") from e
+        return cls.from_urdf_string(text)
+
+    # -- configuration ---------------------------------------------------------------------------------
+    @property
+    def n_bones(self) -> int:
+        return len(self.bone_names)
+
+    def neutral(self) -> np.ndarray:
+        """The rest configuration (n,): every joint at 0 (the pose the URDF is drawn in)."""
+        return np.zeros(self.nq)
+
+    def revolute_mask(self) -> np.ndarray:
+        """(n,) bool: True for revolute and continuous joints (angles, unwrapped when interpolating)."""
+        return np.array([k != "prismatic" for k in self._kinds], dtype=bool)
+
+    def joint_kinds(self) -> list[str]:
+        return list(self._kinds)
+
+    def _to_pin(self, q: np.ndarray, v: np.ndarray | None) -> None:
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape != (self.nq,):
+            raise ValueError(f"q has shape {q.shape}, expected ({self.nq},): one value per joint in joint_names")
+        if not np.isfinite(q).all():
+            k = int(np.flatnonzero(~np.isfinite(q))[0])
+            raise ValueError(f"joint {self.joint_names[k]!r} position is {q[k]} at index {k}: send a finite value")
+        qi, c = self._q_index, self._continuous
+        self._q_pin[qi[~c]] = q[~c]
+        self._q_pin[qi[c]] = np.cos(q[c])
+        self._q_pin[qi[c] + 1] = np.sin(q[c])
+        if v is not None:
+            v = np.asarray(v, dtype=np.float64)
+            if v.shape != (self.nv,):
+                raise ValueError(f"v has shape {v.shape}, expected ({self.nv},): one velocity per joint")
+            if not np.isfinite(v).all():
+                k = int(np.flatnonzero(~np.isfinite(v))[0])
+                raise ValueError(f"joint {self.joint_names[k]!r} velocity is {v[k]} at index {k}: send a finite value")
+            self._v_pin[:] = v
+
+    # -- kinematics -------------------------------------------------------------------------------------
+    def forward(self, q: np.ndarray, v: np.ndarray | None = None) -> BonePoses:
+        """World poses and twists of all bones at configuration q (n,) and joint velocities v (n,) (default 0)."""
+        self._to_pin(q, v if v is not None else np.zeros(self.nv))
+        m, d = self.model, self.data
+        pin.forwardKinematics(m, d, self._q_pin, self._v_pin)
+        pin.updateFramePlacements(m, d)
+        nb = self.n_bones
+        R, p, tw = np.empty((nb, 3, 3)), np.empty((nb, 3)), np.empty((nb, 6))
+        for b, f in enumerate(self._frame):
+            M = d.oMf[f]
+            R[b], p[b] = M.rotation, M.translation
+            vel = pin.getFrameVelocity(m, d, f, pin.LOCAL_WORLD_ALIGNED)
+            tw[b, :3], tw[b, 3:] = vel.angular, vel.linear
+        return BonePoses(R, p, tw)
+
+    def bone_segments(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(starts (nb, 3), ends (nb, 3)) [m]: each bone's axis at q, origin to tip / farthest child / itself."""
+        self._to_pin(q, None)
+        pin.forwardKinematics(self.model, self.data, self._q_pin)
+        pin.updateFramePlacements(self.model, self.data)
+        d = self.data
+        starts = np.array([d.oMf[f].translation for f in self._frame])
+        ends = starts.copy()
+        for b, fs in enumerate(self._ends):
+            if fs:
+                cand = np.array([d.oMf[f].translation for f in fs])
+                ends[b] = cand[np.argmax(np.linalg.norm(cand - starts[b], axis=1))]
+        return starts, ends
+
+    def joint_index(self, name: str) -> int:
+        try:
+            return self.joint_names.index(name)
+        except ValueError:
+            raise KeyError(f"no joint {name!r} in this skeleton ({self.nq} joints, e.g. {self.joint_names[:4]})") from None
