@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from .fk_kernel import tree_forward
 from .urdf_builder import HELPER_MASS, TIP_SUFFIX
 
 SCALAR_KINDS = ("revolute", "continuous", "prismatic")
@@ -76,7 +77,12 @@ def _parse_tree(xml: str) -> tuple[dict[str, _Link], dict[str, dict]]:
             raise UrdfError(f"URDF joint {name!r} lacks a name, type, parent or child: fix the URDF")
         o = j.find("origin")
         xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
-        joints[name] = {"type": kind, "parent": p.get("link"), "child": c.get("link"), "xyz": xyz}
+        a = j.find("axis")
+        axis = np.array([float(x) for x in (a.get("xyz", "1 0 0") if a is not None else "1 0 0").split()])
+        if kind in SCALAR_KINDS and not (axis.shape == (3,) and np.linalg.norm(axis) > 0):
+            raise UrdfError(f"URDF joint {name!r} has axis {axis.tolist()}: give a non-zero 3-vector")
+        joints[name] = {"type": kind, "parent": p.get("link"), "child": c.get("link"), "xyz": xyz,
+                        "axis": axis / max(np.linalg.norm(axis), 1e-300)}
         child_of[c.get("link")] = name
     links: dict[str, _Link] = {}
     for link in root.findall("link"):
@@ -159,6 +165,17 @@ class Skeleton:
             self._ends.append([int(m.getFrameId(t, pin.BODY)) for t in chosen])
         self._q_pin = pin.neutral(m)
         self._v_pin = np.zeros(m.nv)
+        # constant data of the numba kernel (joint k of the kernel = pinocchio joint k + 1)
+        nj = self.nq
+        self._k_parent = np.array([m.parents[j] - 1 for j in range(1, m.njoints)], dtype=np.int64)
+        self._k_R = np.array([m.jointPlacements[j].rotation for j in range(1, m.njoints)]).reshape(nj, 3, 3)
+        self._k_p = np.array([m.jointPlacements[j].translation for j in range(1, m.njoints)]).reshape(nj, 3)
+        self._k_axis = np.array([joints[n]["axis"] for n in self.joint_names]).reshape(nj, 3)
+        self._k_prismatic = np.array([k == "prismatic" for k in self._kinds], dtype=np.bool_)
+        self._k_fjoint = np.array([m.frames[f].parentJoint - 1 for f in self._frame], dtype=np.int64)
+        self._k_fR = np.array([m.frames[f].placement.rotation for f in self._frame])
+        self._k_fp = np.array([m.frames[f].placement.translation for f in self._frame])
+        self._scratch = (np.zeros((nj, 3, 3)), np.zeros((nj, 3)), np.zeros((nj, 3)), np.zeros((nj, 3)))
 
     # -- construction --------------------------------------------------------------------------------
     @classmethod
@@ -191,6 +208,15 @@ class Skeleton:
     def joint_kinds(self) -> list[str]:
         return list(self._kinds)
 
+    def _check(self, q: np.ndarray, v: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Validated contiguous float64 copies-or-views of q and v (v defaults to zeros)."""
+        q = np.ascontiguousarray(q, dtype=np.float64)
+        v = np.zeros(self.nv) if v is None else np.ascontiguousarray(v, dtype=np.float64)
+        if q.shape == (self.nq,) and v.shape == (self.nv,) and np.isfinite(q).all() and np.isfinite(v).all():
+            return q, v
+        self._to_pin(q, v)          # raises the specific error
+        return q, v
+
     def _to_pin(self, q: np.ndarray, v: np.ndarray | None) -> None:
         q = np.asarray(q, dtype=np.float64)
         if q.shape != (self.nq,):
@@ -213,7 +239,20 @@ class Skeleton:
 
     # -- kinematics -------------------------------------------------------------------------------------
     def forward(self, q: np.ndarray, v: np.ndarray | None = None) -> BonePoses:
-        """World poses and twists of all bones at configuration q (n,) and joint velocities v (n,) (default 0)."""
+        """World poses and twists of all bones at configuration q (n,) and joint velocities v (n,) (default 0).
+
+        Computed by the numba kernel ``fk_kernel.tree_forward`` from pinocchio's model constants; equal
+        to ``forward_pinocchio`` to round-off. The returned arrays are new on every call.
+        """
+        qs, vs = self._check(q, v)
+        nb = self.n_bones
+        R, p, tw = np.empty((nb, 3, 3)), np.empty((nb, 3)), np.empty((nb, 6))
+        tree_forward(self._k_parent, self._k_R, self._k_p, self._k_axis, self._k_prismatic, qs, vs,
+                     self._k_fjoint, self._k_fR, self._k_fp, *self._scratch, R, p, tw)
+        return BonePoses(R, p, tw)
+
+    def forward_pinocchio(self, q: np.ndarray, v: np.ndarray | None = None) -> BonePoses:
+        """``forward`` through pinocchio's ``forwardKinematics`` / ``getFrameVelocity`` (LOCAL_WORLD_ALIGNED)."""
         self._to_pin(q, v if v is not None else np.zeros(self.nv))
         m, d = self.model, self.data
         pin.forwardKinematics(m, d, self._q_pin, self._v_pin)
