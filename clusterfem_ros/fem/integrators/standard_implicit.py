@@ -5,6 +5,16 @@
 Fixed and prescribed DOFs are removed from the system. Attachment gains enter A (h kd m + h^2 kp m on
 their diagonal) so stiff constraints stay stable. The direct solver factorizes A once per (h, constraint
 set) and reuses the factor; the CG solver (the paper's choice) is Jacobi-preconditioned and warm-started.
+
+``warp=True`` (stiffness warping, the paper's comparison). Linearisation about the current state, with
+the vertex rotations R_i (fem/warping.py) frozen over the step:
+    K_w = R K R^T,  R = blockdiag(R_i)   (blocks R_i K_ij R_j^T: symmetric positive semi-definite, so CG works),
+    D_w = xi M + zeta K_w,   A = M + h D_w + h^2 K_w,
+    rhs = h [ f_w(u, v) - h K_w v + f ],
+with f_w the exact eq. 10 force (elastic + damping, the clustered warped kernel). The step's fixed point
+is eq. 10's; K_w differs from eq. 10's own Jacobian (blocks R_i K_ij R_i^T, not symmetric) by
+O(|R_i - R_j|) and leaves out dR/dx, which only costs Newton-like accuracy, not consistency (the
+method stays first order). A is re-assembled and re-factorized every step.
 """
 from __future__ import annotations
 
@@ -13,16 +23,24 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..model import Control, FemModel, State
+from ..warping import VertexFrames, vertex_rotations, warped_force
 from .base import StepCommon, StepInfo
 
 
 class StandardImplicit:
-    def __init__(self, model: FemModel, solver: str = "direct", cg_rtol: float = 1e-10, cg_maxiter: int = 2000):
+    def __init__(self, model: FemModel, solver: str = "direct", cg_rtol: float = 1e-10, cg_maxiter: int = 2000,
+                 warp: bool = False):
         if solver not in ("direct", "cg"):
             raise ValueError(f"implicit solver {solver!r}: choose 'direct' or 'cg'")
         self.model = model
         self.solver = solver
-        self.name = f"implicit_{solver}"
+        self.warp = bool(warp)
+        self.name = f"implicit_{solver}" + ("_warp" if self.warp else "")
+        if self.warp:
+            self.frames = VertexFrames.from_model(model)
+            self._Kb = model.K.tobsr(blocksize=(3, 3))
+            self._Kb.sort_indices()
+            self._block_row = np.repeat(np.arange(model.n_vertices), np.diff(self._Kb.indptr))
         self.cg_rtol = cg_rtol
         self.cg_maxiter = cg_maxiter
         self.K = model.K
@@ -32,30 +50,48 @@ class StandardImplicit:
         self._key = None
         self._dv_prev: np.ndarray | None = None
 
-    def _system(self, h: float, held: np.ndarray, control: Control):
+    def _warped_stiffness(self, u: np.ndarray) -> sp.csr_matrix:
+        """K_w = R K R^T with the current vertex rotations (blocks R_i K_ij R_j^T)."""
+        R = vertex_rotations(self.model, u, self.frames)
+        Kb = self._Kb
+        data = R[self._block_row] @ Kb.data @ np.swapaxes(R[Kb.indices], 1, 2)
+        return sp.bsr_matrix((data, Kb.indices, Kb.indptr), shape=Kb.shape).tocsr()
+
+    def _system(self, h: float, held: np.ndarray, control: Control, K: sp.csr_matrix | None = None):
         att = control.attachments
         key = (h, held.tobytes(), att.index.tobytes(), att.kp.tobytes(), att.kd.tobytes())
-        if key != self._key:
+        if key != self._key or K is not None:
             extra = np.zeros(self.model.n_vertices)
             np.add.at(extra, att.index, self.model.mass[att.index] * (h * att.kd + h * h * att.kp))
-            A = (self.M + h * self.D + (h * h) * self.K + sp.diags(np.repeat(extra, 3))).tocsr()
+            if K is None:
+                A = (self.M + h * self.D + (h * h) * self.K + sp.diags(np.repeat(extra, 3))).tocsr()
+            else:
+                m = self.model.material
+                A = ((1.0 + h * m.xi) * self.M + (h * m.zeta + h * h) * K + sp.diags(np.repeat(extra, 3))).tocsr()
             free = np.flatnonzero(np.repeat(~held, 3))
             A_ff = A[free][:, free].tocsc()
             self._free = free
             self._A = A_ff
             self._lu = spla.splu(A_ff) if self.solver == "direct" else None
             self._jacobi = sp.diags(1.0 / A_ff.diagonal()) if self.solver == "cg" else None
-            self._dv_prev = None
-            self._key = key
+            if K is None:
+                self._dv_prev = None
+            self._key = key if K is None else None
         return self._free
 
     def step(self, state: State, control: Control, h: float) -> StepInfo:
         held = self._common.apply_prescribed(state, control)
         if held is None:
             held = self.model.fixed
-        free = self._system(h, held, control)
         u, v = state.u.reshape(-1), state.v.reshape(-1)
-        f = self._common.constant_forces(control).reshape(-1) - self.D @ v - self.K @ (u + h * v)
+        if self.warp:
+            Kw = self._warped_stiffness(state.u)
+            free = self._system(h, held, control, Kw)
+            fw = warped_force(self.model, state.u, state.v, self.frames).reshape(-1)
+            f = self._common.constant_forces(control).reshape(-1) + fw - h * (Kw @ v)
+        else:
+            free = self._system(h, held, control)
+            f = self._common.constant_forces(control).reshape(-1) - self.D @ v - self.K @ (u + h * v)
         att = control.attachments
         if att.index.size:
             m = self.model.mass[att.index][:, None]

@@ -1,0 +1,85 @@
+"""Per-element corotational linear FEM (Mueller & Gross 2004): the reference stiffness warping is compared to.
+
+For tet e: F_e = I + sum_a u_a g_a^T (g_a the rest shape gradients), R_e = polar(F_e) (3x3 SVD with the
+reflection fixed, so an inverted tet still gets a proper rotation), and
+
+    f_e = -R_e K_e (R_e^T x_e - x0_e) - zeta R_e K_e R_e^T v_e,      E_e = 1/2 y_e^T K_e y_e,  y_e = R_e^T x_e - x0_e.
+
+Positions are taken relative to the tet's first vertex (K_e ignores translations), which keeps round-off
+small. Vectorized numpy over elements; meant for tests, stress and energy bookkeeping, not the hot loop.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .assembly import element_stiffness_blocks, shape_gradients
+from .model import FemModel
+
+
+def polar_rotations(F: np.ndarray) -> np.ndarray:
+    """Rotation factor of polar(F) for a stack (..., 3, 3); det = +1 even when det F <= 0."""
+    U, _, Vt = np.linalg.svd(F)
+    d = np.sign(np.linalg.det(U @ Vt))
+    d[d == 0] = 1.0
+    U = U.copy()
+    U[..., :, 2] *= d[..., None]
+    return U @ Vt
+
+
+def deformation_gradients(g: np.ndarray, tets: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """F_e = I + grad u, (m, 3, 3), from rest shape gradients g (m, 4, 3)."""
+    return np.eye(3) + np.einsum("eai,eaj->eij", u[tets], g)
+
+
+class ElementCorotation:
+    """The per-element corotational model of one FemModel (element blocks and gradients cached)."""
+
+    def __init__(self, model: FemModel):
+        self.model = model
+        self.tets = model.mesh.tets
+        self.blocks = element_stiffness_blocks(model.mesh, model.material)       # (m, 4, 4, 3, 3)
+        self.g, self.volume = shape_gradients(model.rest, self.tets)
+
+    def _check(self, name: str, a: np.ndarray) -> np.ndarray:
+        a = np.asarray(a, dtype=np.float64)
+        if a.shape != (self.model.n_vertices, 3):
+            raise ValueError(f"{name} has shape {a.shape}, expected ({self.model.n_vertices}, 3) for this mesh")
+        return a
+
+    def rotations(self, u: np.ndarray) -> np.ndarray:
+        """R_e, (m, 3, 3)."""
+        return polar_rotations(deformation_gradients(self.g, self.tets, self._check("u", u)))
+
+    def _local(self, u: np.ndarray, R: np.ndarray) -> np.ndarray:
+        x0 = self.model.rest[self.tets]
+        d0 = x0 - x0[:, :1]
+        xe = x0 + u[self.tets]
+        d = xe - xe[:, :1]
+        return np.einsum("eji,eaj->eai", R, d) - d0                               # R^T (x_a - x_0) - (x0_a - x0_0)
+
+    def force(self, u: np.ndarray, v: np.ndarray | None = None) -> np.ndarray:
+        """Elastic (and, with v, damping) force (n, 3), including -xi m v."""
+        u = self._check("u", u)
+        R = self.rotations(u)
+        y = self._local(u, R)
+        m = self.model.material
+        if v is not None:
+            v = self._check("v", v)
+            y = y + m.zeta * np.einsum("eji,eaj->eai", R, v[self.tets])
+        fe = -np.einsum("eij,eabjk,ebk->eai", R, self.blocks, y)
+        f = np.zeros((self.model.n_vertices, 3))
+        np.add.at(f, self.tets, fe)
+        if v is not None:
+            f -= m.xi * self.model.mass[:, None] * v
+        return f
+
+    def energy(self, u: np.ndarray) -> float:
+        """Corotated elastic energy sum_e 1/2 y_e^T K_e y_e [J]."""
+        u = self._check("u", u)
+        y = self._local(u, self.rotations(u))
+        return 0.5 * float(np.einsum("eai,eabij,ebj->", y, self.blocks, y))
+
+
+def corotated_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None) -> np.ndarray:
+    """One-off per-element corotational force; build an ElementCorotation to reuse the element data."""
+    return ElementCorotation(model).force(u, v)
