@@ -1,0 +1,89 @@
+"""Stress: exact constant-strain states (uniaxial, shear), von Mises, principal values, rotation invariance."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.model import build_model
+from clusterfem_ros.fem.stress import compute_stress, von_mises
+from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
+from tests.meshes import random_delaunay_mesh
+
+MAT = Material(E=2.0e5, nu=0.3, rho=1000.0)
+TOL = 1e-10
+
+
+@pytest.fixture(scope="module")
+def cube():
+    return build_model(box_mesh((0.1, 0.1, 0.1), (3, 3, 3)), MAT)
+
+
+@pytest.mark.parametrize("corotated", [False, True])
+def test_uniaxial_stretch_free_to_contract(cube, corotated):
+    eps = 1e-4
+    x = cube.rest
+    u = np.column_stack([eps * x[:, 0], -MAT.nu * eps * x[:, 1], -MAT.nu * eps * x[:, 2]])
+    s = compute_stress(cube, u, corotated=corotated)
+    expected = np.zeros((3, 3))
+    expected[0, 0] = MAT.E * eps
+    # F is symmetric positive definite, so polar(F) = I: the corotated stress is the same (SVD round-off)
+    tol = TOL if not corotated else 1e-8
+    for field in (s.element_stress, s.vertex_stress):
+        assert np.abs(field - expected).max() <= tol * MAT.E * eps
+    assert np.allclose(s.element_von_mises, MAT.E * eps, rtol=tol)
+    assert np.allclose(s.element_principal, [0.0, 0.0, MAT.E * eps], atol=tol * MAT.E * eps)
+
+
+def test_pure_shear_gives_g_gamma_and_von_mises_sqrt3_tau(cube):
+    gamma = 2e-4
+    x = cube.rest
+    u = np.column_stack([0.5 * gamma * x[:, 1], 0.5 * gamma * x[:, 0], np.zeros(len(x))])   # symmetric shear
+    s = compute_stress(cube, u)
+    G = MAT.E / (2 * (1 + MAT.nu))
+    tau = G * gamma
+    assert np.abs(s.element_stress[:, 0, 1] - tau).max() <= TOL * tau
+    assert np.abs(s.element_stress[:, 1, 0] - tau).max() <= TOL * tau
+    assert np.abs(s.element_stress[:, [0, 1, 2], [0, 1, 2]]).max() <= TOL * tau
+    assert np.allclose(s.element_von_mises, np.sqrt(3) * tau, rtol=TOL)
+    assert np.allclose(s.vertex_von_mises, np.sqrt(3) * tau, rtol=TOL)
+    assert np.allclose(s.element_principal, [-tau, 0.0, tau], atol=TOL * tau)
+
+
+@pytest.mark.parametrize("angle_deg", [30.0, 120.0, 180.0])
+def test_rigid_rotation_is_stress_free_only_when_corotated(angle_deg):
+    model = build_model(random_delaunay_mesh(120), MAT)
+    R = Rotation.from_rotvec(np.deg2rad(angle_deg) * np.array([0.2, 0.9, -0.4]) / np.linalg.norm([0.2, 0.9, -0.4]))
+    u = R.apply(model.rest) - model.rest + [0.1, 0.0, -0.3]
+    co = compute_stress(model, u, corotated=True)
+    lin = compute_stress(model, u, corotated=False)
+    print(f"{angle_deg} deg: max von Mises corotated {co.element_von_mises.max():.2e} Pa, "
+          f"linear {lin.element_von_mises.max():.2e} Pa (E = {MAT.E:.0e} Pa)")
+    assert co.element_von_mises.max() < 1e-10 * MAT.E and co.vertex_von_mises.max() < 1e-10 * MAT.E
+    assert lin.element_von_mises.max() > 1e-3 * MAT.E * (1 - np.cos(np.deg2rad(angle_deg)))
+
+
+def test_corotated_stress_rotates_with_the_body():
+    """Stretch, then rotate rigidly: the corotated stress tensor is the rotated tensor, invariants equal."""
+    model = build_model(paper_mesh("cube"), MAT)
+    x = model.rest
+    G = np.array([[1.0, 0.2, 0.0], [0.0, -0.5, 0.3], [0.1, 0.0, 0.4]]) * 1e-3
+    F0 = np.eye(3) + 0.5 * (G + G.T)                                       # symmetric: no rotation inside
+    Q = Rotation.from_rotvec([0.4, -1.1, 2.0]).as_matrix()
+    s0 = compute_stress(model, x @ F0.T - x, corotated=True)
+    s1 = compute_stress(model, x @ (Q @ F0).T - x, corotated=True)
+    assert np.allclose(s1.element_stress, Q @ s0.element_stress @ Q.T, atol=1e-9 * MAT.E * 1e-3)
+    assert np.allclose(s1.element_von_mises, s0.element_von_mises, rtol=1e-9)
+
+
+def test_von_mises_of_known_states():
+    assert von_mises(np.diag([1.0, 0.0, 0.0])) == pytest.approx(1.0)
+    assert von_mises(np.diag([5.0, 5.0, 5.0])) == pytest.approx(0.0, abs=1e-12)    # hydrostatic
+
+
+def test_bad_input_is_named(cube):
+    with pytest.raises(ValueError, match="expected"):
+        compute_stress(cube, np.zeros((3, 3)))
+    u = np.zeros((cube.n_vertices, 3))
+    u[0, 0] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        compute_stress(cube, u)
