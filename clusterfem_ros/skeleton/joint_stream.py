@@ -11,7 +11,7 @@ No wild extrapolation: after the newest sample the pose moves on with the newest
 
 ``push`` returns the problems found as (kind, message). Rejected (kinds in ``FATAL``): a sample not
 newer than the newest (``out_of_order``), older than newest - ``max_age`` (``stale``), newer than newest
-+ ``max_future`` (``future``), of the wrong shape or non-finite (``bad_sample``). A stream that really
++ ``max_future`` (``future``; or than ``now`` + max_future when the caller passes its clock), of the wrong shape or non-finite (``bad_sample``). A stream that really
 restarted (a replayed bag, a clock jump) is not locked out: ``restart_after`` consecutive rejected
 samples with increasing stamps restart the stream from them (reported as ``restart``). A prismatic jump
 larger than ``teleport_distance`` between consecutive samples is accepted but reported (``teleport``)
@@ -103,8 +103,14 @@ class JointStreamInterpolator:
         self._q.append(q)
         self._v.append(v)
 
-    def push(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None) -> list[tuple[str, str]]:
-        """Offer one sample; returns the problems found as (kind, message), empty when all is well."""
+    def push(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None,
+             now: float | None = None) -> list[tuple[str, str]]:
+        """Offer one sample; returns the problems found as (kind, message), empty when all is well.
+
+        ``now`` [s], the receiver's clock on the stamps' time base, makes the future check absolute
+        (stamp > now + max_future); without it the check is relative to the newest sample, which also
+        rejects the first sample after a pause longer than max_future (until ``restart_after`` agree).
+        """
         n = len(self.joint_names)
         stamp = float(stamp_s)
         q = np.asarray(q, dtype=np.float64).reshape(-1)
@@ -117,6 +123,9 @@ class JointStreamInterpolator:
             what = f"joint {self.joint_names[bad]!r} = {q[bad]}" if bad >= 0 else f"stamp {stamp} or a velocity"
             return [("bad_sample", f"sample rejected: {what} is not finite; send finite values")]
         problems: list[tuple[str, str]] = []
+        if now is not None and stamp > float(now) + self.max_future:
+            return [("future", f"stamp {stamp:.6f} s is {stamp - float(now):.3g} s ahead of the clock "
+                               f"(max_future {self.max_future:g} s): sample dropped")]
         if self._t:
             newest = self._t[-1]
             kind = None
@@ -126,7 +135,7 @@ class JointStreamInterpolator:
             elif stamp <= newest:
                 kind, text = "out_of_order", f"stamp {stamp:.6f} s is not newer than the newest {newest:.6f} s: " \
                                              "sample dropped; publish in stamp order"
-            elif stamp > newest + self.max_future:
+            elif now is None and stamp > newest + self.max_future:
                 kind, text = "future", f"stamp {stamp:.6f} s is {stamp - newest:.3g} s ahead of the newest " \
                                        f"(max_future {self.max_future:g} s): sample dropped"
             if kind is not None:
@@ -146,9 +155,10 @@ class JointStreamInterpolator:
         self._store(stamp, q, v, problems)
         return problems
 
-    def push_or_raise(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None) -> list[tuple[str, str]]:
+    def push_or_raise(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None,
+                      now: float | None = None) -> list[tuple[str, str]]:
         """Like ``push`` but raises ``StaleSample`` for a rejected sample."""
-        problems = self.push(stamp_s, q, v)
+        problems = self.push(stamp_s, q, v, now)
         for kind, text in problems:
             if kind in FATAL and not any(k == "restart" for k, _ in problems):
                 raise StaleSample(kind, text)

@@ -1,0 +1,131 @@
+"""JointMap (names -> q) and JointStreamInterpolator (samples -> q(t), v(t)): policies and their messages."""
+import numpy as np
+import pytest
+
+from clusterfem_ros.skeleton.joint_map import FATAL as MAP_FATAL
+from clusterfem_ros.skeleton.joint_map import JointMap
+from clusterfem_ros.skeleton.joint_stream import FATAL, JointStreamInterpolator, StaleSample
+
+NAMES = ["root_x", "root_y", "yaw", "knee"]
+REV = np.array([False, False, True, True])
+
+
+def test_joint_map_keeps_last_values_reports_unknown_once_and_repairs_nan():
+    jm = JointMap(NAMES, np.array([0.0, 0.0, 0.1, 0.2]))
+    r = jm.update(["knee", "elbow"], [0.5, 9.0])
+    assert r.accepted and r.new_unknown == ["elbow"] and r.v is None
+    np.testing.assert_array_equal(r.q, [0.0, 0.0, 0.1, 0.5])
+    assert r.updated.tolist() == [False, False, False, True]
+    assert [k for k, _ in r.problems] == ["unknown_joint"] and "'elbow'" in r.problems[0][1]
+    r = jm.update(["elbow", "yaw"], [1.0, -0.3])
+    assert r.accepted and r.new_unknown == [] and r.problems == []          # reported once only
+    np.testing.assert_array_equal(r.q, [0.0, 0.0, -0.3, 0.5])
+    r = jm.update(["yaw", "knee"], [np.nan, 0.7])
+    assert r.accepted and r.q[2] == -0.3 and r.q[3] == 0.7
+    (kind, text), = r.problems
+    assert kind == "non_finite" and "'yaw'" in text and "nan" in text
+
+
+def test_joint_map_rejects_length_mismatch_duplicates_and_strangers():
+    jm = JointMap(NAMES)
+    r = jm.update(["yaw", "knee"], [0.1, 0.2, 0.3])
+    assert not r.accepted and r.problems[0][0] == "length_mismatch" and "2 names but 3 positions" in r.problems[0][1]
+    r = jm.update(["yaw", "yaw"], [0.1, 0.2])
+    assert not r.accepted and r.problems[0][0] == "duplicate_joint" and "'yaw'" in r.problems[0][1]
+    r = jm.update(["foo"], [1.0])
+    assert not r.accepted and {k for k, _ in r.problems} == {"unknown_joint", "no_known_joint"}
+    assert {"length_mismatch", "duplicate_joint", "no_known_joint"} <= MAP_FATAL
+    np.testing.assert_array_equal(jm.q, np.zeros(4))                        # nothing leaked in
+
+
+def test_joint_map_velocities_only_when_complete_and_finite():
+    jm = JointMap(NAMES)
+    r = jm.update(NAMES, [1, 2, 3, 4], [0.1, 0.2, 0.3, 0.4])
+    np.testing.assert_array_equal(r.v, [0.1, 0.2, 0.3, 0.4])
+    r = jm.update(["yaw"], [1.0], [0.5])
+    assert r.accepted and r.v is None                                       # partial: derive instead
+    r = jm.update(NAMES, [1, 2, 3, 4], [0.1, np.inf, 0.3, 0.4])
+    assert r.accepted and r.v is None and r.problems[0][0] == "bad_velocity" and "'root_y'" in r.problems[0][1]
+
+
+def stream(**kw):
+    return JointStreamInterpolator(NAMES, revolute=REV, **kw)
+
+
+def test_interpolator_unwraps_angles_through_pi():
+    s = stream()
+    a0, a1 = np.deg2rad(179.0), np.deg2rad(-179.0)
+    assert s.push(0.0, np.array([0, 0, a0, 0])) == []
+    assert s.push(0.1, np.array([0, 0, a1, 0])) == []
+    q, v = s.sample(0.05)
+    np.testing.assert_allclose(np.cos(q[2]), -1.0, atol=1e-12)              # through 180 deg, not 0
+    np.testing.assert_allclose(v[2], np.deg2rad(2.0) / 0.1, rtol=1e-12)
+
+
+def test_interpolator_is_linear_between_samples_and_holds_outside():
+    s = stream(horizon=0.02, teleport_distance=2.0)
+    s.push(1.0, np.array([0.0, 0, 0, 0]))
+    s.push(1.5, np.array([1.0, 0, 0, 0.5]))
+    q, v = s.sample(1.2)
+    np.testing.assert_allclose(q[[0, 3]], [0.4, 0.2])
+    np.testing.assert_allclose(v[[0, 3]], [2.0, 1.0])
+    q0, v0 = s.sample(0.0)
+    np.testing.assert_array_equal(q0, np.zeros(4)) and np.testing.assert_array_equal(v0, 0)
+    for late in (1.51, 1.52, 2.0, 100.0):                 # bounded: at most horizon * velocity past the newest
+        q, v = s.sample(late)
+        assert q[0] <= 1.0 + 0.02 * 2.0 + 1e-12
+    np.testing.assert_allclose(s.sample(100.0)[0][0], 1.04)
+    assert np.all(s.sample(100.0)[1] == 0)
+
+
+def test_interpolator_uses_message_velocities_when_given():
+    s = stream(max_future=2.0)
+    s.push(0.0, np.zeros(4), np.array([0.0, 0, 0, 1.0]))
+    s.push(1.0, np.array([0, 0, 0, 1.0]), np.array([0.0, 0, 0, 3.0]))
+    np.testing.assert_allclose(s.sample(0.25)[1][3], 1.5)
+
+
+def test_interpolator_rejects_out_of_order_stale_and_future_stamps():
+    s = stream(max_age=1.0, max_future=0.5)
+    s.push(10.0, np.zeros(4))
+    kinds = [s.push(t, np.ones(4))[0][0] for t in (9.5, 10.0, 8.0, 11.0)]
+    assert kinds == ["out_of_order", "out_of_order", "stale", "future"] and set(kinds) <= FATAL
+    assert len(s) == 1 and s.newest == 10.0
+    with pytest.raises(StaleSample, match="not newer") as e:
+        s.push_or_raise(9.9, np.zeros(4))
+    assert e.value.kind == "out_of_order"
+    assert s.push(10.2, np.zeros(4)) == [] and s.newest == 10.2
+    # with the receiver's clock the future check is absolute: a pause in the stream is no problem
+    assert s.push(13.0, np.zeros(4), now=12.9) == [] and s.push(14.0, np.zeros(4), now=13.0)[0][0] == "future"
+
+
+def test_a_restarted_stream_is_not_locked_out():
+    s = stream(max_age=1.0, restart_after=3)
+    s.push(100.0, np.zeros(4))
+    out = [s.push(t, np.full(4, t)) for t in (0.0, 0.1, 0.2)]
+    assert out[0][0][0] == "stale" and out[1][0][0] == "stale"
+    assert [k for k, _ in out[2]] == ["stale", "restart"]
+    assert s.newest == 0.2 and len(s) == 3
+    np.testing.assert_allclose(s.sample(0.15)[0][0], 0.15)
+
+
+def test_teleport_is_reported_and_not_interpolated_across():
+    s = stream(teleport_distance=0.5)
+    s.push(0.0, np.zeros(4))
+    s.push(0.1, np.array([0.1, 0, 0, 0]))
+    problems = s.push(0.2, np.array([5.0, 0, 0, 0]))
+    assert [k for k, _ in problems] == ["teleport"] and "4.9" in problems[0][1]
+    assert s.teleports == 1
+    np.testing.assert_allclose(s.sample(0.15)[0][0], 5.0)                    # no sweep through the jump
+
+
+def test_buffer_is_bounded_and_bad_samples_are_refused():
+    s = stream(capacity=8)
+    for k in range(50):
+        s.push(k * 0.01, np.full(4, 0.001 * k))
+    assert len(s) == 8
+    (kind, text), = s.push(1.0, np.array([0, np.nan, 0, 0]))
+    assert kind == "bad_sample" and "'root_y'" in text
+    assert s.push(1.0, np.zeros(3))[0][0] == "bad_sample"
+    with pytest.raises(RuntimeError, match="no joint sample yet"):
+        stream().sample(0.0)
