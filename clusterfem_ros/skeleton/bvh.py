@@ -76,6 +76,27 @@ class BvhMotion:
         raise KeyError(f"no joint {joint!r} in the BVH hierarchy")
 
 
+def elementary_rotations(axis: str, angles_deg: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) rotations about file axis ``axis`` ("X", "Y" or "Z") by ``angles_deg`` (F,) degrees."""
+    a = np.deg2rad(np.asarray(angles_deg, dtype=np.float64))
+    c, s = np.cos(a), np.sin(a)
+    i, j = [(1, 2), (2, 0), (0, 1)][_AXIS[axis]]
+    R = np.zeros(a.shape + (3, 3))
+    R[..., _AXIS[axis], _AXIS[axis]] = 1.0
+    R[..., i, i], R[..., i, j], R[..., j, i], R[..., j, j] = c, -s, s, c
+    return R
+
+
+def joint_rotations(motion: "BvhMotion", joint: int) -> np.ndarray:
+    """(F, 3, 3) local rotation of joint ``joint`` in every frame: the product of its rotation channels in order."""
+    j = motion.joints[joint]
+    R = np.broadcast_to(np.eye(3), (motion.n_frames, 3, 3)).copy()
+    for k, c in enumerate(j.channels):
+        if c.endswith("rotation"):
+            R = R @ elementary_rotations(c[0], motion.frames[:, j.channel_start + k])
+    return R
+
+
 def axes_to_ros(up: str = "Y", forward: str = "Z") -> np.ndarray:
     """Rotation (3, 3) taking a file whose ``up``/``forward`` axes are given to ROS (X forward, Z up, Y left)."""
     up, forward = up.upper(), forward.upper()
