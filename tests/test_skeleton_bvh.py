@@ -99,7 +99,7 @@ def test_unwrapping_and_despiking_leave_no_jump_over_90_degrees(cmu):
 
 MINI = """HIERARCHY\r\nROOT Hips\r\n{\r\n OFFSET 0 0 0\r\n CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation\r
  JOINT Leg\r\n {\r\n  OFFSET 0 -2 0\r\n  CHANNELS 3 Zrotation Yrotation Xrotation\r\n  End Site\r\n  {\r\n   OFFSET 0 -3 0\r\n  }\r
- }\r\n}\r\nMOTION\r\nFrames: 2\r\nFrame Time: 0.01\r\n0 10 0 0 0 0 0 0 0\r\n1 10 0 170 0 0 0 0 90\r\n"""
+ }\r\n}\r\nMOTION\r\nFrames: 2\r\nFrame Time: 0.01\r\n0 10 0 0 0 0 0 0 0\r\n1 10 0 0 0 0 0 0 90\r\n"""
 
 
 def test_mini_file_crlf_and_malformed_files_name_the_line():
@@ -108,7 +108,7 @@ def test_mini_file_crlf_and_malformed_files_name_the_line():
     with pytest.raises(BvhError, match=r":9: .*'Leg'.*unknown channel 'Zrot'"):
         parse_bvh(MINI.replace("CHANNELS 3 Zrotation", "CHANNELS 3 Zrot"))
     with pytest.raises(BvhError, match=r":20: frame 1 has 8 values, the hierarchy has 9"):
-        parse_bvh(MINI.replace("1 10 0 170 0 0 0 0 90", "1 10 0 170 0 0 0 0"))
+        parse_bvh(MINI.replace("1 10 0 0 0 0 0 0 90", "1 10 0 170 0 0 0 0"))
     with pytest.raises(BvhError, match=r"truncated"):
         parse_bvh(MINI.replace("Frames: 2", "Frames: 3"))
     with pytest.raises(BvhError, match=r":4: expected a number for the OFFSET of 'Hips'"):
