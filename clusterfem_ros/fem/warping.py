@@ -58,16 +58,11 @@ def _polar_newton(X) -> bool:
               + c20 * c20 + c21 * c21 + c22 * c22) / (det * det)
         g = np.sqrt(np.sqrt(nc / nx))           # Frobenius scaling: |X| and |X^-T| balanced
         s = 0.5 / (g * det)
+        cof = (c00, c01, c02, c10, c11, c12, c20, c21, c22)
         diff = 0.0
         for a in range(3):
             for b in range(3):
-                if a == 0:
-                    c = c00 if b == 0 else (c01 if b == 1 else c02)
-                elif a == 1:
-                    c = c10 if b == 0 else (c11 if b == 1 else c12)
-                else:
-                    c = c20 if b == 0 else (c21 if b == 1 else c22)
-                new = 0.5 * g * X[a, b] + s * c
+                new = 0.5 * g * X[a, b] + s * cof[3 * a + b]
                 d = new - X[a, b]
                 diff += d * d
                 X[a, b] = new
