@@ -80,6 +80,13 @@ def test_von_mises_of_known_states():
     assert von_mises(np.diag([5.0, 5.0, 5.0])) == pytest.approx(0.0, abs=1e-12)    # hydrostatic
 
 
+def test_von_mises_of_a_model_state_is_corotated_by_default():
+    model = build_model(paper_mesh("cube"), MAT)
+    u = Rotation.from_rotvec([0.0, 1.5, 0.0]).apply(model.rest) - model.rest
+    assert von_mises(model, u).max() < 1e-10 * MAT.E
+    assert von_mises(model, u, corotated=False).max() > 1e-2 * MAT.E
+
+
 def test_bad_input_is_named(cube):
     with pytest.raises(ValueError, match="expected"):
         compute_stress(cube, np.zeros((3, 3)))

@@ -29,7 +29,24 @@ class StressField:
     vertex_principal: np.ndarray        # (n, 3)
 
 
-def von_mises(sigma: np.ndarray) -> np.ndarray:
+def von_mises(sigma, u: np.ndarray | None = None, corotated: bool = True) -> np.ndarray:
+    """sqrt(3/2 s:s), s = dev(sigma), for a stack of tensors (..., 3, 3).
+
+    Also ``von_mises(model, u)``: the per-element von Mises stress of displacement u (corotated by
+    default: equal to the linear value for small deformations, and free of the linear model's spurious
+    stress under large rotation; pass corotated=False for the linear one).
+    """
+    if isinstance(sigma, FemModel):
+        return compute_stress(sigma, u, corotated=corotated).element_von_mises
+    return von_mises_of(np.asarray(sigma, dtype=np.float64))
+
+
+def element_von_mises(model: FemModel, u: np.ndarray, corotated: bool = True) -> np.ndarray:
+    """Per-element von Mises stress (m,) [Pa] of displacement u."""
+    return compute_stress(model, u, corotated=corotated).element_von_mises
+
+
+def von_mises_of(sigma: np.ndarray) -> np.ndarray:
     """sqrt(3/2 s:s), s = dev(sigma), for a stack (..., 3, 3)."""
     tr = np.trace(sigma, axis1=-2, axis2=-1)
     s = sigma - tr[..., None, None] / 3.0 * np.eye(3)
@@ -72,5 +89,5 @@ def compute_stress(model: FemModel, u: np.ndarray, corotated: bool = False) -> S
     vs = np.zeros((model.n_vertices, 3, 3))
     np.add.at(vs, tets, (vol[:, None, None] * sigma)[:, None].repeat(4, axis=1))
     vs /= w[:, None, None]
-    return StressField(sigma, von_mises(sigma), np.linalg.eigvalsh(sigma),
-                       vs, von_mises(vs), np.linalg.eigvalsh(vs))
+    return StressField(sigma, von_mises_of(sigma), np.linalg.eigvalsh(sigma),
+                       vs, von_mises_of(vs), np.linalg.eigvalsh(vs))
