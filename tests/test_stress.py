@@ -94,3 +94,20 @@ def test_bad_input_is_named(cube):
     u[0, 0] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
         compute_stress(cube, u)
+
+
+def test_batched_newton_polar_equals_the_svd_polar_including_inverted_and_flat_elements():
+    from clusterfem_ros.fem.corotational import polar_rotations
+    rng = np.random.default_rng(7)
+    F = np.eye(3) + 0.6 * rng.standard_normal((400, 3, 3))
+    F[:20, :, 0] *= -1.0                                   # inverted
+    F[20:25, :, 2] = 0.0                                   # flat
+    U, _, Vt = np.linalg.svd(F)
+    d = np.sign(np.linalg.det(U @ Vt))
+    d[d == 0] = 1.0
+    U[..., :, 2] *= d[..., None]
+    R_svd = U @ Vt
+    R = polar_rotations(F)
+    assert np.allclose(np.linalg.det(R), 1.0, atol=1e-12)
+    assert np.abs(R - R_svd)[25:].max() < 1e-12            # the Newton path
+    assert np.abs(np.einsum("eji,ejk->eik", R, R) - np.eye(3)).max() < 1e-12

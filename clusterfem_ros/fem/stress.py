@@ -12,21 +12,31 @@ from __future__ import annotations
 import weakref
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from .assembly import shape_gradients
-from .corotational import deformation_gradients, polar_rotations
 from .model import FemModel
+from .numba_config import SERIAL
+from .warping import _rotation_of
 
 
 @dataclass(frozen=True)
 class StressField:
     element_stress: np.ndarray          # (m, 3, 3) Cauchy stress [Pa]
     element_von_mises: np.ndarray       # (m,)
-    element_principal: np.ndarray       # (m, 3) ascending
     vertex_stress: np.ndarray           # (n, 3, 3) volume-weighted average of adjacent elements
     vertex_von_mises: np.ndarray        # (n,)
-    vertex_principal: np.ndarray        # (n, 3)
+
+    @property
+    def element_principal(self) -> np.ndarray:
+        """(m, 3) principal stresses, ascending (computed on access: an eigen-solve per element)."""
+        return np.linalg.eigvalsh(self.element_stress)
+
+    @property
+    def vertex_principal(self) -> np.ndarray:
+        """(n, 3) principal stresses of the vertex tensors, ascending (computed on access)."""
+        return np.linalg.eigvalsh(self.vertex_stress)
 
 
 def von_mises(sigma, u: np.ndarray | None = None, corotated: bool = True) -> np.ndarray:
@@ -67,6 +77,51 @@ def _rest_data(model: FemModel):
     return g, vol, w
 
 
+@numba.njit(**SERIAL)
+def _element_stress(g, tets, u, lam, mu, corotated, sigma):
+    """sigma[e] <- world-frame Cauchy stress of tet e (see the module docstring); one pass, no temporaries."""
+    F = np.empty((3, 3))
+    X = np.empty((3, 3))
+    R = np.empty((3, 3))
+    G = np.empty((3, 3))
+    s = np.empty((3, 3))
+    for e in range(tets.shape[0]):
+        for a in range(3):
+            for b in range(3):
+                acc = 1.0 if a == b else 0.0
+                for c in range(4):
+                    acc += u[tets[e, c], a] * g[e, c, b]
+                F[a, b] = acc
+        if corotated:
+            for a in range(3):
+                for b in range(3):
+                    R[a, b] = 1.0 if a == b else 0.0      # start of the fallback for inverted tets
+            _rotation_of(F, X, R)
+            for a in range(3):
+                for b in range(3):
+                    G[a, b] = R[0, a] * F[0, b] + R[1, a] * F[1, b] + R[2, a] * F[2, b]   # R^T F
+        else:
+            for a in range(3):
+                for b in range(3):
+                    G[a, b] = F[a, b]
+        tr = G[0, 0] + G[1, 1] + G[2, 2] - 3.0
+        for a in range(3):
+            for b in range(3):
+                s[a, b] = mu * (G[a, b] + G[b, a]) + ((lam * tr - 2.0 * mu) if a == b else 0.0)
+        if corotated:                                     # sigma = R s R^T
+            for a in range(3):
+                for b in range(3):
+                    acc = 0.0
+                    for c in range(3):
+                        for d in range(3):
+                            acc += R[a, c] * s[c, d] * R[b, d]
+                    sigma[e, a, b] = acc
+        else:
+            for a in range(3):
+                for b in range(3):
+                    sigma[e, a, b] = s[a, b]
+
+
 def compute_stress(model: FemModel, u: np.ndarray, corotated: bool = False) -> StressField:
     """Element and vertex stress of displacement ``u`` (n, 3); ``corotated`` for the warped model."""
     u = np.asarray(u, dtype=np.float64)
@@ -76,18 +131,12 @@ def compute_stress(model: FemModel, u: np.ndarray, corotated: bool = False) -> S
         raise ValueError("u has non-finite entries: the state diverged, stress is undefined; reset the state")
     g, vol, w = _rest_data(model)
     tets = model.mesh.tets
-    F = deformation_gradients(g, tets, u)
     lam, mu = model.material.lame
-    if corotated:
-        R = polar_rotations(F)
-        G = np.einsum("eji,ejk->eik", R, F)                  # R^T F
-    else:
-        G = F
-    eps = 0.5 * (G + np.swapaxes(G, 1, 2)) - np.eye(3)
-    s = 2.0 * mu * eps + (lam * np.trace(eps, axis1=1, axis2=2))[:, None, None] * np.eye(3)
-    sigma = np.einsum("eij,ejk,elk->eil", R, s, R) if corotated else s
-    vs = np.zeros((model.n_vertices, 3, 3))
-    np.add.at(vs, tets, (vol[:, None, None] * sigma)[:, None].repeat(4, axis=1))
+    sigma = np.empty((tets.shape[0], 3, 3))
+    _element_stress(g, tets, u, float(lam), float(mu), bool(corotated), sigma)
+    weighted = (vol[:, None, None] * sigma).reshape(-1, 9)
+    corners = tets.ravel()
+    vs = np.stack([np.bincount(corners, weights=np.repeat(weighted[:, c], 4), minlength=model.n_vertices)
+                   for c in range(9)], axis=1).reshape(-1, 3, 3)
     vs /= w[:, None, None]
-    return StressField(sigma, von_mises_of(sigma), np.linalg.eigvalsh(sigma),
-                       vs, von_mises_of(vs), np.linalg.eigvalsh(vs))
+    return StressField(sigma, von_mises_of(sigma), vs, von_mises_of(vs))
