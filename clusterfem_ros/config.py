@@ -33,6 +33,7 @@ PARAMS: tuple[Param, ...] = (
     Param("body.kind", "jelly_man", "soft body: built around the skeleton, a paper shape, or a mesh file", choices=BODIES),
     Param("body.mesh_file", "", "volume mesh (.msh/.vtu/.vtk/.mesh) when body.kind is 'mesh', in the skeleton's rest pose"),
     Param("body.target_tets", 4800, "approximate tet count of the jelly man", 100, 400000),
+    Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
     Param("material.young_modulus", 3.0e4, "Young's modulus E [Pa]", 1.0, 1.0e10),
@@ -49,7 +50,7 @@ PARAMS: tuple[Param, ...] = (
     Param("physics.max_substeps", 64, "refuse a step needing more explicit sub-steps than this", 1, 100000),
     Param("physics.clock", "wall", "'wall': physics follows the ROS clock; 'input': it follows the newest joint-state "
           "stamp (deterministic replay of a recording)", choices=("wall", "input")),
-    Param("physics.max_catchup_steps", 200, "most steps one timer tick may run when behind; the rest is dropped", 1, 100000),
+    Param("physics.max_catchup_steps", 250, "physics may run behind its inputs by this many steps (slow motion); beyond, the gap is dropped and the body re-placed on the skeleton", 1, 100000),
     Param("physics.gravity", -9.81, "gravity along world z [m/s^2]", -100.0, 100.0),
     Param("skeleton.source", "builtin", "skeleton URDF: built-in humanoid, a file, the robot_description topic, or none", choices=SKELETONS),
     Param("skeleton.urdf_file", "", "URDF path when skeleton.source is 'urdf_file'"),

@@ -24,8 +24,12 @@ from .fem.integrators import make_integrator
 from .fem.material import Material
 from .fem.mesh_io import read_mesh
 from .fem.model import Control, State, build_model
+from .fem.stability import DivergenceError
 from .fem.tet_mesh import TetMesh, boundary_triangles
 from .fem.voxel_mesh import paper_mesh
+
+
+MAX_VOLUME_ERROR = 0.5      # |V/V0 - 1| beyond this is a diverged state, not a deformation
 
 
 @dataclass
@@ -92,6 +96,9 @@ class Scene:
         self.sim_time: float | None = None
         self.start_time: float | None = None
         self.steps_done = 0
+        self.dropped_s = 0.0             # simulated time skipped because physics could not keep up
+        self._replace = False
+        self._stress_cache = None
         self.last = StepReport()
         if skeleton is not None:
             self._bind(progress)
@@ -117,10 +124,18 @@ class Scene:
         kind = config["body.kind"]
         fixed = None
         if kind == "jelly_man":
-            from .skeleton.humanoid import default_humanoid
+            from .skeleton.humanoid import HumanoidSpec, default_humanoid
             from .skeleton.jelly_body import jelly_man_mesh
+            if skeleton is None:
+                raise ValueError("body.kind 'jelly_man' is built around a skeleton, but skeleton.source is 'none': "
+                                 "choose a skeleton source or a paper shape / mesh body")
+            if source == "builtin":
+                spec = default_humanoid()
+            else:
+                r = float(config["body.bone_radius"])
+                spec = HumanoidSpec(urdf_xml, {name: r for name in skeleton.bone_names})
             _say(progress, f"voxelizing the jelly man (~{config['body.target_tets']} tets)")
-            mesh = jelly_man_mesh(default_humanoid(), target_tets=config["body.target_tets"])
+            mesh = jelly_man_mesh(spec, target_tets=config["body.target_tets"])
         elif kind == "mesh":
             mesh = read_mesh(config["body.mesh_file"])
         else:
@@ -167,10 +182,14 @@ class Scene:
             return [("no_skeleton", "joint state received but this scene has no skeleton (skeleton.source = none)")]
         result = self.joints.update(names, positions, velocities)
         problems = list(result.problems)
+        if result.accepted and not self.stream.ready:
+            self._replace = True              # first sample: the body moves onto it instead of being yanked
         if result.accepted:
             problems += self.stream.push(stamp, result.q, result.v, now=now)
         for kind, _ in problems:
             self.inputs.count(kind)
+            if kind in ("teleport", "restart"):      # the skeleton jumped: put the body on it, no yank
+                self._replace = True
         if result.accepted and not any(k in self.stream.FATAL for k, _ in problems):
             self.inputs.accepted += 1
         return problems
@@ -198,21 +217,34 @@ class Scene:
         """One physics step of length h."""
         if self.sim_time is None:
             self.start(0.0)
+        if self._replace:
+            self._replace = False
+            if self.driver is not None:
+                self.driver.reset()
+                self.state = self.driver.rigid_state(self._poses(self.sim_time), self.sim_time)
         t0 = time.perf_counter()
         info = self.integrator.step(self.state, self._control(self.sim_time), self.h)
         self.sim_time += self.h
         self.steps_done += 1
         return StepReport(1, info.substeps, info.margin, time.perf_counter() - t0)
 
-    def advance_to(self, t: float, max_steps: int | None = None) -> StepReport:
-        """Step while sim_time + h <= t (at most max_steps; the rest of the time is dropped, not owed)."""
+    def advance_to(self, t: float, max_steps: int | None = None, deadline: float | None = None) -> StepReport:
+        """Step while sim_time + h <= t, until ``deadline`` (time.perf_counter()) if given.
+
+        Steps not done by the deadline stay owed: physics runs in slow motion behind its inputs. When it
+        is more than ``max_steps`` steps behind, the gap is dropped (counted in ``dropped_s``) and the body
+        is put back on the skeleton's pose, so a slow machine never yanks the body across the gap.
+
+        Raises DivergenceError when the state stops being finite or the body is crushed or blown up
+        (volume off by more than ``MAX_VOLUME_ERROR``); the caller resets it.
+        """
         if self.sim_time is None:
             self.start(t)
             return StepReport()
         n = int(np.floor((t - self.sim_time) / self.h + 1e-9))
         if max_steps is not None and n > max_steps:
-            self.sim_time = t - max_steps * self.h
-            n = max_steps
+            self._drop(self.sim_time + n * self.h)
+            n = 0
         rep = StepReport()
         for _ in range(max(n, 0)):
             r = self.step()
@@ -220,12 +252,26 @@ class Scene:
             rep.substeps = max(rep.substeps, r.substeps)
             rep.margin = min(rep.margin, r.margin)
             rep.wall_s += r.wall_s
+            if deadline is not None and time.perf_counter() > deadline:
+                break
         if rep.steps:
             self.last = rep
+            err = self.volume_error()
+            if not abs(err) <= MAX_VOLUME_ERROR:
+                raise DivergenceError(f"the body's volume is off by {err * 100:+.3g} % at t = {self.sim_time:.6g} s "
+                                      f"(limit {MAX_VOLUME_ERROR * 100:g} %): the state has diverged; lower "
+                                      "physics.step or the binding gains, or turn warping on")
         return rep
 
+    def _drop(self, t_new: float) -> None:
+        """Skip simulated time up to t_new and put the body back on the skeleton there."""
+        if t_new > self.sim_time:
+            self.dropped_s += t_new - self.sim_time
+            self.sim_time = t_new
+            self._replace = True
+
     def reset(self) -> None:
-        """Back to rest (after a divergence): the body is rebuilt on the next start."""
+        """Start again after a divergence: at rest, or carried rigidly by the skeleton's current pose."""
         self.state = State.rest(self.model)
         t = self.sim_time
         self.sim_time = None
@@ -241,9 +287,12 @@ class Scene:
         return self.positions()[self.surface_vertices], self.surface_triangles
 
     def stress(self):
-        """The element and vertex stress of the current state (computed on call)."""
+        """The element and vertex stress of the current state (computed on the first call after a step)."""
         from .fem.stress import compute_stress
-        return compute_stress(self.model, self.state.u, corotated=bool(self.config["warping"]))
+        key = (self.steps_done, id(self.state))
+        if self._stress_cache is None or self._stress_cache[0] != key:
+            self._stress_cache = (key, compute_stress(self.model, self.state.u, corotated=bool(self.config["warping"])))
+        return self._stress_cache[1]
 
     def vertex_von_mises(self) -> np.ndarray:
         return self.stress().vertex_von_mises

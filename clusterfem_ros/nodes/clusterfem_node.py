@@ -42,7 +42,7 @@ class ClusterFemNode(Node):
         self.recorder = None
         self.divergences = 0
         self.refused_steps = 0
-        self._stats = {"t_wall": time.perf_counter(), "t_sim": None}
+        self._stats = {"t_wall": time.perf_counter(), "steps": 0}
         self._rtf = 0.0
         self._marker_pub = self.create_publisher(Marker, SURFACE_TOPIC, 1)
         self._stress_pub = self.create_publisher(PointCloud2, STRESS_TOPIC, 1)
@@ -80,10 +80,13 @@ class ClusterFemNode(Node):
         c = self.config
         path = default_bag_path(c["recording.prefix"], root=c["recording.dir"])
         self.recorder = Rosbag2McapWriter(path)
-        self.recorder.add_topic(JOINTS_TOPIC, "sensor_msgs/msg/JointState", qos="sensor_data")
-        self.recorder.add_topic(SURFACE_TOPIC, "visualization_msgs/msg/Marker")
-        self.recorder.add_topic(STRESS_TOPIC, "sensor_msgs/msg/PointCloud2")
-        self.recorder.add_topic(DIAG_TOPIC, "diagnostic_msgs/msg/DiagnosticArray")
+        # bags name topics fully qualified, as rosbag2 does (namespace and remapping applied)
+        self._bag_topics = {t: self.resolve_topic_name(t) for t in (JOINTS_TOPIC, SURFACE_TOPIC, STRESS_TOPIC, DIAG_TOPIC)}
+        for topic, msg_type, qos in ((JOINTS_TOPIC, "sensor_msgs/msg/JointState", "sensor_data"),
+                                     (SURFACE_TOPIC, "visualization_msgs/msg/Marker", "reliable"),
+                                     (STRESS_TOPIC, "sensor_msgs/msg/PointCloud2", "reliable"),
+                                     (DIAG_TOPIC, "diagnostic_msgs/msg/DiagnosticArray", "reliable")):
+            self.recorder.add_topic(self._bag_topics[topic], msg_type, qos=qos)
         self.recording_path = path
         self.get_logger().info(f"recording to {path}")
 
@@ -114,7 +117,7 @@ class ClusterFemNode(Node):
 
     def _record(self, topic: str, data: bytes) -> None:
         if self.recorder is not None:
-            self.recorder.write(topic, self.get_clock().now().nanoseconds, data)
+            self.recorder.write(self._bag_topics[topic], self.get_clock().now().nanoseconds, data)
 
     def _on_joint_state(self, data: bytes) -> None:
         self._record(JOINTS_TOPIC, data)
@@ -128,7 +131,7 @@ class ClusterFemNode(Node):
             return
         if stamp == 0.0:
             stamp = self._now()
-        for kind, message in self.scene.push_joint_state(stamp, names, q, v):
+        for kind, message in self.scene.push_joint_state(stamp, names, q, v, now=self._now()):
             if kind == "unknown_joint":
                 self.get_logger().warning(message)          # reported once per name by the joint map
             else:
@@ -147,7 +150,9 @@ class ClusterFemNode(Node):
         else:
             target = self._now()
         try:
-            scene.advance_to(target, max_steps=self.config["physics.max_catchup_steps"])
+            # leave the executor time for inputs and outputs: physics gets 70 % of a timer period
+            deadline = time.perf_counter() + 0.7 / self.config["physics.timer_hz"]
+            scene.advance_to(target, max_steps=self.config["physics.max_catchup_steps"], deadline=deadline)
         except (DivergenceError, StabilityError) as exc:
             self.divergences += 1
             self.get_logger().error(f"{exc}; the body is reset to rest ({self.divergences} resets so far)",
@@ -194,10 +199,9 @@ class ClusterFemNode(Node):
     def diagnostics(self) -> dict:
         s = self.scene
         now = time.perf_counter()
-        if s is not None and s.sim_time is not None:
-            if self._stats["t_sim"] is not None and now > self._stats["t_wall"]:
-                self._rtf = (s.sim_time - self._stats["t_sim"]) / (now - self._stats["t_wall"])
-            self._stats = {"t_wall": now, "t_sim": s.sim_time}
+        if s is not None and now - self._stats["t_wall"] >= 0.5:   # simulated (not dropped) time per wall time
+            self._rtf = (s.steps_done - self._stats["steps"]) * s.h / (now - self._stats["t_wall"])
+            self._stats = {"t_wall": now, "steps": s.steps_done}
         values = {"steps": s.steps_done if s else 0,
                   "step_ms": (s.last.wall_s / max(s.last.steps, 1) * 1e3) if s else 0.0,
                   "real_time_factor": self._rtf,
@@ -207,7 +211,8 @@ class ClusterFemNode(Node):
                   "volume_error": s.volume_error() if s else 0.0,
                   "inputs_accepted": s.inputs.accepted if s else 0,
                   "inputs_rejected": s.inputs.total_rejected if s else 0,
-                  "resets_after_divergence": self.divergences}
+                  "resets_after_divergence": self.divergences,
+                  "dropped_time_s": s.dropped_s if s else 0.0}
         if s:
             values.update({f"rejected_{k}": n for k, n in sorted(s.inputs.rejected.items())})
         return values
