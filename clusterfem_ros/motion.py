@@ -1,0 +1,51 @@
+"""Motion sources by name: the skeleton (URDF text) and the joint trajectory a player plays. No ROS.
+
+    load_motion("builtin_walk")                     # default humanoid walking, loops without a jump
+    load_motion("bvh", "walk.bvh")                  # a capture's own skeleton and its joint angles
+    load_motion("keyframes", "wave.yaml")           # timed targets for the default humanoid's joints
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from .skeleton.trajectory import JointTrajectory
+
+SOURCES = ("builtin_walk", "bvh", "keyframes")
+WALK_CYCLES = 4          # the built-in walk is this many whole gait periods, so looping is seamless
+
+
+@dataclass(frozen=True)
+class Motion:
+    urdf: str                      # skeleton the trajectory's joint names belong to
+    trajectory: JointTrajectory
+    description: str
+    builtin_skeleton: bool         # True: the default humanoid (skeleton.source 'builtin' fits it)
+
+
+def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: float = 1.0) -> Motion:
+    """The named motion; raises ValueError naming the source or file and the way out."""
+    from .skeleton.humanoid import default_humanoid
+    if source == "builtin_walk":
+        from .skeleton.procedural_walk import gait_period, procedural_walk
+        period = gait_period(speed_mps)
+        traj = procedural_walk(WALK_CYCLES * period, speed=speed_mps)
+        return Motion(default_humanoid().urdf, traj,
+                      f"built-in walk ({WALK_CYCLES} gait periods of {period:.2f} s at {speed_mps:g} m/s)", True)
+    if source not in SOURCES:
+        raise ValueError(f"motion source {source!r} is unknown: choose one of {', '.join(SOURCES)}")
+    if not str(file):
+        raise ValueError(f"motion source {source!r} needs a file: set the 'file' parameter to a "
+                         f"{'.bvh' if source == 'bvh' else '.yaml/.csv'} path")
+    path = Path(file)
+    if source == "bvh":
+        from .skeleton.bvh import load_bvh
+        from .skeleton.bvh_to_urdf import bvh_trajectory, bvh_urdf
+        capture = load_bvh(path)
+        traj = bvh_trajectory(capture)
+        return Motion(bvh_urdf(capture), traj, f"BVH {path.name} ({capture.n_frames} frames, "
+                      f"{traj.duration:.2f} s)", False)
+    from .skeleton.keyframes import load_keyframes
+    spec = default_humanoid()
+    traj = load_keyframes(path, joint_names=spec.joint_names)
+    return Motion(spec.urdf, traj, f"key frames {path.name} ({traj.duration:.2f} s)", True)
