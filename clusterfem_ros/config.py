@@ -170,6 +170,18 @@ def load_scene_file(path: str | Path, node_name: str = NODE_NAME) -> SceneConfig
     return from_mapping(_flatten(params))
 
 
+def scene_file_text(config: SceneConfig, node_name: str = NODE_NAME) -> str:
+    """The config as a ROS 2 parameter YAML that ``load_scene_file`` (and ``--params-file``) reads back."""
+    nested: dict[str, Any] = {}
+    for name, value in config.values.items():
+        *path, leaf = name.split(".")
+        d = nested
+        for part in path:
+            d = d.setdefault(part, {})
+        d[leaf] = list(value) if isinstance(value, tuple) else value
+    return yaml.safe_dump({node_name: {"ros__parameters": nested}}, sort_keys=False)
+
+
 def default_scene_path() -> Path:
     """config/default_scene.yaml from the source tree, or from share/ when installed."""
     here = Path(__file__).resolve().parent.parent / "config" / "default_scene.yaml"

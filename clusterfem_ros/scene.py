@@ -93,8 +93,10 @@ class Scene:
         self.driver = None
         self.joints = None
         self.inputs = InputCounters()
-        self.sim_time: float | None = None
+        self._t0: float | None = None      # time of step 0 of the current run (stamps are ~1e9 s: time is
+        self._k = 0                        # kept as t0 + k h, never accumulated, so it does not drift)
         self.start_time: float | None = None
+        self.first_stamp: float | None = None     # stamp of the first joint state accepted
         self.steps_done = 0
         self.dropped_s = 0.0             # simulated time skipped because physics could not keep up
         self._replace = False
@@ -182,10 +184,13 @@ class Scene:
             return [("no_skeleton", "joint state received but this scene has no skeleton (skeleton.source = none)")]
         result = self.joints.update(names, positions, velocities)
         problems = list(result.problems)
-        if result.accepted and not self.stream.ready:
-            self._replace = True              # first sample: the body moves onto it instead of being yanked
+        first = result.accepted and not self.stream.ready
         if result.accepted:
             problems += self.stream.push(stamp, result.q, result.v, now=now)
+        if first and self.stream.ready:
+            self._replace = True              # first sample: the body moves onto it instead of being yanked
+            if self.first_stamp is None:
+                self.first_stamp = self.stream.newest
         for kind, _ in problems:
             self.inputs.count(kind)
             if kind in ("teleport", "restart"):      # the skeleton jumped: put the body on it, no yank
@@ -206,7 +211,7 @@ class Scene:
 
     def start(self, t: float) -> None:
         """Put the body on its skeleton's pose at time t (no transient from the rest pose), and start the clock."""
-        self.sim_time = float(t)
+        self._t0, self._k = float(t), 0
         if self.start_time is None:
             self.start_time = self.sim_time
         if self.driver is not None:
@@ -224,14 +229,25 @@ class Scene:
                 self.state = self.driver.rigid_state(self._poses(self.sim_time), self.sim_time)
         t0 = time.perf_counter()
         info = self.integrator.step(self.state, self._control(self.sim_time), self.h)
-        self.sim_time += self.h
+        self._k += 1
         self.steps_done += 1
         return StepReport(1, info.substeps, info.margin, time.perf_counter() - t0)
 
-    def advance_to(self, t: float, max_steps: int | None = None, deadline: float | None = None) -> StepReport:
+    @property
+    def sim_time(self) -> float | None:
+        """Simulated time [s] on the input clock (None before the start)."""
+        return None if self._t0 is None else self._t0 + self._k * self.h
+
+    def steps_due(self, t: float) -> int:
+        """Whole steps from sim_time up to t (a step due within 1 us counts: stamps near 1e9 s carry
+        ~0.2 us of round-off)."""
+        return int(np.floor((t - self.sim_time) / self.h + 1e-6 / self.h))
+
+    def advance_to(self, t: float, max_steps: int | None = None, deadline: float | None = None,
+                   on_step: Callable[[], None] | None = None) -> StepReport:
         """Step while sim_time + h <= t, until ``deadline`` (time.perf_counter()) if given.
 
-        Steps not done by the deadline stay owed: physics runs in slow motion behind its inputs. When it
+        ``on_step()`` is called after every step. Steps not done by the deadline stay owed: physics runs in slow motion behind its inputs. When it
         is more than ``max_steps`` steps behind, the gap is dropped (counted in ``dropped_s``) and the body
         is put back on the skeleton's pose, so a slow machine never yanks the body across the gap.
 
@@ -241,13 +257,15 @@ class Scene:
         if self.sim_time is None:
             self.start(t)
             return StepReport()
-        n = int(np.floor((t - self.sim_time) / self.h + 1e-9))
+        n = self.steps_due(t)
         if max_steps is not None and n > max_steps:
             self._drop(self.sim_time + n * self.h)
             n = 0
         rep = StepReport()
         for _ in range(max(n, 0)):
             r = self.step()
+            if on_step is not None:
+                on_step()
             rep.steps += 1
             rep.substeps = max(rep.substeps, r.substeps)
             rep.margin = min(rep.margin, r.margin)
@@ -267,14 +285,14 @@ class Scene:
         """Skip simulated time up to t_new and put the body back on the skeleton there."""
         if t_new > self.sim_time:
             self.dropped_s += t_new - self.sim_time
-            self.sim_time = t_new
+            self._t0, self._k = t_new, 0
             self._replace = True
 
     def reset(self) -> None:
         """Start again after a divergence: at rest, or carried rigidly by the skeleton's current pose."""
         self.state = State.rest(self.model)
         t = self.sim_time
-        self.sim_time = None
+        self._t0 = None
         if t is not None:
             self.start(t)
 

@@ -42,6 +42,14 @@ def arrays_to_joint_state(names: Sequence[str], positions: np.ndarray,
                       name=names, position=q.tolist(), velocity=v.tolist(), effort=[])
 
 
+def joint_state_fields(msg: JointState) -> tuple[float, list[str], np.ndarray, Optional[np.ndarray]]:
+    """(stamp [s], names, positions, velocities or None) as sent, lengths unchecked: for a consumer that
+    classifies bad messages itself (the skeleton's JointMap counts length mismatches)."""
+    v = np.asarray(msg.velocity, dtype=np.float64)
+    return (stamp_to_seconds(msg.header.stamp), list(msg.name), np.asarray(msg.position, dtype=np.float64),
+            (v if len(v) else None))
+
+
 def joint_state_to_arrays(msg: JointState) -> tuple[float, list[str], np.ndarray, Optional[np.ndarray]]:
     """(stamp in seconds, names, positions (n,), velocities (n,) or None if the message has none)."""
     n = len(msg.name)

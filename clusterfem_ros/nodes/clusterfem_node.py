@@ -21,7 +21,7 @@ from visualization_msgs.msg import Marker
 
 from msg_adapters.colormap import map_scalars
 from msg_adapters.diagnostics import diagnostic_array
-from msg_adapters.joint_state import joint_state_to_arrays
+from msg_adapters.joint_state import joint_state_fields
 from msg_adapters.marker import surface_marker_cdr
 from msg_adapters.pointcloud import stress_cloud_cdr
 
@@ -40,6 +40,7 @@ class ClusterFemNode(Node):
         c = self.config
         self.scene: Scene | None = None
         self.recorder = None
+        self.counts: dict[str, int] = {}      # messages per topic published (outputs) or received (inputs)
         self.divergences = 0
         self.refused_steps = 0
         self._stats = {"t_wall": time.perf_counter(), "steps": 0}
@@ -88,6 +89,9 @@ class ClusterFemNode(Node):
                                      (DIAG_TOPIC, "diagnostic_msgs/msg/DiagnosticArray", "reliable")):
             self.recorder.add_topic(self._bag_topics[topic], msg_type, qos=qos)
         self.recording_path = path
+        from ..config import scene_file_text
+        from ..recording.replay import PARAMS_FILE
+        (path / PARAMS_FILE).write_text(scene_file_text(self.config))   # what a replay needs besides the inputs
         self.get_logger().info(f"recording to {path}")
 
     def _make_output_timers(self) -> None:
@@ -115,47 +119,59 @@ class ClusterFemNode(Node):
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def _record(self, topic: str, data: bytes) -> None:
+    def _record(self, topic: str, data: bytes, log_ns: int | None = None) -> None:
+        self.counts[topic] = self.counts.get(topic, 0) + 1
         if self.recorder is not None:
-            self.recorder.write(self._bag_topics[topic], self.get_clock().now().nanoseconds, data)
+            self.recorder.write(self._bag_topics[topic], self.get_clock().now().nanoseconds if log_ns is None
+                                else log_ns, data)
 
     def _on_joint_state(self, data: bytes) -> None:
-        self._record(JOINTS_TOPIC, data)
-        if self.scene is None:
+        now_ns = self.get_clock().now().nanoseconds
+        self._record(JOINTS_TOPIC, data, now_ns)        # the receive time is what a replay passes as 'now'
+        scene = self.scene
+        if scene is None:
             return
         try:
-            stamp, names, q, v = joint_state_to_arrays(deserialize_message(data, JointState))
+            stamp, names, q, v = joint_state_fields(deserialize_message(data, JointState))
         except Exception as exc:
-            self.scene.inputs.count("malformed")
+            scene.inputs.count("malformed")
             self.get_logger().warning(f"joint state rejected: {exc}; fix the publisher", throttle_duration_sec=2.0)
             return
         if stamp == 0.0:
-            stamp = self._now()
-        for kind, message in self.scene.push_joint_state(stamp, names, q, v, now=self._now()):
+            stamp = now_ns * 1e-9
+        input_clock = self.config["physics.clock"] == "input"
+        if input_clock and scene.sim_time is not None:
+            self._advance(scene.stream.newest)              # finish the samples before, then take this one
+        for kind, message in scene.push_joint_state(stamp, names, q, v, now=now_ns * 1e-9):
             if kind == "unknown_joint":
                 self.get_logger().warning(message)          # reported once per name by the joint map
             else:
-                self.get_logger().warning(f"{message} [{kind}: {self.scene.inputs.rejected.get(kind, 0)} so far]",
+                self.get_logger().warning(f"{message} [{kind}: {scene.inputs.rejected.get(kind, 0)} so far]",
                                           throttle_duration_sec=2.0)
+        if input_clock and scene.sim_time is None and scene.stream.ready:
+            scene.start(scene.first_stamp)
 
     # -- physics ---------------------------------------------------------------------------------
     def _on_physics(self) -> None:
+        """Wall clock: advance to now, 70 % of a timer period at most (slow motion beyond). Input clock:
+        advance to the newest joint-state stamp, every step, so a replay of the same inputs is identical
+        (recording/replay.py does exactly this)."""
         scene = self.scene
         if scene is None:
             return
         if self.config["physics.clock"] == "input":
-            target = scene.stream.newest if scene.driver is not None and scene.stream.ready else None
-            if target is None:
-                return
-        else:
-            target = self._now()
+            if scene.sim_time is not None:
+                self._advance(scene.stream.newest)
+            return
+        self._advance(self._now(), deadline=time.perf_counter() + 0.7 / self.config["physics.timer_hz"])
+
+    def _advance(self, target: float, deadline: float | None = None) -> None:
+        scene = self.scene
         try:
-            # leave the executor time for inputs and outputs: physics gets 70 % of a timer period
-            deadline = time.perf_counter() + 0.7 / self.config["physics.timer_hz"]
             scene.advance_to(target, max_steps=self.config["physics.max_catchup_steps"], deadline=deadline)
         except (DivergenceError, StabilityError) as exc:
             self.divergences += 1
-            self.get_logger().error(f"{exc}; the body is reset to rest ({self.divergences} resets so far)",
+            self.get_logger().error(f"{exc}; the body is reset ({self.divergences} resets so far)",
                                     throttle_duration_sec=2.0)
             scene.reset()
 
@@ -167,6 +183,10 @@ class ClusterFemNode(Node):
     def _stamp(self):
         return self.get_clock().now().nanoseconds
 
+    def _sim_stamp(self) -> int:
+        """Outputs carry the simulated time of the state they show (behind the clock in slow motion)."""
+        return int(round(self.scene.sim_time * 1e9))
+
     def _stress_max(self) -> float:
         return self.config["output.stress_max"] or self.config["material.young_modulus"] / 20.0
 
@@ -177,7 +197,7 @@ class ClusterFemNode(Node):
         vm = self.scene.vertex_von_mises()[self.scene.surface_vertices]
         rgba = map_scalars(vm, self.config["output.colormap"], 0.0, self._stress_max())
         try:
-            data = surface_marker_cdr(verts, tris, rgba, self.config["output.frame_id"], self._stamp(), "clusterfem", 0)
+            data = surface_marker_cdr(verts, tris, rgba, self.config["output.frame_id"], self._sim_stamp(), "clusterfem", 0)
         except ValueError as exc:          # non-finite: never published
             self.get_logger().error(f"surface not published: {exc}", throttle_duration_sec=2.0)
             return
@@ -189,7 +209,7 @@ class ClusterFemNode(Node):
             return
         try:
             data = stress_cloud_cdr(self.scene.positions(), self.scene.vertex_von_mises(),
-                                    self.config["output.frame_id"], self._stamp())
+                                    self.config["output.frame_id"], self._sim_stamp())
         except ValueError as exc:
             self.get_logger().error(f"stress not published: {exc}", throttle_duration_sec=2.0)
             return

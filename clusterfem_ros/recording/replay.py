@@ -1,0 +1,129 @@
+"""Replay a recorded bag's joint states through a Scene, and compare with the recorded surfaces. No ROS.
+
+A node running with ``physics.clock: input`` steps on the joint-state stamps only, so its states are a
+function of the inputs and the parameters; the bag folder keeps both (``scene_parameters.yaml`` beside
+the .mcap). Replaying the joint states through a fresh Scene in the same order reproduces every
+recorded surface Marker (stamped with its simulated time) to round-off:
+
+    python -m clusterfem_ros.recording.replay bags/clusterfem_20261122_120000
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+PARAMS_FILE = "scene_parameters.yaml"
+
+
+@dataclass
+class JointSample:
+    log_ns: int                 # receive time (the node's clock)
+    stamp: float                # header stamp [s]
+    names: list
+    q: np.ndarray
+    v: np.ndarray | None
+
+
+def _reader(folder: Path):
+    from rosbags.highlevel import AnyReader
+    return AnyReader([Path(folder)])
+
+
+def read_joint_states(folder: str | Path, topic: str = "/joint_states") -> list[JointSample]:
+    """Every joint state in the bag, in recording order."""
+    out = []
+    with _reader(Path(folder)) as r:
+        conns = [c for c in r.connections if c.topic == topic]
+        if not conns:
+            raise ValueError(f"bag {str(folder)!r} has no {topic!r} topic (topics: "
+                             f"{sorted({c.topic for c in r.connections})})")
+        for c, log_ns, raw in r.messages(connections=conns):
+            m = r.deserialize(raw, c.msgtype)
+            stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+            q = np.asarray(m.position, dtype=np.float64)
+            v = np.asarray(m.velocity, dtype=np.float64) if len(m.velocity) else None
+            out.append(JointSample(log_ns, stamp, list(m.name), q, v))
+    return out
+
+
+def read_surfaces(folder: str | Path, topic: str = "/clusterfem/surface") -> list[tuple[int, np.ndarray]]:
+    """(stamp in ns, triangle-list points (3t, 3)) of every recorded surface Marker."""
+    out = []
+    with _reader(Path(folder)) as r:
+        conns = [c for c in r.connections if c.topic == topic]
+        for c, _, raw in r.messages(connections=conns):
+            m = r.deserialize(raw, c.msgtype)
+            pts = np.array([[p.x, p.y, p.z] for p in m.points], dtype=np.float64).reshape(-1, 3)
+            out.append((m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, pts))
+    return out
+
+
+def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.ndarray]:
+    """Drive ``scene`` (fresh) as the node does with physics.clock = input: before each sample, step up
+    to the newest stamp; then take the sample. Returns the triangle-list surface points at each
+    simulated time in ``at_ns`` that the replay passes through."""
+    wanted = sorted(set(at_ns))
+    got: dict[int, np.ndarray] = {}
+    k = 0
+
+    def collect():
+        nonlocal k
+        now = int(round(scene.sim_time * 1e9))
+        while k < len(wanted) and wanted[k] < now:
+            k += 1                                            # a time the replay stepped over
+        if k < len(wanted) and wanted[k] == now:
+            verts, tris = scene.surface()
+            got[now] = verts[tris].reshape(-1, 3)
+            k += 1
+
+    from ..fem.stability import DivergenceError, StabilityError
+    max_steps = scene.config["physics.max_catchup_steps"]
+
+    def advance():                                        # as ClusterFemNode._advance
+        try:
+            scene.advance_to(scene.stream.newest, max_steps=max_steps, on_step=collect)
+        except (DivergenceError, StabilityError):
+            scene.reset()
+
+    for s in samples:                                     # the node's order (nodes/clusterfem_node.py)
+        if scene.sim_time is not None:
+            advance()
+        scene.push_joint_state(s.stamp, s.names, s.q, s.v, now=s.log_ns * 1e-9)
+        if scene.sim_time is None and scene.stream.ready:
+            scene.start(scene.first_stamp)
+            collect()
+    if scene.sim_time is not None:
+        advance()
+    return got
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("bag", help="bag folder written by the clusterfem node")
+    args = ap.parse_args(argv)
+    from ..config import load_scene_file
+    from ..scene import Scene
+    folder = Path(args.bag)
+    params = folder / PARAMS_FILE
+    if not params.exists():
+        print(f"error: {params} is missing: only bags recorded by the clusterfem node can be replayed", file=sys.stderr)
+        return 2
+    config = load_scene_file(params)
+    if config["physics.clock"] != "input":
+        print("note: the bag was recorded with physics.clock = wall; its surfaces depend on timing and are "
+              "compared only where the replay passes through their stamps", file=sys.stderr)
+    samples = read_joint_states(folder)
+    surfaces = read_surfaces(folder)
+    print(f"replaying {len(samples)} joint states; {len(surfaces)} recorded surfaces")
+    got = replay(Scene.build(config), samples, [t for t, _ in surfaces])
+    diffs = [float(np.abs(got[t] - p).max()) for t, p in surfaces if t in got and got[t].shape == p.shape]
+    print(f"compared {len(diffs)} surfaces; max vertex difference {max(diffs) if diffs else float('nan'):.3g} m")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

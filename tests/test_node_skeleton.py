@@ -1,0 +1,170 @@
+"""The node driven by a skeleton, launch-free: player -> node -> markers; bad inputs; recording; replay."""
+import math
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
+
+from tests.ros_harness import RosWorld
+
+pytestmark = pytest.mark.ros
+
+SMALL_MAN = {"body.kind": "jelly_man", "body.target_tets": 700, "skeleton.source": "builtin", "warping": False,
+             "output.marker_rate_hz": 20.0, "output.stress_rate_hz": 10.0, "output.diagnostics_rate_hz": 5.0}
+
+
+@pytest.fixture
+def world():
+    w = RosWorld()
+    yield w
+    w.close()
+
+
+def _params(values):
+    return [Parameter(k, value=v) for k, v in values.items()]
+
+
+def _sim(world, **values):
+    from clusterfem_ros.nodes.clusterfem_node import ClusterFemNode
+    return world.add(ClusterFemNode(context=world.context, parameter_overrides=_params({**SMALL_MAN, **values})))
+
+
+def _player(world, **values):
+    from clusterfem_ros.nodes.player_node import MocapPlayer
+    return world.add(MocapPlayer(context=world.context, parameter_overrides=_params({"rate_hz": 100.0, **values})))
+
+
+def _raw(world, msg_type, topic):
+    got = []
+    world.node(f"probe_{abs(hash(topic)) % 10000}").create_subscription(msg_type, topic, got.append, 10, raw=True)
+    return got
+
+
+def _points(raw):
+    from visualization_msgs.msg import Marker
+    m = deserialize_message(raw, Marker)
+    return np.array([[p.x, p.y, p.z] for p in m.points])
+
+
+def test_markers_arrive_and_deform_as_the_skeleton_walks(world):
+    from visualization_msgs.msg import Marker
+    sim = _sim(world)
+    markers = _raw(world, Marker, "clusterfem/surface")
+    _player(world)
+    world.wait_for(lambda: sim.scene.inputs.accepted > 5 and len(markers) > 0, 30, "first joint states and marker")
+    n0 = len(markers)
+    world.wait_for(lambda: len(markers) >= n0 + 20, 30, "20 more markers")
+    first, last = _points(markers[n0]), _points(markers[-1])
+    assert first.shape == last.shape and np.isfinite(last).all()
+    # the body walks along +x ...
+    assert last[:, 0].mean() - first[:, 0].mean() > 0.3
+    # ... and deforms: distances between points change (a rigid motion keeps them)
+    idx = np.random.default_rng(0).choice(len(first), 200, replace=False)
+    d0 = np.linalg.norm(first[idx, None] - first[None, idx], axis=-1)
+    d1 = np.linalg.norm(last[idx, None] - last[None, idx], axis=-1)
+    assert np.abs(d1 - d0).max() > 0.05
+    assert sim.scene.inputs.total_rejected == 0
+
+
+def test_every_bad_input_is_counted_and_outputs_stay_finite(world):
+    from sensor_msgs.msg import JointState
+    from visualization_msgs.msg import Marker
+    sim = _sim(world)
+    markers = _raw(world, Marker, "clusterfem/surface")
+    pub_node = world.node("bad_publisher")
+    pub = pub_node.create_publisher(JointState, "joint_states", 10)
+    names = sim.scene.skeleton.joint_names
+    q0 = sim.scene.skeleton.neutral()
+    clock = pub_node.get_clock()
+
+    def now_ns(offset_s=0.0):
+        return clock.now().nanoseconds + int(offset_s * 1e9)
+
+    def arrays_to_joint_state(names, q, stamp):      # by hand: the adapter refuses what we want to send
+        m = JointState(name=list(names), position=[float(x) for x in q])
+        m.header.stamp.sec, m.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+        return m
+
+    def good():
+        pub.publish(arrays_to_joint_state(names, q0, stamp=now_ns()))
+
+    def send(msg):
+        pub.publish(msg)
+
+    def after(kind, fn, timeout=10.0):
+        before = sim.scene.inputs.rejected.get(kind, 0)
+        for _ in range(3):                       # best-effort transport: send until it is counted
+            fn()
+            try:
+                world.wait_for(lambda: sim.scene.inputs.rejected.get(kind, 0) > before, timeout / 3, kind)
+                return
+            except AssertionError:
+                continue
+        raise AssertionError(f"{kind} was never counted")
+
+    world.wait_for(lambda: sim._marker_pub.get_subscription_count() > 0, 10, "probe matched")
+    for _ in range(5):
+        good()
+    world.wait_for(lambda: sim.scene.inputs.accepted >= 3, 10, "good samples")
+    nan_q = q0.copy()
+    nan_q[3] = math.nan
+    after("non_finite", lambda: send(arrays_to_joint_state(names, nan_q, stamp=now_ns())))
+    m = JointState(name=names[:3], position=[0.0, 0.1])
+    m.header.stamp.sec, m.header.stamp.nanosec = divmod(now_ns(), 1_000_000_000)
+    after("length_mismatch", lambda: send(m))
+    after("no_known_joint", lambda: send(arrays_to_joint_state(["no_such_joint"], np.zeros(1), stamp=now_ns())))
+    after("stale", lambda: send(arrays_to_joint_state(names, q0, stamp=now_ns(-100.0))))
+    after("future", lambda: send(arrays_to_joint_state(names, q0, stamp=now_ns(+100.0))))
+    good()
+    jump = q0.copy()
+    jump[names.index("root_x")] += 5.0
+    after("teleport", lambda: send(arrays_to_joint_state(names, jump, stamp=now_ns())))
+    n = len(markers)
+    world.wait_for(lambda: len(markers) >= n + 5, 20, "markers after the bad inputs")
+    for raw in markers[n:]:
+        assert np.isfinite(_points(raw)).all()
+    # the teleport put the body onto the skeleton 5 m on, without a divergence
+    assert _points(markers[-1])[:, 0].mean() > 4.0
+    assert sim.divergences == 0
+    d = sim.diagnostics()
+    assert d["inputs_rejected"] >= 5 and all(np.isfinite(v) for v in d.values() if isinstance(v, float))
+
+
+def test_recording_opens_in_rosbags_with_the_published_counts(world, tmp_path):
+    from rosbags.highlevel import AnyReader
+    sim = _sim(world, **{"recording.enabled": True, "recording.dir": str(tmp_path)})
+    _player(world)
+    world.wait_for(lambda: sim.counts.get("clusterfem/surface", 0) >= 10 and sim.counts.get("/diagnostics", 0) >= 2,
+                   40, "recorded outputs")
+    world.executor.shutdown(timeout_sec=5.0)
+    counts = dict(sim.counts)
+    sim.close()
+    with AnyReader([sim.recording_path]) as r:
+        got = {}
+        for c, _, raw in r.messages():
+            msg = r.deserialize(raw, c.msgtype)              # with the bag's own schemas
+            assert msg is not None
+            got[c.topic] = got.get(c.topic, 0) + 1
+    assert got == {"/joint_states": counts["joint_states"], "/clusterfem/surface": counts["clusterfem/surface"],
+                   "/clusterfem/stress": counts["clusterfem/stress"], "/diagnostics": counts["/diagnostics"]}
+
+
+def test_replaying_the_recorded_joint_states_reproduces_the_recorded_surfaces(world, tmp_path):
+    from clusterfem_ros.config import load_scene_file
+    from clusterfem_ros.recording.replay import PARAMS_FILE, read_joint_states, read_surfaces, replay
+    from clusterfem_ros.scene import Scene
+    sim = _sim(world, **{"recording.enabled": True, "recording.dir": str(tmp_path), "physics.clock": "input",
+                         "warping": True})
+    _player(world)
+    world.wait_for(lambda: sim.counts.get("clusterfem/surface", 0) >= 15, 40, "recorded surfaces")
+    world.executor.shutdown(timeout_sec=5.0)
+    sim.close()
+    bag = sim.recording_path
+    surfaces = read_surfaces(bag)
+    got = replay(Scene.build(load_scene_file(bag / PARAMS_FILE)), read_joint_states(bag), [t for t, _ in surfaces])
+    matched = [(got[t], p) for t, p in surfaces if t in got]
+    assert len(matched) >= 10
+    assert max(float(np.abs(a - b).max()) for a, b in matched) <= 1e-12
+    moved = np.abs(matched[-1][1] - matched[0][1]).max()
+    assert moved > 0.1                         # the compared surfaces are not all the same picture
