@@ -7,6 +7,7 @@ from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 
 from tests.ros_harness import RosWorld
+from tests.shared_data import CMU_WALK
 
 pytestmark = pytest.mark.ros
 
@@ -168,3 +169,25 @@ def test_replaying_the_recorded_joint_states_reproduces_the_recorded_surfaces(wo
     assert max(float(np.abs(a - b).max()) for a, b in matched) <= 1e-12
     moved = np.abs(matched[-1][1] - matched[0][1]).max()
     assert moved > 0.1                         # the compared surfaces are not all the same picture
+
+
+@pytest.mark.skipif(not CMU_WALK.exists(), reason=f"{CMU_WALK} not present (../shared beside the checkout)")
+def test_bvh_player_latches_its_urdf_and_the_node_builds_a_jelly_body_on_it(world):
+    from visualization_msgs.msg import Marker
+    markers = _raw(world, Marker, "clusterfem/surface")
+    player = _player(world, source="bvh", file=str(CMU_WALK))
+    sim = _sim(world, **{"skeleton.source": "robot_description", "body.bone_radius": 0.04})
+    world.wait_for(lambda: sim.scene is not None, 60, "the scene built from robot_description")
+    assert sorted(sim.scene.skeleton.joint_names) == sorted(player.names)      # mapped by name, any order
+    world.wait_for(lambda: sim.scene.inputs.accepted > 20 and len(markers) > 5, 30, "joint states and markers")
+    assert np.isfinite(_points(markers[-1])).all()
+    assert sim.scene.inputs.rejected.get("unknown_joint", 0) == 0
+
+
+def test_keyframe_player_drives_the_builtin_humanoid(world):
+    from clusterfem_ros.skeleton.keyframes import example_path
+    sim = _sim(world)
+    player = _player(world, source="keyframes", file=str(example_path("wave.yaml")))
+    world.wait_for(lambda: sim.scene.inputs.accepted > 20, 30, "key-frame joint states")
+    assert set(player.names) <= set(sim.scene.skeleton.joint_names)
+    assert sim.scene.inputs.total_rejected == 0

@@ -1,15 +1,14 @@
 """BVH reader and BVH -> URDF on the real CMU walk: FK of the URDF equals an independent BVH FK."""
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from clusterfem_ros.skeleton.bvh import BvhError, load_bvh, parse_bvh
 from clusterfem_ros.skeleton.bvh_to_urdf import bvh_trajectory, bvh_urdf, find_spikes
 from clusterfem_ros.skeleton.kinematics import Skeleton
+from tests.shared_data import CMU_WALK
 
-CMU = Path("/work/shared/data/mocap/cmu_06_01_walk.bvh")
-pytestmark = pytest.mark.skipif(not CMU.exists(), reason=f"{CMU} not present (../shared data)")
+CMU = CMU_WALK
+pytestmark = pytest.mark.skipif(not CMU.exists(), reason=f"{CMU} not present (../shared beside the checkout)")
 UNIT = 0.056444
 
 
