@@ -1,0 +1,98 @@
+"""Speed-vs-error report: the error metric, its convergence, and the files the report writes."""
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from clusterfem_ros.bench import speed_error_report as R
+from clusterfem_ros.fem.integrators import make_integrator
+from clusterfem_ros.fem.voxel_mesh import box_mesh
+from clusterfem_ros.method_choice import METRICS, pareto_front, read_points
+
+
+@pytest.fixture(scope="module")
+def small():
+    """A 3 x 3 x 6 voxel column (bottom held) sagging under gravity for 0.08 s, and its references."""
+    mesh = box_mesh((0.05, 0.05, 0.1), (3, 3, 6), (-0.025, -0.025, 0.0))
+    sc = R.shape_scenario("column", 0.08, 0.004, mesh=mesh)
+    ref = R.reference(sc, "linear")
+    return sc, R.reference_data(sc, ref, corotated=False)
+
+
+def test_reference_against_itself_is_zero(small):
+    sc, ref = small
+    e = R.errors(sc, ref.run.u, ref, corotated=False)
+    assert set(e) == set(METRICS)
+    assert all(v == 0.0 for v in e.values()), e
+    assert ref.norm > 0 and np.isfinite(ref.run.u).all()
+
+
+def test_a_perturbed_run_has_the_expected_errors(small):
+    sc, ref = small
+    u = ref.run.u.copy()
+    u[:, 5, 0] += 1e-4                      # one vertex off by 0.1 mm at every sample
+    e = R.errors(sc, u, ref, corotated=False)
+    assert e["max_mm"] == pytest.approx(0.1, rel=1e-9)
+    assert e["rel_l2"] == pytest.approx(1e-4 * math.sqrt(len(u)) / ref.norm, rel=1e-9)
+    assert e["von_mises_rel"] > 0 and e["volume_pct"] > 0
+    nan = R.errors(sc, np.full_like(u, np.nan), ref, corotated=False)
+    assert all(math.isnan(v) for v in nan.values())
+
+
+def test_implicit_error_converges_at_first_order(small):
+    sc, ref = small
+    hs = np.array([1e-3, 5e-4, 2.5e-4])        # asymptotic range (errors 12 % and below)
+    err = []
+    for h in hs:
+        run = R.simulate(sc, make_integrator("implicit_direct", sc.model), h, timed=False)
+        err.append(R.errors(sc, run.u, ref, corotated=False)["rel_l2"])
+    rate = np.polyfit(np.log(hs), np.log(err), 1)[0]
+    assert 0.85 < rate < 1.15, f"observed rate {rate:.3f} (errors {err})"
+
+
+def test_clustered_equals_standard_explicit_and_beats_implicit(small):
+    """Lossless: the clustered and assembled explicit steps give the same errors; both beat implicit Euler."""
+    sc, ref = small
+    e = {m: R.errors(sc, R.simulate(sc, make_integrator(m, sc.model), 2e-3, timed=False).u, ref, False)
+         for m in ("clustered", "standard_explicit", "implicit_direct")}
+    for m in METRICS:
+        assert e["clustered"][m] == pytest.approx(e["standard_explicit"][m], rel=1e-8, abs=1e-15)
+    assert e["clustered"]["rel_l2"] < e["implicit_direct"]["rel_l2"]
+
+
+def test_step_must_divide_the_sample_interval(small):
+    sc, _ = small
+    with pytest.raises(ValueError, match="must divide the sample interval"):
+        R.steps_per_sample(sc, 3e-3)
+
+
+def test_report_writes_csv_markdown_and_pngs(tmp_path):
+    cfg = dict(R.QUICK, scenes=("sphere",), steps=(5e-3, 1e-3), duration=0.04, quick=True)
+    lines = []
+    points, extras = R.run_report(cfg, progress=lines.append)
+    assert len(points) == 2 * len(R.METHODS)
+    assert any("sphere" in s and "ms/step" in s for s in lines), "progress lines are shown"
+    paths = R.write_outputs(tmp_path, points, extras, cfg)
+    for key in ("csv", "md", "png", "figure5"):
+        assert paths[key].is_file() and paths[key].stat().st_size > 0, key
+    assert paths["png"].read_bytes()[:4] == b"\x89PNG" and paths["figure5"].read_bytes()[:4] == b"\x89PNG"
+    back = read_points(paths["csv"])
+    assert len(back) == len(points)
+    for p in back:
+        assert p.info["status"] == "ok", (p.method, p.h, p.info["status"])
+        assert np.isfinite(p.ms_per_step) and p.ms_per_step > 0
+        assert all(np.isfinite(v) for v in p.errors.values())
+    with open(paths["csv"]) as fh:
+        assert {"scene", "method", "h", "ms_per_step", "max_mm", "status"} <= set(next(csv.reader(fh)))
+    md = paths["md"].read_text()
+    assert "Table 1 beside ours" in md and "sphere" in md and "Pareto" in md
+    assert len(pareto_front(back)) >= 1
+
+
+@pytest.mark.soak
+def test_quick_command_end_to_end(tmp_path):
+    assert R.main(["--quick", "--out", str(tmp_path)]) == 0
+    pts = read_points(tmp_path / "speed_error.csv")
+    assert {p.scene for p in pts} == {"sphere", "jelly_man"}
+    assert (tmp_path / "speed_error.png").is_file() and (tmp_path / "figure5.png").is_file()
