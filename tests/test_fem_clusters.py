@@ -1,12 +1,15 @@
 """The paper's 'lossless' claim: the clustered force equals the assembled sparse product to round-off."""
+import numba
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from numba import prange
 
 from clusterfem_ros.fem.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
 from clusterfem_ros.fem.cluster_force_kernel import clustered_force
 from clusterfem_ros.fem.clusters import build_clusters
 from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.numba_config import serial_and_parallel
 from clusterfem_ros.fem.voxel_mesh import paper_mesh
 from tests import naive
 from tests.meshes import random_delaunay_mesh
@@ -74,3 +77,21 @@ def test_bad_state_shape_is_named():
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
     with pytest.raises(ValueError, match=r"u has shape \(3, 3\), expected \(343, 3\)"):
         clustered_force(cl, np.zeros((3, 3)), np.zeros((343, 3)), np.ones(343), 0.0, 0.0)
+
+
+def _thread_ids(out):
+    for i in prange(out.shape[0]):
+        out[i] = numba.get_thread_id()
+
+
+def test_threaded_build_really_runs_on_threads():
+    """numba's disk cache keys an entry by function name and signature, not by compile flags: built from one
+    function, the parallel dispatcher loaded the serial build's cached code and never ran threaded."""
+    if numba.get_num_threads() < 2:
+        pytest.skip("one numba thread")
+    serial, parallel = serial_and_parallel(_thread_ids)
+    out = np.full(100_000, -1, dtype=np.int64)
+    serial(out)                     # compiled (and cached) first, as in the kernels' modules
+    assert set(out) == {0}
+    parallel(out)
+    assert len(set(out)) > 1

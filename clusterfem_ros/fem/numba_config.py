@@ -4,6 +4,8 @@
 """
 from __future__ import annotations
 
+import types
+
 import numba
 
 SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
@@ -15,5 +17,15 @@ PARALLEL_MIN_VERTICES = 20000
 
 
 def serial_and_parallel(fn):
-    """(serial, parallel) numba builds of one kernel source."""
-    return numba.njit(**SERIAL)(fn), numba.njit(**PARALLEL)(fn)
+    """(serial, parallel) numba builds of one kernel source.
+
+    The parallel build compiles a copy of the function named ``<name>_parallel``: numba's on-disk cache keys
+    an entry by the function's qualified name, signature and closure, not by its flags, so two cached builds
+    of the same function object share one entry and the parallel dispatcher silently loaded the serial code.
+    """
+    par = types.FunctionType(fn.__code__, fn.__globals__, fn.__name__ + "_parallel", fn.__defaults__,
+                             fn.__closure__)
+    par.__qualname__ = fn.__qualname__ + "_parallel"
+    par.__module__ = fn.__module__
+    par.__doc__ = fn.__doc__
+    return numba.njit(**SERIAL)(fn), numba.njit(**PARALLEL)(par)
