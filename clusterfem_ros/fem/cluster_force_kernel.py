@@ -8,11 +8,44 @@ contribution plus the boundary clusters'. ``clustered_force`` is the checked pub
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import prange
 
 from .clusters import Clusters
-from .numba_config import PARALLEL_MIN_VERTICES, serial_and_parallel
+from .numba_config import PARALLEL_MIN_VERTICES, SERIAL, serial_and_parallel
+
+
+@numba.njit(**SERIAL)
+def _row_force(i, k0, k1, cols, blocks, w, v, mass, xi, out):
+    """out[i] <- -sum_k blocks[k] w[cols[k]] - xi m_i v_i over the cluster blocks k0..k1 of vertex i."""
+    fx = 0.0
+    fy = 0.0
+    fz = 0.0
+    for k in range(k0, k1):
+        j = cols[k]
+        wx = w[j, 0]
+        wy = w[j, 1]
+        wz = w[j, 2]
+        fx += blocks[k, 0, 0] * wx + blocks[k, 0, 1] * wy + blocks[k, 0, 2] * wz
+        fy += blocks[k, 1, 0] * wx + blocks[k, 1, 1] * wy + blocks[k, 1, 2] * wz
+        fz += blocks[k, 2, 0] * wx + blocks[k, 2, 1] * wy + blocks[k, 2, 2] * wz
+    d = xi * mass[i]
+    out[i, 0] = -fx - d * v[i, 0]
+    out[i, 1] = -fy - d * v[i, 1]
+    out[i, 2] = -fz - d * v[i, 2]
+
+
+def _force_rows_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks, w, v, mass, xi, out):
+    """out <- -K w - xi M v from the clusters, w = u + zeta v given: shared rows, then boundary rows, in
+    one loop (one parallel region in the threaded build)."""
+    ns = sh_rows.shape[0]
+    for r in prange(ns + bd_rows.shape[0]):
+        if r < ns:
+            _row_force(sh_rows[r], sh_ptr[r], sh_ptr[r + 1], sh_cols, sh_blocks, w, v, mass, xi, out)
+        else:
+            b = r - ns
+            _row_force(bd_rows[b], 4 * b, 4 * b + 4, bd_cols, bd_blocks, w, v, mass, xi, out)
 
 
 def _force_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
@@ -21,43 +54,17 @@ def _force_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_bloc
     for i in prange(n):
         for c in range(3):
             w[i, c] = u[i, c] + zeta * v[i, c]
-    for r in prange(sh_rows.shape[0]):
-        i = sh_rows[r]
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        for k in range(sh_ptr[r], sh_ptr[r + 1]):
-            j = sh_cols[k]
-            wx = w[j, 0]
-            wy = w[j, 1]
-            wz = w[j, 2]
-            fx += sh_blocks[k, 0, 0] * wx + sh_blocks[k, 0, 1] * wy + sh_blocks[k, 0, 2] * wz
-            fy += sh_blocks[k, 1, 0] * wx + sh_blocks[k, 1, 1] * wy + sh_blocks[k, 1, 2] * wz
-            fz += sh_blocks[k, 2, 0] * wx + sh_blocks[k, 2, 1] * wy + sh_blocks[k, 2, 2] * wz
-        d = xi * mass[i]
-        out[i, 0] = -fx - d * v[i, 0]
-        out[i, 1] = -fy - d * v[i, 1]
-        out[i, 2] = -fz - d * v[i, 2]
-    for r in prange(bd_rows.shape[0]):
-        i = bd_rows[r]
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        for k in range(4 * r, 4 * r + 4):
-            j = bd_cols[k]
-            wx = w[j, 0]
-            wy = w[j, 1]
-            wz = w[j, 2]
-            fx += bd_blocks[k, 0, 0] * wx + bd_blocks[k, 0, 1] * wy + bd_blocks[k, 0, 2] * wz
-            fy += bd_blocks[k, 1, 0] * wx + bd_blocks[k, 1, 1] * wy + bd_blocks[k, 1, 2] * wz
-            fz += bd_blocks[k, 2, 0] * wx + bd_blocks[k, 2, 1] * wy + bd_blocks[k, 2, 2] * wz
-        d = xi * mass[i]
-        out[i, 0] = -fx - d * v[i, 0]
-        out[i, 1] = -fy - d * v[i, 1]
-        out[i, 2] = -fz - d * v[i, 2]
+    ns = sh_rows.shape[0]
+    for r in prange(ns + bd_rows.shape[0]):
+        if r < ns:
+            _row_force(sh_rows[r], sh_ptr[r], sh_ptr[r + 1], sh_cols, sh_blocks, w, v, mass, xi, out)
+        else:
+            b = r - ns
+            _row_force(bd_rows[b], 4 * b, 4 * b + 4, bd_cols, bd_blocks, w, v, mass, xi, out)
 
 
 force_kernel_serial, force_kernel_parallel = serial_and_parallel(_force_kernel)
+force_rows_serial, force_rows_parallel = serial_and_parallel(_force_rows_kernel)
 
 
 def cluster_args(cl: Clusters) -> tuple:
