@@ -95,3 +95,26 @@ def test_unknown_method_is_named():
     model = build_model(paper_mesh("cube"), MAT)
     with pytest.raises(ValueError, match="unknown method 'rk4'"):
         make_integrator("rk4", model)
+
+
+@pytest.mark.parametrize("warp", [False, True])
+def test_clustered_plan_follows_h_and_gains_and_fixed_vertices_stay_at_rest(warp):
+    """The sub-step plan is cached, but a new h or stiffer attachment gains re-plan it; fixed vertices moved
+    from outside are put back at rest by the step (the kernel, not Python, holds them now)."""
+    mesh = paper_mesh("cube")
+    fixed = mesh.vertices[:, 2] < -0.049
+    model = build_model(mesh, MAT, fixed=fixed)
+    integ = make_integrator("clustered", model, warp=warp)
+    s = State.rest(model)
+    n1 = integ.step(s, Control(), 1e-3).substeps
+    assert integ.step(s, Control(), 4e-3).substeps > n1
+    assert integ.step(s, Control(), 1e-3).substeps == n1
+    idx = np.flatnonzero(~fixed)[:4]
+    att = Attachments(idx, np.zeros((4, 3)), np.zeros((4, 3)), np.zeros((4, 3)), np.full(4, 1.0), np.full(4, 1.0))
+    assert integ.step(s, Control(attachments=att), 1e-3).substeps == n1
+    stiff = Attachments(idx, np.zeros((4, 3)), np.zeros((4, 3)), np.zeros((4, 3)), np.full(4, 1e10), np.full(4, 1.0))
+    assert integ.step(s, Control(attachments=stiff), 1e-3).substeps > n1
+    s.u[fixed] = 0.01
+    s.v[fixed] = 1.0
+    integ.step(s, Control(), 1e-3)
+    assert not s.u[fixed].any() and not s.v[fixed].any()

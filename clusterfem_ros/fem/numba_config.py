@@ -14,6 +14,7 @@ PARALLEL = dict(SERIAL, parallel=True)
 # Below this many vertices a thread pool costs more than it saves (measured by
 # `python -m clusterfem_ros.bench.scaling`).
 PARALLEL_MIN_VERTICES = 20000
+PARALLEL_MIN_VERTICES_WARPED = 20000
 
 
 def serial_and_parallel(fn):

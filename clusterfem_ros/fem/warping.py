@@ -4,21 +4,25 @@
 
 Rotation of vertex i: the least-squares deformation gradient of its cluster neighbourhood
     F_i = [sum_j (x_j - x_i)(x0_j - x0_i)^T] S_i^-1,   S_i = sum_j (x0_j - x0_i)(x0_j - x0_i)^T,
-and R_i = polar(F_i) (rigid motion gives F_i = R exactly, at any angle up to 180 deg). The polar factor is
-found by scaled Newton iteration X <- (g X + X^-T / g) / 2 (Higham), which starts from F itself, so it
-needs no warm start and is exact at 180 deg. When the neighbourhood is inverted or nearly flat
+and R_i = polar(F_i) (rigid motion gives F_i = R exactly, at any angle up to 180 deg). The kernel evaluates
+F_i = I + sum_j (u_j - u_i) g_j^T with the constant g_j = S_i^-1 (x0_j - x0_i) stored per cluster block.
+The polar factor is found by iteration from F itself, so it needs no warm start and is exact at 180 deg:
+scaled Newton X <- (g X + X^-T / g) / 2 (Higham) while any vertex is far from it, then the division-free
+Newton-Schulz X <- X (3 I - X^T X) / 2; both run on LANES vertices at once (see the constants below for
+the tolerance and the accuracy it trades). When the neighbourhood is inverted or nearly flat
 (det F_i <= 1e-3 |F_i|^3 / 3^1.5) the polar factor is a reflection or ill-defined; then Mueller et al.
 (2016)'s iteration R <- exp(w) R, w = sum_c r_c x f_c / |sum_c r_c . f_c|, warm-started from the vertex's
 previous rotation, gives the nearest proper rotation instead.
 
-Since sum_j K_ij t = 0 for any translation t, the kernel uses x_j - x_i and x0_j - x0_i (fewer round-off
-losses): y_j = R_i^T (x_j - x_i + zeta v_j) - (x0_j - x0_i), f_i = -R_i sum_j K_ij y_j - xi m_i v_i.
+Since sum_j K_ij t = 0 for any translation t, the kernel uses x_j - x_i (fewer round-off losses):
+f_i = -R_i (sum_j K_ij R_i^T (x_j - x_i + zeta v_j) - b_i) - xi m_i v_i with the constant
+b_i = sum_j K_ij (x0_j - x0_i), which is eq. 10 with the rest-shape term summed once.
 Damping: the stiffness part is warped like the elastic force (the velocity is rotated into the rest
 frame, damped by the constant blocks, rotated back), so a rigid spin is not damped; the mass part
 xi M v is rotation invariant and unchanged. Rotations are held fixed within the force: no dR/dx terms.
 
 ``warped_force`` and ``vertex_rotations`` are the checked public entries; tests/naive_warping.py holds
-the numpy twin.
+the numpy twin. ``_rotation_of`` (scalar, one matrix) is also used by fem/stress.py.
 """
 from __future__ import annotations
 
@@ -28,7 +32,6 @@ import numba
 import numpy as np
 from numba import prange
 
-from .cluster_force_kernel import cluster_args
 from .model import FemModel
 from .numba_config import PARALLEL_MIN_VERTICES, SERIAL, serial_and_parallel
 
@@ -89,7 +92,7 @@ def _rotation_mueller(F, R):
         wy *= s
         wz *= s
         w = np.sqrt(wx * wx + wy * wy + wz * wz)
-        if w < 1e-12:
+        if not w >= 1e-12:                      # converged, or F is not finite (a diverged state): stop
             return
         kx, ky, kz = wx / w, wy / w, wz / w
         sn, cs = np.sin(w), np.cos(w)
@@ -125,83 +128,314 @@ def _rotation_of(F, X, R):
     _rotation_mueller(F, R)
 
 
-@numba.njit(**SERIAL)
-def _vertex_rotation(i, k0, k1, cols, rest, s0inv, u, rot, scratch):
-    """rot[i] <- R_i from the vertex's cluster neighbourhood (cluster blocks k0..k1)."""
-    a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
-    for k in range(k0, k1):
-        j = cols[k]
-        d0 = rest[j, 0] - rest[i, 0]
-        d1 = rest[j, 1] - rest[i, 1]
-        d2 = rest[j, 2] - rest[i, 2]
-        x0 = d0 + u[j, 0] - u[i, 0]
-        x1 = d1 + u[j, 1] - u[i, 1]
-        x2 = d2 + u[j, 2] - u[i, 2]
-        a00 += x0 * d0
-        a01 += x0 * d1
-        a02 += x0 * d2
-        a10 += x1 * d0
-        a11 += x1 * d1
-        a12 += x1 * d2
-        a20 += x2 * d0
-        a21 += x2 * d1
-        a22 += x2 * d2
-    F = scratch[i, 0]
-    S = s0inv[i]
-    for b in range(3):
-        F[0, b] = a00 * S[0, b] + a01 * S[1, b] + a02 * S[2, b]
-        F[1, b] = a10 * S[0, b] + a11 * S[1, b] + a12 * S[2, b]
-        F[2, b] = a20 * S[0, b] + a21 * S[1, b] + a22 * S[2, b]
-    _rotation_of(F, scratch[i, 1], rot[i])
+# One chunk of LANES cluster rows is the unit of work: its deformation gradients are gathered into lanes
+# (structure of arrays, (3, 9, LANES) doubles = 27 KiB, L1-resident), the polar iteration then runs on all
+# lanes at once (no data-dependent exit inside a lane loop, so it is vectorised and the long latency chain
+# of one 3x3 polar step overlaps across vertices), and the force pass reads each lane's rotation. Chunks are
+# independent, so the threaded build runs them in parallel with one parallel region per force evaluation.
+LANES = 128
+# A lane has converged when the squared Frobenius change of its last polar step is below POLAR_TOL. Both
+# iterations used converge quadratically: near the polar factor a step that changes X by delta leaves an
+# error of about delta^2 / 2 (Newton) or 3 delta^2 / 2 (Newton-Schulz), so |R - polar(F)|_F <~ 1.5e-12 here
+# (tests/test_warping.py checks 1e-11 against the SVD). That is the accuracy traded: the elastic force
+# changes by ~|K| |x_j - x_i| 1.5e-12, ~1e-10 of the force at 1 % strain; a rigid motion (F = R exactly)
+# still converges in one step to round-off. 1e-16 would cost one more pass for most vertices of a walking
+# body (~45 -> ~54 ns per vertex on the jelly man).
+# The passes stop when every lane has converged. If a chunk hits POLAR_MAXPASS first (or has a non-finite
+# lane), each lane is accepted only if it is orthogonal, |X^T X - I|_F^2 < ORTHO_TOL (X = U S V^T all along,
+# so |X - U V^T| ~ |X^T X - I| / 2 <= 5e-12); the others take the scalar path.
+POLAR_TOL = 1e-12
+ORTHO_TOL = 1e-22
+# Scaled Newton until every lane's squared change is below SCHULZ_FROM (singular values within ~0.1 of 1),
+# then the division-free Newton-Schulz step X <- X (3 I - X^T X) / 2, which converges for singular values
+# in (0, sqrt 3). A lane that does not converge in POLAR_MAXPASS passes is redone by the scalar path.
+SCHULZ_FROM = 1e-2
+POLAR_MAXPASS = 40
 
 
 @numba.njit(**SERIAL)
-def _vertex_force(i, k0, k1, cols, blocks, rest, u, v, mass, zeta, xi, rot, out):
-    """out[i] <- -R_i sum_j K_ij (R_i^T (x_j - x_i + zeta v_j) - (x0_j - x0_i)) - xi m_i v_i."""
-    R = rot[i]
-    fx = 0.0
-    fy = 0.0
-    fz = 0.0
-    for k in range(k0, k1):
-        j = cols[k]
-        d0 = rest[j, 0] - rest[i, 0]
-        d1 = rest[j, 1] - rest[i, 1]
-        d2 = rest[j, 2] - rest[i, 2]
-        z0 = d0 + u[j, 0] - u[i, 0] + zeta * v[j, 0]
-        z1 = d1 + u[j, 1] - u[i, 1] + zeta * v[j, 1]
-        z2 = d2 + u[j, 2] - u[i, 2] + zeta * v[j, 2]
-        y0 = R[0, 0] * z0 + R[1, 0] * z1 + R[2, 0] * z2 - d0
-        y1 = R[0, 1] * z0 + R[1, 1] * z1 + R[2, 1] * z2 - d1
-        y2 = R[0, 2] * z0 + R[1, 2] * z1 + R[2, 2] * z2 - d2
-        fx += blocks[k, 0, 0] * y0 + blocks[k, 0, 1] * y1 + blocks[k, 0, 2] * y2
-        fy += blocks[k, 1, 0] * y0 + blocks[k, 1, 1] * y1 + blocks[k, 1, 2] * y2
-        fz += blocks[k, 2, 0] * y0 + blocks[k, 2, 1] * y1 + blocks[k, 2, 2] * y2
-    d = xi * mass[i]
-    out[i, 0] = -(R[0, 0] * fx + R[0, 1] * fy + R[0, 2] * fz) - d * v[i, 0]
-    out[i, 1] = -(R[1, 0] * fx + R[1, 1] * fy + R[1, 2] * fz) - d * v[i, 1]
-    out[i, 2] = -(R[2, 0] * fx + R[2, 1] * fy + R[2, 2] * fz) - d * v[i, 2]
+def _chunk_gradients(r0, nl, rows, ptr, cols, grad, u, F, X, how):
+    """Lane l <- vertex i = rows[r0 + l]: F[:, l] = F_i (row-major), X[:, l] = the polar iteration's start:
+    F_i, or I when the neighbourhood is inverted or nearly flat (how[l] = 1: the Mueller fallback's).
+
+    F_i = [sum_j (d_j + u_j - u_i) d_j^T] S_i^-1 = I + sum_j (u_j - u_i) g_j^T with the constant g_j = S_i^-1 d_j
+    (d_j = x0_j - x0_i, stored per cluster block): exact at rest, 9 multiply-adds per block, no S^-1 product."""
+    for l in range(nl):
+        r = r0 + l
+        i = rows[r]
+        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+        ui0 = u[i, 0]
+        ui1 = u[i, 1]
+        ui2 = u[i, 2]
+        for k in range(ptr[r], ptr[r + 1]):
+            j = cols[k]
+            e0 = u[j, 0] - ui0
+            e1 = u[j, 1] - ui1
+            e2 = u[j, 2] - ui2
+            g0 = grad[k, 0]
+            g1 = grad[k, 1]
+            g2 = grad[k, 2]
+            a00 += e0 * g0
+            a01 += e0 * g1
+            a02 += e0 * g2
+            a10 += e1 * g0
+            a11 += e1 * g1
+            a12 += e1 * g2
+            a20 += e2 * g0
+            a21 += e2 * g1
+            a22 += e2 * g2
+        f00 = 1.0 + a00
+        f11 = 1.0 + a11
+        f22 = 1.0 + a22
+        F[0, l] = f00
+        F[1, l] = a01
+        F[2, l] = a02
+        F[3, l] = a10
+        F[4, l] = f11
+        F[5, l] = a12
+        F[6, l] = a20
+        F[7, l] = a21
+        F[8, l] = f22
+        det = (f00 * (f11 * f22 - a12 * a21) - a01 * (a10 * f22 - a12 * a20) + a02 * (a10 * a21 - f11 * a20))
+        nf = (((f00 * f00 + a01 * a01) + (a02 * a02 + a10 * a10)) + ((f11 * f11 + a12 * a12) + (a20 * a20 + a21 * a21))
+              + f22 * f22) / 3.0
+        if det > 0.0 and det * det > 1e-6 * (nf * nf * nf):       # det > 1e-3 (|F|^2 / 3)^1.5, as _rotation_of
+            how[l] = 0
+            for a in range(9):
+                X[a, l] = F[a, l]
+        else:
+            how[l] = 1
+            for a in range(9):
+                X[a, l] = 1.0 if a % 4 == 0 else 0.0
 
 
-def _warped_force_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
-                         rest, s0inv, u, v, mass, zeta, xi, rot, scratch, out):
-    for r in prange(sh_rows.shape[0]):
-        i = sh_rows[r]
-        _vertex_rotation(i, sh_ptr[r], sh_ptr[r + 1], sh_cols, rest, s0inv, u, rot, scratch)
-        _vertex_force(i, sh_ptr[r], sh_ptr[r + 1], sh_cols, sh_blocks, rest, u, v, mass, zeta, xi, rot, out)
-    for r in prange(bd_rows.shape[0]):
-        i = bd_rows[r]
-        _vertex_rotation(i, 4 * r, 4 * r + 4, bd_cols, rest, s0inv, u, rot, scratch)
-        _vertex_force(i, 4 * r, 4 * r + 4, bd_cols, bd_blocks, rest, u, v, mass, zeta, xi, rot, out)
+@numba.njit(**SERIAL)
+def _newton_lanes(nl, src, dst):
+    """dst <- one scaled Newton step (g X + X^-T / g) / 2 of every lane of src. Returns the number of lanes
+    whose squared change is not below SCHULZ_FROM, and not below POLAR_TOL (loop kept vectorisable: counts
+    only, no per-lane stores besides dst)."""
+    big = 0
+    left = 0
+    for l in range(nl):
+        x00, x01, x02 = src[0, l], src[1, l], src[2, l]
+        x10, x11, x12 = src[3, l], src[4, l], src[5, l]
+        x20, x21, x22 = src[6, l], src[7, l], src[8, l]
+        c00 = x11 * x22 - x12 * x21
+        c01 = x12 * x20 - x10 * x22
+        c02 = x10 * x21 - x11 * x20
+        c10 = x02 * x21 - x01 * x22
+        c11 = x00 * x22 - x02 * x20
+        c12 = x01 * x20 - x00 * x21
+        c20 = x01 * x12 - x02 * x11
+        c21 = x02 * x10 - x00 * x12
+        c22 = x00 * x11 - x01 * x10
+        det = x00 * c00 + x01 * c01 + x02 * c02
+        nx = (((x00 * x00 + x01 * x01) + (x02 * x02 + x10 * x10)) + ((x11 * x11 + x12 * x12) + (x20 * x20 + x21 * x21))
+              + x22 * x22)
+        nc = (((c00 * c00 + c01 * c01) + (c02 * c02 + c10 * c10)) + ((c11 * c11 + c12 * c12) + (c20 * c20 + c21 * c21))
+              + c22 * c22)
+        g = np.sqrt(np.sqrt(nc / nx) / abs(det))     # Frobenius scaling: |g X| = |X^-T / g|
+        a = 0.5 * g
+        s = 0.5 / (g * det)
+        n00 = a * x00 + s * c00
+        n01 = a * x01 + s * c01
+        n02 = a * x02 + s * c02
+        n10 = a * x10 + s * c10
+        n11 = a * x11 + s * c11
+        n12 = a * x12 + s * c12
+        n20 = a * x20 + s * c20
+        n21 = a * x21 + s * c21
+        n22 = a * x22 + s * c22
+        e0, e1, e2 = n00 - x00, n01 - x01, n02 - x02
+        e3, e4, e5 = n10 - x10, n11 - x11, n12 - x12
+        e6, e7, e8 = n20 - x20, n21 - x21, n22 - x22
+        diff = ((e0 * e0 + e1 * e1) + (e2 * e2 + e3 * e3)) + ((e4 * e4 + e5 * e5) + (e6 * e6 + e7 * e7)) + e8 * e8
+        dst[0, l] = n00
+        dst[1, l] = n01
+        dst[2, l] = n02
+        dst[3, l] = n10
+        dst[4, l] = n11
+        dst[5, l] = n12
+        dst[6, l] = n20
+        dst[7, l] = n21
+        dst[8, l] = n22
+        if not diff < SCHULZ_FROM:
+            big += 1
+        if not diff < POLAR_TOL:
+            left += 1
+    return big, left
 
 
-def _rotation_kernel(sh_rows, sh_ptr, sh_cols, bd_rows, bd_cols, rest, s0inv, u, rot, scratch):
-    for r in prange(sh_rows.shape[0]):
-        _vertex_rotation(sh_rows[r], sh_ptr[r], sh_ptr[r + 1], sh_cols, rest, s0inv, u, rot, scratch)
-    for r in prange(bd_rows.shape[0]):
-        _vertex_rotation(bd_rows[r], 4 * r, 4 * r + 4, bd_cols, rest, s0inv, u, rot, scratch)
+@numba.njit(**SERIAL)
+def _schulz_lanes(nl, src, dst):
+    """dst <- one Newton-Schulz step X (3 I - X^T X) / 2 of every lane; returns the lanes not converged."""
+    left = 0
+    for l in range(nl):
+        x00, x01, x02 = src[0, l], src[1, l], src[2, l]
+        x10, x11, x12 = src[3, l], src[4, l], src[5, l]
+        x20, x21, x22 = src[6, l], src[7, l], src[8, l]
+        p00 = 1.5 - 0.5 * (x00 * x00 + x10 * x10 + x20 * x20)       # T = (3 I - X^T X) / 2, symmetric
+        p11 = 1.5 - 0.5 * (x01 * x01 + x11 * x11 + x21 * x21)
+        p22 = 1.5 - 0.5 * (x02 * x02 + x12 * x12 + x22 * x22)
+        p01 = -0.5 * (x00 * x01 + x10 * x11 + x20 * x21)
+        p02 = -0.5 * (x00 * x02 + x10 * x12 + x20 * x22)
+        p12 = -0.5 * (x01 * x02 + x11 * x12 + x21 * x22)
+        n00 = x00 * p00 + x01 * p01 + x02 * p02
+        n01 = x00 * p01 + x01 * p11 + x02 * p12
+        n02 = x00 * p02 + x01 * p12 + x02 * p22
+        n10 = x10 * p00 + x11 * p01 + x12 * p02
+        n11 = x10 * p01 + x11 * p11 + x12 * p12
+        n12 = x10 * p02 + x11 * p12 + x12 * p22
+        n20 = x20 * p00 + x21 * p01 + x22 * p02
+        n21 = x20 * p01 + x21 * p11 + x22 * p12
+        n22 = x20 * p02 + x21 * p12 + x22 * p22
+        e0, e1, e2 = n00 - x00, n01 - x01, n02 - x02
+        e3, e4, e5 = n10 - x10, n11 - x11, n12 - x12
+        e6, e7, e8 = n20 - x20, n21 - x21, n22 - x22
+        diff = ((e0 * e0 + e1 * e1) + (e2 * e2 + e3 * e3)) + ((e4 * e4 + e5 * e5) + (e6 * e6 + e7 * e7)) + e8 * e8
+        dst[0, l] = n00
+        dst[1, l] = n01
+        dst[2, l] = n02
+        dst[3, l] = n10
+        dst[4, l] = n11
+        dst[5, l] = n12
+        dst[6, l] = n20
+        dst[7, l] = n21
+        dst[8, l] = n22
+        if not diff < POLAR_TOL:
+            left += 1
+    return left
+
+
+@numba.njit(**SERIAL)
+def _polar_lanes(nl, X, Y):
+    """Polar factors of lanes 0..nl of X (every det > 0): (the buffer, X or Y, holding them, whether every
+    lane converged)."""
+    src, dst = X, Y
+    scaled = True
+    for _ in range(POLAR_MAXPASS):
+        if scaled:
+            big, left = _newton_lanes(nl, src, dst)
+            scaled = big > 0
+        else:
+            left = _schulz_lanes(nl, src, dst)
+        src, dst = dst, src
+        if left == 0:
+            return src, True
+    return src, False
+
+
+@numba.njit(**SERIAL)
+def _orthogonal(r00, r01, r02, r10, r11, r12, r20, r21, r22):
+    """|R^T R - I|_F^2 < ORTHO_TOL (False for non-finite R)."""
+    q00 = r00 * r00 + r10 * r10 + r20 * r20 - 1.0
+    q11 = r01 * r01 + r11 * r11 + r21 * r21 - 1.0
+    q22 = r02 * r02 + r12 * r12 + r22 * r22 - 1.0
+    q01 = r00 * r01 + r10 * r11 + r20 * r21
+    q02 = r00 * r02 + r10 * r12 + r20 * r22
+    q12 = r01 * r02 + r11 * r12 + r21 * r22
+    return (q00 * q00 + q11 * q11 + q22 * q22) + 2.0 * (q01 * q01 + q02 * q02 + q12 * q12) < ORTHO_TOL
+
+
+@numba.njit(**SERIAL)
+def _chunk_forces(r0, nl, rows, ptr, cols, blocks, rest, u, v, w, bvec, mass, xi, F, P, converged, how, tmp,
+                  rot, out, forces):
+    """Per chunk vertex i = rows[r0 + l]: rot[i] <- lane l's polar factor P[:, l] if every lane converged or
+    this one is orthogonal, else the scalar _rotation_of of F[:, l] (inverted/flat: Mueller from the previous
+    rotation; or no convergence). Then, if ``forces``, out[i] <- -R_i (sum_j K_ij R_i^T (w_j - x_i) - b_i)
+    - xi m_i v_i, with w = x + zeta v and b_i = sum_j K_ij (x0_j - x0_i): eq. 10, constant part hoisted."""
+    for l in range(nl):
+        r = r0 + l
+        i = rows[r]
+        r00, r01, r02 = P[0, l], P[1, l], P[2, l]
+        r10, r11, r12 = P[3, l], P[4, l], P[5, l]
+        r20, r21, r22 = P[6, l], P[7, l], P[8, l]
+        if how[l] == 0 and (converged or _orthogonal(r00, r01, r02, r10, r11, r12, r20, r21, r22)):
+            rot[i, 0, 0], rot[i, 0, 1], rot[i, 0, 2] = r00, r01, r02
+            rot[i, 1, 0], rot[i, 1, 1], rot[i, 1, 2] = r10, r11, r12
+            rot[i, 2, 0], rot[i, 2, 1], rot[i, 2, 2] = r20, r21, r22
+        else:
+            for a in range(3):
+                for b in range(3):
+                    tmp[0, a, b] = F[3 * a + b, l]
+            _rotation_of(tmp[0], tmp[1], rot[i])
+            r00, r01, r02 = rot[i, 0, 0], rot[i, 0, 1], rot[i, 0, 2]
+            r10, r11, r12 = rot[i, 1, 0], rot[i, 1, 1], rot[i, 1, 2]
+            r20, r21, r22 = rot[i, 2, 0], rot[i, 2, 1], rot[i, 2, 2]
+        if not forces:
+            continue
+        xi0 = rest[i, 0] + u[i, 0]
+        xi1 = rest[i, 1] + u[i, 1]
+        xi2 = rest[i, 2] + u[i, 2]
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        for k in range(ptr[r], ptr[r + 1]):
+            j = cols[k]
+            z0 = w[j, 0] - xi0
+            z1 = w[j, 1] - xi1
+            z2 = w[j, 2] - xi2
+            y0 = r00 * z0 + r10 * z1 + r20 * z2
+            y1 = r01 * z0 + r11 * z1 + r21 * z2
+            y2 = r02 * z0 + r12 * z1 + r22 * z2
+            fx += blocks[k, 0, 0] * y0 + blocks[k, 0, 1] * y1 + blocks[k, 0, 2] * y2
+            fy += blocks[k, 1, 0] * y0 + blocks[k, 1, 1] * y1 + blocks[k, 1, 2] * y2
+            fz += blocks[k, 2, 0] * y0 + blocks[k, 2, 1] * y1 + blocks[k, 2, 2] * y2
+        fx -= bvec[i, 0]
+        fy -= bvec[i, 1]
+        fz -= bvec[i, 2]
+        d = xi * mass[i]
+        out[i, 0] = -(r00 * fx + r01 * fy + r02 * fz) - d * v[i, 0]
+        out[i, 1] = -(r10 * fx + r11 * fy + r12 * fz) - d * v[i, 1]
+        out[i, 2] = -(r20 * fx + r21 * fy + r22 * fz) - d * v[i, 2]
+
+
+@numba.njit(**SERIAL)
+def _warp_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out, forces):
+    """Chunk c (shared-cluster chunks first, then boundary ones): rotations, and forces if ``forces``."""
+    nsh = (sh_rows.shape[0] + LANES - 1) // LANES
+    if c < nsh:
+        rows, ptr, cols, blocks, grad, r0 = sh_rows, sh_ptr, sh_cols, sh_blocks, sh_grad, c * LANES
+    else:
+        rows, ptr, cols, blocks, grad, r0 = bd_rows, bd_ptr, bd_cols, bd_blocks, bd_grad, (c - nsh) * LANES
+    nl = min(LANES, rows.shape[0] - r0)
+    buf = scratch[c]
+    _chunk_gradients(r0, nl, rows, ptr, cols, grad, u, buf[0], buf[1], how[c])
+    P, converged = _polar_lanes(nl, buf[1], buf[2])
+    _chunk_forces(r0, nl, rows, ptr, cols, blocks, rest, u, v, w, bvec, mass, xi, buf[0], P, converged, how[c],
+                  tmp[c], rot, out, forces)
+
+
+def _warped_rows_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                        rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out):
+    """out <- eq. 10 force of (u, v) given w = x0 + u + zeta v; rot <- the vertex rotations."""
+    for c in prange(scratch.shape[0]):
+        _warp_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                    rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out, True)
+
+
+def _warped_force_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                         rest, bvec, sh_grad, bd_grad, u, v, w, mass, zeta, xi, rot, scratch, how, tmp, out):
+    """out <- eq. 10 force of (u, v); rot <- the vertex rotations; w, scratch, how, tmp: workspace."""
+    for i in prange(u.shape[0]):
+        for c in range(3):
+            w[i, c] = rest[i, c] + u[i, c] + zeta * v[i, c]
+    for c in prange(scratch.shape[0]):
+        _warp_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                    rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out, True)
+
+
+def _rotation_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                     rest, bvec, sh_grad, bd_grad, u, v, w, mass, zeta, xi, rot, scratch, how, tmp, out):
+    """rot <- the vertex rotations of u (same arguments as the force kernel; v, w, out unused)."""
+    for c in prange(scratch.shape[0]):
+        _warp_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                    rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out, False)
 
 
 warped_kernel_serial, warped_kernel_parallel = serial_and_parallel(_warped_force_kernel)
+warped_rows_serial, warped_rows_parallel = serial_and_parallel(_warped_rows_kernel)
 rotation_kernel_serial, rotation_kernel_parallel = serial_and_parallel(_rotation_kernel)
 
 
@@ -223,20 +457,72 @@ def rest_gram_inverse(model: FemModel) -> np.ndarray:
 
 @dataclass
 class VertexFrames:
-    """What warping keeps per model: rest positions, S_i^-1, and each vertex's last rotation (warm start)."""
+    """What warping keeps per model: rest positions, S_i^-1, b_i, each vertex's last rotation (the fallback's
+    warm start) and the kernels' workspace."""
     rest: np.ndarray        # (n, 3)
     s0inv: np.ndarray       # (n, 3, 3)
     rot: np.ndarray         # (n, 3, 3), updated by every force / rotation call
-    scratch: np.ndarray     # (n, 2, 3, 3)
+    bvec: np.ndarray        # (n, 3): b_i = sum_j K_ij (x0_j - x0_i)
+    sh_grad: np.ndarray     # (shared blocks, 3): g = S_i^-1 (x0_j - x0_i) per cluster block
+    bd_grad: np.ndarray     # (boundary blocks, 3)
+    bd_ptr: np.ndarray      # (l+1,): 4 r, the boundary clusters' block ranges
+    w: np.ndarray           # (n, 3) workspace: x + zeta v
+    scratch: np.ndarray     # (chunks, 3, 9, LANES) workspace: F, polar iterates
+    how: np.ndarray         # (chunks, LANES) workspace: 0 polar, 1 inverted/flat
+    tmp: np.ndarray         # (chunks, 2, 3, 3) workspace of the scalar fallback
 
     @classmethod
     def from_model(cls, model: FemModel) -> "VertexFrames":
         n = model.n_vertices
-        return cls(np.ascontiguousarray(model.rest), rest_gram_inverse(model),
-                   np.repeat(np.eye(3)[None], n, axis=0), np.zeros((n, 2, 3, 3)))
+        cl = model.clusters
+        chunks = -(-len(cl.shared_rows) // LANES) - (-len(cl.boundary_rows) // LANES)
+        rest = np.ascontiguousarray(model.rest, dtype=np.float64)
+        bd_ptr = 4 * np.arange(len(cl.boundary_rows) + 1, dtype=np.int64)
+        bvec = np.zeros((n, 3))
+        _rest_force(cl.shared_rows, cl.shared_ptr, cl.shared_cols, cl.shared_blocks, rest, bvec)
+        _rest_force(cl.boundary_rows, bd_ptr, cl.boundary_cols, cl.boundary_blocks, rest, bvec)
+        s0inv = rest_gram_inverse(model)
+
+        def grad(rows, ptr, cols):
+            i = np.repeat(rows, np.diff(ptr))
+            return np.ascontiguousarray(np.einsum("kab,kb->ka", s0inv[i], rest[cols] - rest[i]))
+        return cls(rest, s0inv, np.repeat(np.eye(3)[None], n, axis=0), bvec,
+                   grad(cl.shared_rows, cl.shared_ptr, cl.shared_cols), grad(cl.boundary_rows, bd_ptr, cl.boundary_cols),
+                   bd_ptr,
+                   np.zeros((n, 3)), np.zeros((chunks, 3, 9, LANES)), np.zeros((chunks, LANES), dtype=np.int8),
+                   np.zeros((chunks, 2, 3, 3)))
 
     def kernel_args(self) -> tuple:
-        return self.rest, self.s0inv
+        """The frames' arrays in kernel argument order, around (u, v, w, mass, zeta, xi)."""
+        return (self.rest, self.bvec, self.sh_grad, self.bd_grad), (self.rot, self.scratch, self.how, self.tmp)
+
+
+@numba.njit(**SERIAL)
+def _rest_force(rows, ptr, cols, blocks, rest, b):
+    """b[i] <- sum_j K_ij (x0_j - x0_i), summed in the force kernel's order."""
+    for r in range(rows.shape[0]):
+        i = rows[r]
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        for k in range(ptr[r], ptr[r + 1]):
+            j = cols[k]
+            y0 = rest[j, 0] - rest[i, 0]
+            y1 = rest[j, 1] - rest[i, 1]
+            y2 = rest[j, 2] - rest[i, 2]
+            fx += blocks[k, 0, 0] * y0 + blocks[k, 0, 1] * y1 + blocks[k, 0, 2] * y2
+            fy += blocks[k, 1, 0] * y0 + blocks[k, 1, 1] * y1 + blocks[k, 1, 2] * y2
+            fz += blocks[k, 2, 0] * y0 + blocks[k, 2, 1] * y1 + blocks[k, 2, 2] * y2
+        b[i, 0] = fx
+        b[i, 1] = fy
+        b[i, 2] = fz
+
+
+def warp_cluster_args(model: FemModel, frames: VertexFrames) -> tuple:
+    """The cluster arrays in warped-kernel order (the boundary clusters get their 4 r index pointer)."""
+    cl = model.clusters
+    return (cl.shared_rows, cl.shared_ptr, cl.shared_cols, cl.shared_blocks,
+            cl.boundary_rows, frames.bd_ptr, cl.boundary_cols, cl.boundary_blocks)
 
 
 def _pick(n: int, threads: bool | None, serial, parallel):
@@ -256,15 +542,20 @@ def _check(model: FemModel, **arrays) -> list[np.ndarray]:
     return out
 
 
+def _run(kern, model: FemModel, frames: VertexFrames, u, v, out):
+    fixed, work = frames.kernel_args()
+    m = model.material
+    kern(*warp_cluster_args(model, frames), *fixed, u, v, frames.w, model.mass, float(m.zeta), float(m.xi),
+         *work, out)
+
+
 def vertex_rotations(model: FemModel, u: np.ndarray, frames: VertexFrames | None = None,
                      threads: bool | None = None) -> np.ndarray:
     """R_i for every vertex, (n, 3, 3), of the displacement u (n, 3)."""
     (u,) = _check(model, u=u)
     frames = VertexFrames.from_model(model) if frames is None else frames
-    cl = model.clusters
     kern = _pick(model.n_vertices, threads, rotation_kernel_serial, rotation_kernel_parallel)
-    kern(cl.shared_rows, cl.shared_ptr, cl.shared_cols, cl.boundary_rows, cl.boundary_cols,
-         frames.rest, frames.s0inv, u, frames.rot, frames.scratch)
+    _run(kern, model, frames, u, u, frames.w)
     return frames.rot.copy()
 
 
@@ -276,8 +567,6 @@ def warped_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None, fr
     frames = VertexFrames.from_model(model) if frames is None else frames
     if out is None:
         out = np.empty((model.n_vertices, 3))
-    m = model.material
     kern = _pick(model.n_vertices, threads, warped_kernel_serial, warped_kernel_parallel)
-    kern(*cluster_args(model.clusters), frames.rest, frames.s0inv, u, v, model.mass, float(m.zeta), float(m.xi),
-         frames.rot, frames.scratch, out)
+    _run(kern, model, frames, u, v, out)
     return out

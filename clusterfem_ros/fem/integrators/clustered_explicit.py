@@ -1,126 +1,158 @@
 """Clustered explicit FEM (eqs. 4-5): symplectic Euler driven by the fused cluster force kernel.
 
-All sub-steps of one step run inside one numba call: force, constraint forces, velocity and position
-updates, with no Python in between. ``warp=True`` swaps in the stiffness-warped force of eq. 10
-(fem/warping.py) on the same clusters; the linear path is a separate compiled function, untouched.
+All sub-steps of one step run inside one numba call: fixed vertices held at rest, force, constraint forces,
+velocity and position updates, with no Python in between. ``warp=True`` swaps in the stiffness-warped
+force of eq. 10 (fem/warping.py) on the same clusters; the linear path is a separate compiled function.
 The critical step is the linear one: R_i K R_i^T has K's spectrum, so warping does not shift it much.
+
+Python per step is kept to what can change: the sub-step plan is cached while h and the attachment gains'
+maxima are unchanged, prescribed vertices cost nothing when there are none, and divergence is still
+checked every step (the kernel returns max |u| and a nan probe).
 """
 from __future__ import annotations
 
 import numba
 import numpy as np
 
-from ..cluster_force_kernel import cluster_args, force_kernel_parallel, force_kernel_serial, pick_kernel
+from ..cluster_force_kernel import cluster_args, force_rows_parallel, force_rows_serial
 from ..model import Control, FemModel, State
-from ..numba_config import SERIAL
+from ..numba_config import PARALLEL_MIN_VERTICES, PARALLEL_MIN_VERTICES_WARPED, SERIAL
 from ..stability import critical_step, max_eigenvalue, plan_substeps
-from ..warping import VertexFrames, warped_kernel_parallel, warped_kernel_serial
+from ..warping import VertexFrames, warp_cluster_args, warped_rows_parallel, warped_rows_serial
 from .base import StepCommon, StepInfo
 
 
+def _update(n, h, zeta, inv_mass, f, f_const, rest, u, v, w, warped):
+    """v += h M^-1 (f + f_const), u += h v; w <- the next force's input; returns (max |u|, nan probe)."""
+    umax = 0.0
+    probe = 0.0
+    for i in range(n):
+        im = h * inv_mass[i]
+        for c in range(3):
+            vc = v[i, c] + im * (f[i, c] + f_const[i, c])
+            uc = u[i, c] + h * vc
+            v[i, c] = vc
+            u[i, c] = uc
+            w[i, c] = (rest[i, c] + uc if warped else uc) + zeta * vc
+            probe += (uc - uc) + (vc - vc)
+            umax = max(umax, abs(uc))
+    return umax, probe
+
+
+def _prepare(n, zeta, fixed, rest, u, v, w, warped):
+    """Fixed vertices held at rest (the state may come from outside); w <- the first force's input."""
+    for a in range(fixed.shape[0]):
+        i = fixed[a]
+        for c in range(3):
+            u[i, c] = 0.0
+            v[i, c] = 0.0
+    umax = 0.0
+    probe = 0.0
+    for i in range(n):
+        for c in range(3):
+            w[i, c] = (rest[i, c] + u[i, c] if warped else u[i, c]) + zeta * v[i, c]
+            probe += (u[i, c] - u[i, c]) + (v[i, c] - v[i, c])
+            umax = max(umax, abs(u[i, c]))
+    return umax, probe
+
+
+def _attach(tau, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f):
+    """f += m_i (a* + kp (u* - u) + kd (v* - v)) at the attached vertices, targets advanced by tau."""
+    for a in range(att_idx.shape[0]):
+        i = att_idx[a]
+        m = mass[i]
+        for c in range(3):
+            tu = att_u[a, c] + tau * att_v[a, c] + 0.5 * tau * tau * att_a[a, c]
+            tv = att_v[a, c] + tau * att_a[a, c]
+            f[i, c] += m * (att_a[a, c] + att_kp[a] * (tu - u[i, c]) + att_kd[a] * (tv - v[i, c]))
+
+
+_update = numba.njit(**SERIAL)(_update)
+_prepare = numba.njit(**SERIAL)(_prepare)
+_attach = numba.njit(**SERIAL)(_attach)
+
+
 def _make_symplectic_euler(force):
-    """The fused step around one build of the force kernel (a closure: numba inlines the call)."""
+    """The fused step around one build of the linear force kernel (a closure: numba inlines the call).
+
+    ``w`` = u + zeta v is the kernel's input; it is refreshed in the update loop, so a sub-step makes one
+    pass over the vertices besides the force. Returns (max |u|, probe): probe is nan if anything is not finite.
+    """
 
     def symplectic_euler(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
-                         mass, inv_mass, u, v, f_const, att_idx, att_u, att_v, att_a, att_kp, att_kd,
+                         mass, inv_mass, fixed, u, v, f_const, att_idx, att_u, att_v, att_a, att_kp, att_kd,
                          zeta, xi, h, nsub, w, f):
         n = u.shape[0]
-        umax = 0.0
-        probe = 0.0
+        umax, probe = _prepare(n, zeta, fixed, u, u, v, w, False)
         for s in range(nsub):
-            force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks, u, v, mass, zeta, xi, w, f)
-            tau = s * h
-            for a in range(att_idx.shape[0]):
-                i = att_idx[a]
-                m = mass[i]
-                for c in range(3):
-                    tu = att_u[a, c] + tau * att_v[a, c] + 0.5 * tau * tau * att_a[a, c]
-                    tv = att_v[a, c] + tau * att_a[a, c]
-                    f[i, c] += m * (att_a[a, c] + att_kp[a] * (tu - u[i, c]) + att_kd[a] * (tv - v[i, c]))
-            for i in range(n):
-                im = h * inv_mass[i]
-                for c in range(3):
-                    v[i, c] += im * (f[i, c] + f_const[i, c])
-                    u[i, c] += h * v[i, c]
-        for i in range(n):          # divergence probe: nan if anything is non-finite
-            for c in range(3):
-                probe += (u[i, c] - u[i, c]) + (v[i, c] - v[i, c])
-                umax = max(umax, abs(u[i, c]))
+            force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks, w, v, mass, xi, f)
+            _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f)
+            umax, probe = _update(n, h, zeta, inv_mass, f, f_const, u, u, v, w, False)
         return umax, probe
 
     return symplectic_euler
 
 
-_step_serial = numba.njit(**SERIAL)(_make_symplectic_euler(force_kernel_serial))
-_step_parallel = numba.njit(**SERIAL)(_make_symplectic_euler(force_kernel_parallel))
-
-
 def _make_warped_symplectic_euler(force):
-    """The fused step around one build of the warped force kernel (eq. 10); otherwise as above."""
+    """The fused step around one build of the warped force kernel (eq. 10); w = x0 + u + zeta v."""
 
-    def warped_symplectic_euler(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
-                                rest, s0inv, rot, scratch,
-                                mass, inv_mass, u, v, f_const, att_idx, att_u, att_v, att_a, att_kp, att_kd,
-                                zeta, xi, h, nsub, f):
+    def warped_symplectic_euler(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                                rest, bvec, sh_grad, bd_grad, rot, scratch, how, tmp,
+                                mass, inv_mass, fixed, u, v, f_const, att_idx, att_u, att_v, att_a, att_kp, att_kd,
+                                zeta, xi, h, nsub, w, f):
         n = u.shape[0]
-        umax = 0.0
-        probe = 0.0
+        umax, probe = _prepare(n, zeta, fixed, rest, u, v, w, True)
         for s in range(nsub):
-            force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
-                  rest, s0inv, u, v, mass, zeta, xi, rot, scratch, f)
-            tau = s * h
-            for a in range(att_idx.shape[0]):
-                i = att_idx[a]
-                m = mass[i]
-                for c in range(3):
-                    tu = att_u[a, c] + tau * att_v[a, c] + 0.5 * tau * tau * att_a[a, c]
-                    tv = att_v[a, c] + tau * att_a[a, c]
-                    f[i, c] += m * (att_a[a, c] + att_kp[a] * (tu - u[i, c]) + att_kd[a] * (tv - v[i, c]))
-            for i in range(n):
-                im = h * inv_mass[i]
-                for c in range(3):
-                    v[i, c] += im * (f[i, c] + f_const[i, c])
-                    u[i, c] += h * v[i, c]
-        for i in range(n):
-            for c in range(3):
-                probe += (u[i, c] - u[i, c]) + (v[i, c] - v[i, c])
-                umax = max(umax, abs(u[i, c]))
+            force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                  rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, f)
+            _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f)
+            umax, probe = _update(n, h, zeta, inv_mass, f, f_const, rest, u, v, w, True)
         return umax, probe
 
     return warped_symplectic_euler
 
 
-_warped_step_serial = numba.njit(**SERIAL)(_make_warped_symplectic_euler(warped_kernel_serial))
-_warped_step_parallel = numba.njit(**SERIAL)(_make_warped_symplectic_euler(warped_kernel_parallel))
+_step_serial = numba.njit(**SERIAL)(_make_symplectic_euler(force_rows_serial))
+_step_parallel = numba.njit(**SERIAL)(_make_symplectic_euler(force_rows_parallel))
+_warped_step_serial = numba.njit(**SERIAL)(_make_warped_symplectic_euler(warped_rows_serial))
+_warped_step_parallel = numba.njit(**SERIAL)(_make_warped_symplectic_euler(warped_rows_parallel))
 
 
 class ClusteredExplicit:
-    """The paper's method. ``safety`` scales the critical step; ``threads`` forces the threaded kernel on/off;
-    ``warp`` turns on stiffness warping (eq. 10)."""
+    """The paper's method. ``safety`` scales the critical step; ``threads`` forces the threaded kernel on/off
+    (default: on from PARALLEL_MIN_VERTICES, or PARALLEL_MIN_VERTICES_WARPED with warping); ``warp`` turns on
+    stiffness warping (eq. 10)."""
     name = "clustered"
 
     def __init__(self, model: FemModel, safety: float = 0.8, max_substeps: int = 10000,
                  threads: bool | None = None, lam_max: float | None = None, warp: bool = False):
         self.model = model
         self.warp = bool(warp)
-        if self.warp:
-            self.name = "clustered_warp"
-            self.frames = VertexFrames.from_model(model)
         self.safety = safety
         self.max_substeps = max_substeps
         self.lam_max = max_eigenvalue(model) if lam_max is None else lam_max
-        kernel = pick_kernel(model.n_vertices, threads)
-        self._step = _step_parallel if kernel is force_kernel_parallel else _step_serial
-        if self.warp:
-            self._step = _warped_step_parallel if kernel is force_kernel_parallel else _warped_step_serial
-        self._args = cluster_args(model.clusters)
         n = model.n_vertices
+        if threads is None:
+            threads = n >= (PARALLEL_MIN_VERTICES_WARPED if self.warp else PARALLEL_MIN_VERTICES)
+        self.threads = bool(threads)
+        if self.warp:
+            self.name = "clustered_warp"
+            self.frames = VertexFrames.from_model(model)
+            fixed, work = self.frames.kernel_args()
+            self._model_args = warp_cluster_args(model, self.frames) + fixed + work
+            self._step = _warped_step_parallel if self.threads else _warped_step_serial
+        else:
+            self._model_args = cluster_args(model.clusters)
+            self._step = _step_parallel if self.threads else _step_serial
         self._w = np.empty((n, 3))
         self._f = np.empty((n, 3))
         self._inv_mass = np.where(model.fixed, 0.0, 1.0 / model.mass)
         self._common = StepCommon(model)
         m = model.material
+        self._zeta, self._xi = float(m.zeta), float(m.xi)
         self._h_crit_free = critical_step(self.lam_max, m.xi, m.zeta)
+        self._plan_key = None
+        self._plan = None
 
     def critical_step(self, control: Control | None = None) -> float:
         if control is None or not control.attachments.index.size:
@@ -129,22 +161,26 @@ class ClusteredExplicit:
         m = self.model.material
         return critical_step(self.lam_max, m.xi, m.zeta, kp, kd)
 
-    def step(self, state: State, control: Control, h: float) -> StepInfo:
-        plan = plan_substeps(h, self.critical_step(control), self.safety, self.max_substeps)
-        held = self._common.apply_prescribed(state, control)
-        inv_mass = self._inv_mass if held is None else np.where(held, 0.0, self._inv_mass)
+    def _plan_for(self, h: float, control: Control):
+        """The sub-step plan, recomputed only when h or the attachments' largest gains change."""
         att = control.attachments
-        m = self.model.material
-        if self.warp:
-            fr = self.frames
-            umax, probe = self._step(*self._args, fr.rest, fr.s0inv, fr.rot, fr.scratch, self.model.mass,
-                                     inv_mass, state.u, state.v, self._common.constant_forces(control), att.index,
-                                     att.target_u, att.target_v, att.target_a, att.kp, att.kd, m.zeta, m.xi,
-                                     plan.h_sub, plan.substeps, self._f)
-            self._common.finish(state, h, self.name, umax=umax if probe == 0.0 else float("nan"))
-            return StepInfo(substeps=plan.substeps, margin=plan.margin)
-        umax, probe = self._step(*self._args, self.model.mass, inv_mass, state.u, state.v,
-                   self._common.constant_forces(control), att.index, att.target_u, att.target_v, att.target_a,
-                   att.kp, att.kd, m.zeta, m.xi, plan.h_sub, plan.substeps, self._w, self._f)
-        self._common.finish(state, h, self.name, umax=umax if probe == 0.0 else float("nan"))
-        return StepInfo(substeps=plan.substeps, margin=plan.margin)
+        key = (h, float(att.kp.max()), float(att.kd.max())) if att.index.size else (h,)
+        if key != self._plan_key:
+            self._plan = plan_substeps(h, self.critical_step(control), self.safety, self.max_substeps)
+            self._plan_key = key
+        return self._plan
+
+    def step(self, state: State, control: Control, h: float) -> StepInfo:
+        plan = self._plan_for(h, control)
+        common = self._common
+        inv_mass = self._inv_mass
+        if control.prescribed_index.size:   # fixed vertices are zeroed in the kernel; prescribed ones here
+            held = common.apply_prescribed(state, control)
+            inv_mass = np.where(held, 0.0, inv_mass)
+        att = control.attachments
+        umax, probe = self._step(*self._model_args, self.model.mass, inv_mass, common.fixed_index,
+                                 state.u, state.v, common.constant_forces(control), att.index, att.target_u,
+                                 att.target_v, att.target_a, att.kp, att.kd, self._zeta, self._xi,
+                                 plan.h_sub, plan.substeps, self._w, self._f)
+        common.finish(state, h, self.name, umax=umax if probe == 0.0 else float("nan"))
+        return StepInfo(plan.substeps, plan.margin)
