@@ -46,11 +46,17 @@ def _prepare(n, zeta, fixed, rest, u, v, w, warped):
         for c in range(3):
             u[i, c] = 0.0
             v[i, c] = 0.0
-    umax = 0.0
-    probe = 0.0
     for i in range(n):
         for c in range(3):
             w[i, c] = (rest[i, c] + u[i, c] if warped else u[i, c]) + zeta * v[i, c]
+
+
+def _probe(u, v):
+    """(max |u|, nan probe) of a state no sub-step touched."""
+    umax = 0.0
+    probe = 0.0
+    for i in range(u.shape[0]):
+        for c in range(3):
             probe += (u[i, c] - u[i, c]) + (v[i, c] - v[i, c])
             umax = max(umax, abs(u[i, c]))
     return umax, probe
@@ -69,6 +75,7 @@ def _attach(tau, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f):
 
 _update = numba.njit(**SERIAL)(_update)
 _prepare = numba.njit(**SERIAL)(_prepare)
+_probe = numba.njit(**SERIAL)(_probe)
 _attach = numba.njit(**SERIAL)(_attach)
 
 
@@ -83,7 +90,8 @@ def _make_symplectic_euler(force):
                          mass, inv_mass, fixed, u, v, f_const, att_idx, att_u, att_v, att_a, att_kp, att_kd,
                          zeta, xi, h, nsub, w, f):
         n = u.shape[0]
-        umax, probe = _prepare(n, zeta, fixed, u, u, v, w, False)
+        _prepare(n, zeta, fixed, u, u, v, w, False)
+        umax, probe = _probe(u, v) if nsub == 0 else (0.0, 0.0)
         for s in range(nsub):
             force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks, w, v, mass, xi, f)
             _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f)
@@ -101,7 +109,8 @@ def _make_warped_symplectic_euler(force):
                                 mass, inv_mass, fixed, u, v, f_const, att_idx, att_u, att_v, att_a, att_kp, att_kd,
                                 zeta, xi, h, nsub, w, f):
         n = u.shape[0]
-        umax, probe = _prepare(n, zeta, fixed, rest, u, v, w, True)
+        _prepare(n, zeta, fixed, rest, u, v, w, True)
+        umax, probe = _probe(u, v) if nsub == 0 else (0.0, 0.0)
         for s in range(nsub):
             force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
                   rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, f)
