@@ -118,3 +118,42 @@ def test_clustered_plan_follows_h_and_gains_and_fixed_vertices_stay_at_rest(warp
     s.v[fixed] = 1.0
     integ.step(s, Control(), 1e-3)
     assert not s.u[fixed].any() and not s.v[fixed].any()
+
+
+@pytest.mark.parametrize("warp", [False, True])
+def test_threaded_and_serial_clustered_steps_are_bit_identical(warp):
+    """Each row / chunk is computed by one thread in the same order: switching builds changes no bit
+    (what lets ThreadChoice switch mid-run without breaking deterministic replay)."""
+    mesh = paper_mesh("torus")
+    model = build_model(mesh, MAT, fixed=mesh.vertices[:, 0] > 0.12)
+    a, _ = _run("clustered", model, 60, 2e-3, threads=False, warp=warp)
+    b, _ = _run("clustered", model, 60, 2e-3, threads=True, warp=warp)
+    assert np.abs(a.u).max() > 1e-4
+    assert np.array_equal(a.u, b.u) and np.array_equal(a.v, b.v)
+
+
+def test_thread_choice_keeps_the_faster_build_and_leaves_threads_when_a_core_is_taken():
+    from clusterfem_ros.fem.integrators.clustered_explicit import ThreadChoice
+    c = ThreadChoice()
+    probe = 2 + 2 * ThreadChoice.PROBE
+
+    def run(steps, serial_s, parallel_s):
+        used = []
+        for _ in range(steps):
+            p = c.use_parallel()
+            used.append(p)
+            c.record(p, parallel_s if p else serial_s)
+        return used
+
+    used = run(probe, 1.0, 0.6)                    # idle machine: threads win the probe
+    assert used[:4] == [False, True, False, True] and c.parallel and not c.probing
+    used = run(5, 1.0, 10.0)                       # another process takes a core: one slow step, then serial
+    assert used == [True, False, False, False, False] and c.interval == 2 * ThreadChoice.INTERVAL
+    used = run(c.interval - 4, 1.0, 10.0)          # serial until the next probe ...
+    assert not any(used)
+    used = run(4, 1.0, 10.0)                       # ... which a slow threaded step ends at once
+    assert used == [False, True, False, True] and not c.probing and not c.parallel
+    assert c.interval == 4 * ThreadChoice.INTERVAL
+    run(c.interval, 1.0, 0.6)                      # the core is free again: the next probe finds it
+    run(probe, 1.0, 0.6)
+    assert c.parallel and c.interval == ThreadChoice.INTERVAL

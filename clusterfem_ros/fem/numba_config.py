@@ -11,10 +11,14 @@ import numba
 SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 PARALLEL = dict(SERIAL, parallel=True)
 
-# Below this many vertices a thread pool costs more than it saves (measured by
-# `python -m clusterfem_ros.bench.scaling`).
+# Below this many vertices the bare force kernels (clustered_force, warped_force, vertex_rotations) run
+# serial. On an idle 2-core Zen 1 the threaded builds already pay at the jelly man's 1803 vertices (warped
+# step 0.56 -> 0.35 ms, linear 0.137 -> 0.116 ms), but with another process on one core every parallel
+# region waits for the scheduler (~8 ms per step measured, 20-60x slower), so a fixed threshold stays high.
 PARALLEL_MIN_VERTICES = 20000
-PARALLEL_MIN_VERTICES_WARPED = 20000
+# The clustered integrator (threads=None) instead times both builds from this size on and keeps the faster
+# (integrators/clustered_explicit.ThreadChoice); below it one step is ~0.1 ms and threads never paid.
+AUTO_THREADS_MIN_VERTICES = 1000
 
 
 def serial_and_parallel(fn):

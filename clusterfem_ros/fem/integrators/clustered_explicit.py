@@ -11,12 +11,14 @@ checked every step (the kernel returns max |u| and a nan probe).
 """
 from __future__ import annotations
 
+import time
+
 import numba
 import numpy as np
 
 from ..cluster_force_kernel import cluster_args, force_rows_parallel, force_rows_serial
 from ..model import Control, FemModel, State
-from ..numba_config import PARALLEL_MIN_VERTICES, PARALLEL_MIN_VERTICES_WARPED, SERIAL
+from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL
 from ..stability import critical_step, max_eigenvalue, plan_substeps
 from ..warping import VertexFrames, warp_cluster_args, warped_rows_parallel, warped_rows_serial
 from .base import StepCommon, StepInfo
@@ -127,10 +129,68 @@ _warped_step_serial = numba.njit(**SERIAL)(_make_warped_symplectic_euler(warped_
 _warped_step_parallel = numba.njit(**SERIAL)(_make_warped_symplectic_euler(warped_rows_parallel))
 
 
+class ThreadChoice:
+    """Serial or threaded build of the step, chosen by measured time; both give bit-identical results.
+
+    A probe runs the two builds alternately for PROBE steps each (after one warm-up step of each) and keeps
+    the one with the lower median. Threads pay only while both cores are free: on a 2-core machine where
+    another process holds a core, the thread pool's join waits for the OS scheduler (the warped jelly man
+    went from 0.35 ms to ~8 ms per step). So a threaded step slower than SLOW x the serial median ends the
+    probe or drops back to serial at once, and the probe is repeated after ``interval`` steps, doubling
+    (up to MAX_INTERVAL) each time threads lose, so a busy machine costs one slow step now and then.
+    """
+    PROBE = 16
+    SLOW = 2.0
+    INTERVAL = 4096
+    MAX_INTERVAL = 1 << 17
+
+    def __init__(self):
+        self.parallel = False           # the build in use outside probes
+        self.serial_median = float("inf")
+        self.interval = self.INTERVAL
+        self._start_probe()
+
+    def _start_probe(self):
+        self._k = -2                    # two warm-up steps (first calls, pool start), then 2 PROBE timed ones
+        self._times = ([], [])
+        self.probing = True
+
+    def _end_probe(self, parallel: bool):
+        self.parallel = parallel
+        self.probing = False
+        self.interval = self.INTERVAL if parallel else min(2 * self.interval, self.MAX_INTERVAL)
+        self._k = 0
+
+    def use_parallel(self) -> bool:
+        """The build for the next step."""
+        return (self._k % 2 != 0) if self.probing else self.parallel
+
+    def record(self, parallel: bool, seconds: float) -> None:
+        """The time the build given took for the step just run."""
+        k = self._k
+        self._k += 1
+        if not self.probing:
+            if parallel and seconds > self.SLOW * self.serial_median:
+                self._end_probe(False)
+            elif self._k >= self.interval:
+                self._start_probe()
+            return
+        if k < 0:
+            return
+        self._times[parallel].append(seconds)
+        serial = self._times[False]
+        if parallel and serial and seconds > self.SLOW * float(np.median(serial)):
+            self.serial_median = float(np.median(serial))
+            self._end_probe(False)
+        elif k == 2 * self.PROBE - 1:
+            self.serial_median = float(np.median(serial))
+            self._end_probe(float(np.median(self._times[True])) < self.serial_median)
+
+
 class ClusteredExplicit:
     """The paper's method. ``safety`` scales the critical step; ``threads`` forces the threaded kernel on/off
-    (default: on from PARALLEL_MIN_VERTICES, or PARALLEL_MIN_VERTICES_WARPED with warping); ``warp`` turns on
-    stiffness warping (eq. 10)."""
+    (default: from AUTO_THREADS_MIN_VERTICES vertices, the faster build as measured by ThreadChoice);
+    ``warp`` turns on stiffness warping (eq. 10)."""
     name = "clustered"
 
     def __init__(self, model: FemModel, safety: float = 0.8, max_substeps: int = 10000,
@@ -141,18 +201,18 @@ class ClusteredExplicit:
         self.max_substeps = max_substeps
         self.lam_max = max_eigenvalue(model) if lam_max is None else lam_max
         n = model.n_vertices
-        if threads is None:
-            threads = n >= (PARALLEL_MIN_VERTICES_WARPED if self.warp else PARALLEL_MIN_VERTICES)
+        self.thread_choice = ThreadChoice() if threads is None and n >= AUTO_THREADS_MIN_VERTICES else None
         self.threads = bool(threads)
         if self.warp:
             self.name = "clustered_warp"
             self.frames = VertexFrames.from_model(model)
             fixed, work = self.frames.kernel_args()
             self._model_args = warp_cluster_args(model, self.frames) + fixed + work
-            self._step = _warped_step_parallel if self.threads else _warped_step_serial
+            self._builds = (_warped_step_serial, _warped_step_parallel)
         else:
             self._model_args = cluster_args(model.clusters)
-            self._step = _step_parallel if self.threads else _step_serial
+            self._builds = (_step_serial, _step_parallel)
+        self._step = self._builds[self.threads]
         self._w = np.empty((n, 3))
         self._f = np.empty((n, 3))
         self._inv_mass = np.where(model.fixed, 0.0, 1.0 / model.mass)
@@ -187,9 +247,16 @@ class ClusteredExplicit:
             held = common.apply_prescribed(state, control)
             inv_mass = np.where(held, 0.0, inv_mass)
         att = control.attachments
+        choice = self.thread_choice
+        if choice is not None:
+            parallel = choice.use_parallel()
+            self._step = self._builds[parallel]
+            t0 = time.perf_counter()
         umax, probe = self._step(*self._model_args, self.model.mass, inv_mass, common.fixed_index,
                                  state.u, state.v, common.constant_forces(control), att.index, att.target_u,
                                  att.target_v, att.target_a, att.kp, att.kd, self._zeta, self._xi,
                                  plan.h_sub, plan.substeps, self._w, self._f)
+        if choice is not None:
+            choice.record(parallel, time.perf_counter() - t0)
         common.finish(state, h, self.name, umax=umax if probe == 0.0 else float("nan"))
         return StepInfo(plan.substeps, plan.margin)
