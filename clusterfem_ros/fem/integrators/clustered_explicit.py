@@ -135,12 +135,14 @@ class ThreadChoice:
     A probe runs the two builds alternately for PROBE steps each (after one warm-up step of each) and keeps
     the one with the lower median. Threads pay only while both cores are free: on a 2-core machine where
     another process holds a core, the thread pool's join waits for the OS scheduler (the warped jelly man
-    went from 0.35 ms to ~8 ms per step). So a threaded step slower than SLOW x the serial median ends the
-    probe or drops back to serial at once, and the probe is repeated after ``interval`` steps, doubling
-    (up to MAX_INTERVAL) each time threads lose, so a busy machine costs one slow step now and then.
+    went from 0.3 ms to 5-8 ms per step). So SLOW_RUN threaded steps in a row slower than SLOW x the serial
+    median (one is not enough: an interrupt can stall any step) end the probe or drop back to serial at
+    once, and the probe is repeated after ``interval`` steps, doubling (up to MAX_INTERVAL) each time
+    threads lose, so a busy machine costs a couple of slow steps now and then.
     """
     PROBE = 16
-    SLOW = 2.0
+    SLOW = 3.0
+    SLOW_RUN = 2
     INTERVAL = 4096
     MAX_INTERVAL = 1 << 17
 
@@ -148,6 +150,7 @@ class ThreadChoice:
         self.parallel = False           # the build in use outside probes
         self.serial_median = float("inf")
         self.interval = self.INTERVAL
+        self._slow = 0
         self._start_probe()
 
     def _start_probe(self):
@@ -160,17 +163,23 @@ class ThreadChoice:
         self.probing = False
         self.interval = self.INTERVAL if parallel else min(2 * self.interval, self.MAX_INTERVAL)
         self._k = 0
+        self._slow = 0
 
     def use_parallel(self) -> bool:
         """The build for the next step."""
         return (self._k % 2 != 0) if self.probing else self.parallel
+
+    def _too_slow(self, parallel: bool, seconds: float) -> bool:
+        if parallel:
+            self._slow = self._slow + 1 if seconds > self.SLOW * self.serial_median else 0
+        return self._slow >= self.SLOW_RUN
 
     def record(self, parallel: bool, seconds: float) -> None:
         """The time the build given took for the step just run."""
         k = self._k
         self._k += 1
         if not self.probing:
-            if parallel and seconds > self.SLOW * self.serial_median:
+            if self._too_slow(parallel, seconds):
                 self._end_probe(False)
             elif self._k >= self.interval:
                 self._start_probe()
@@ -178,12 +187,11 @@ class ThreadChoice:
         if k < 0:
             return
         self._times[parallel].append(seconds)
-        serial = self._times[False]
-        if parallel and serial and seconds > self.SLOW * float(np.median(serial)):
-            self.serial_median = float(np.median(serial))
+        if not parallel:
+            self.serial_median = float(np.median(self._times[False]))
+        if self._too_slow(parallel, seconds):
             self._end_probe(False)
         elif k == 2 * self.PROBE - 1:
-            self.serial_median = float(np.median(serial))
             self._end_probe(float(np.median(self._times[True])) < self.serial_median)
 
 
