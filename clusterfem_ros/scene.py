@@ -29,6 +29,7 @@ from .fem.tet_mesh import TetMesh, boundary_triangles
 from .fem.voxel_mesh import paper_mesh
 
 
+MEASURED_POINTS = Path(__file__).resolve().parent.parent / "reports" / "speed_error" / "speed_error.csv"
 MAX_VOLUME_ERROR = 0.5      # |V/V0 - 1| beyond this is a diverged state, not a deformation
 
 
@@ -110,6 +111,8 @@ class Scene:
     def build(cls, config: SceneConfig, urdf_xml: str | None = None,
               progress: Callable[[str], None] | None = None) -> "Scene":
         """Build everything the config asks for (and nothing else)."""
+        if config["budget.max_error_mm"] > 0:
+            config = cls.apply_error_budget(config, progress)
         skeleton = None
         source = config["skeleton.source"]
         if source != "none":
@@ -148,6 +151,17 @@ class Scene:
         if fixed is None:
             fixed = np.zeros(mesh.n_vertices, dtype=bool)
         return cls(config, mesh, fixed, skeleton=skeleton, urdf_xml=urdf_xml, progress=progress)
+
+    @staticmethod
+    def apply_error_budget(config: SceneConfig, progress: Callable[[str], None] | None = None) -> SceneConfig:
+        """The config with method, step, warping (and modal.k) replaced by the cheapest measured point that
+        meets budget.max_error_mm; ChoiceError names the best achievable error when none does."""
+        from .method_choice import choose_from_file
+        path = config["budget.measured_points"] or str(MEASURED_POINTS)
+        choice = choose_from_file(path, scene=config["body.kind"], budget_mm=config["budget.max_error_mm"])
+        _say(progress, f"error budget {config['budget.max_error_mm']:g} mm: {choice.point.describe()}, "
+                       f"measured max error {choice.point.errors['max_mm']:.3g} mm ({path})")
+        return config.with_values(**{k.replace(".", "__"): v for k, v in choice.overrides.items()})
 
     def _bind(self, progress) -> None:
         from .body.binding import bind_to_skeleton

@@ -58,3 +58,12 @@ def test_unreadable_or_sectionless_files_say_what_is_missing(tmp_path):
     f.write_text("some_node:\n  ros__parameters:\n    x: 1\n")
     with pytest.raises(ConfigError, match="clusterfem: ros__parameters"):
         load_scene_file(f)
+
+
+def test_no_parameter_name_is_a_group_of_another():
+    # 'a' and 'a.b' cannot both be written as nested YAML (and ros2 param dump would clash)
+    names = {p.name for p in PARAMS}
+    for n in names:
+        parts = n.split(".")
+        for i in range(1, len(parts)):
+            assert ".".join(parts[:i]) not in names, n

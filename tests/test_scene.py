@@ -75,3 +75,24 @@ def test_falling_behind_drops_the_gap_and_counts_it():
     assert scene.steps_done == 0 and scene.dropped_s == pytest.approx(1.0)
     scene.advance_to(1.05, max_steps=100)
     assert scene.steps_done == 50
+
+
+def test_an_error_budget_picks_the_cheapest_measured_method_and_refuses_an_impossible_one(tmp_path):
+    from clusterfem_ros.method_choice import ChoiceError, MeasuredPoint, write_points
+    def err(mm):
+        return {"max_mm": mm, "rel_l2": mm / 10, "von_mises_rel": mm / 10, "volume_pct": 0.1}
+    pts = [MeasuredPoint("sphere", "implicit_direct", 1e-3, 0, 0.6, err(0.5)),
+           MeasuredPoint("sphere", "clustered", 1e-3, 0, 0.03, err(0.8)),
+           MeasuredPoint("sphere", "clustered", 5e-4, 0, 0.03, err(0.3)),
+           MeasuredPoint("sphere", "modal30", 1e-3, 30, 0.2, err(2.0))]
+    f = write_points(tmp_path / "points.csv", pts)
+    base = SceneConfig().with_values(body__kind="sphere", skeleton__source="none", budget__measured_points=str(f))
+    said = []
+    c = Scene.apply_error_budget(base.with_values(budget__max_error_mm=1.0), said.append)
+    assert (c["method"], c["physics.step"]) == ("clustered", 1e-3) and "clustered" in said[0]
+    c = Scene.apply_error_budget(base.with_values(budget__max_error_mm=0.4))
+    assert (c["method"], c["physics.step"]) == ("clustered", 5e-4)
+    with pytest.raises(ChoiceError, match="0.3"):
+        Scene.apply_error_budget(base.with_values(budget__max_error_mm=0.1))
+    scene = Scene.build(base.with_values(budget__max_error_mm=0.4, warping=True))
+    assert scene.h == 5e-4 and scene.integrator.name == "clustered"       # warping off: the measured point's
