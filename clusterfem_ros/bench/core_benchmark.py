@@ -82,6 +82,8 @@ def bench_shape(name: str, h: float, scale: float) -> dict:
         lam = getattr(integ, "lam_max", lam)
         state, control = State.rest(model), Control()
         info = integ.step(state, control, h)
+        for _ in range(200):            # past JIT, cache loads and the first-touch of every array
+            integ.step(state, control, h)
         out[method] = median_seconds(lambda: integ.step(state, control, h))
         if method == "clustered":
             out["substeps"] = info.substeps
@@ -98,6 +100,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"material E={MATERIAL.E:g} Pa nu={MATERIAL.nu} rho={MATERIAL.rho:g} xi={MATERIAL.xi} "
           f"zeta={MATERIAL.zeta:g}; h = {args.step:g} s; numba threads off (serial kernels)", flush=True)
     rows, ok = [], True
+    print("  warming up (one untimed pass: the first shape timed in a fresh process ran ~1.8x slow)",
+          file=sys.stderr, flush=True)
+    bench_shape(PAPER_SHAPES[0], args.step, args.scale)
     for name in PAPER_SHAPES:
         print(f"  timing {name} ...", file=sys.stderr, flush=True)
         r = bench_shape(name, args.step, args.scale)
