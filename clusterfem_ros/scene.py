@@ -107,6 +107,20 @@ class Scene:
         self.last = StepReport()
         if skeleton is not None:
             self._bind(progress)
+        self._warm_up(progress)
+
+    def _warm_up(self, progress, steps: int = 40) -> None:
+        """Load the compiled kernels (and let the integrator settle on serial or threaded) on a throw-away
+        state, so the first real steps are not a second-long stall that drops inputs."""
+        _say(progress, "loading compiled kernels")
+        state = State.rest(self.model)
+        control = self._control(0.0) if self.driver is not None else Control()
+        for _ in range(steps):
+            self.integrator.step(state, control, self.h)
+        if self.driver is not None:
+            self.driver.reset()
+        from .fem.stress import compute_stress
+        compute_stress(self.model, state.u, corotated=bool(self.config["warping"]))
 
     # -- construction --------------------------------------------------------------------------
     @classmethod
