@@ -26,7 +26,7 @@ setup(
     extras_require={"test": ["pytest", "rosbags"]},
     entry_points={
         "console_scripts": [
-            "clusterfem_demo = clusterfem_ros.demo:main",
+            "clusterfem_demo = clusterfem_ros.nodes.demo:main",
             "clusterfem_node = clusterfem_ros.nodes.clusterfem_node:main",
             "mocap_player = clusterfem_ros.nodes.player_node:main",
             "clusterfem_bench = clusterfem_ros.bench.core_benchmark:main",

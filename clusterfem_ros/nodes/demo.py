@@ -34,9 +34,9 @@ def main(argv: list[str] | None = None) -> int:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from .config import default_scene_path, load_scene_file
-    from .nodes.clusterfem_node import ClusterFemNode
-    from .render import render_surface_png
+    from ..config import default_scene_path, load_scene_file
+    from .clusterfem_node import ClusterFemNode
+    from ..render import render_surface_png
 
     scene_file = Path(args.scene) if args.scene else default_scene_path()
     config = load_scene_file(scene_file)           # validated here, with a clear error, before ROS starts
