@@ -25,7 +25,7 @@ from .fem.material import Material
 from .fem.mesh_io import read_mesh
 from .fem.model import Control, State, build_model
 from .fem.stability import DivergenceError
-from .fem.tet_mesh import TetMesh, boundary_triangles
+from .fem.tet_mesh import TetMesh, boundary_triangles, signed_volumes
 from .fem.voxel_mesh import paper_mesh
 
 
@@ -244,19 +244,21 @@ class Scene:
         self._t0, self._k = float(t), 0
         if self.start_time is None:
             self.start_time = self.sim_time
+        self._place_on_skeleton()
+
+    def _place_on_skeleton(self) -> None:
+        """Every vertex carried rigidly by its bone at sim_time; the bone-rate history restarts."""
+        self._replace = False
         if self.driver is not None:
             self.driver.reset()
-            self.state = self.driver.rigid_state(self._poses(t), t)
+            self.state = self.driver.rigid_state(self._poses(self.sim_time), self.sim_time)
 
     def step(self) -> StepReport:
         """One physics step of length h."""
         if self.sim_time is None:
             self.start(0.0)
         if self._replace:
-            self._replace = False
-            if self.driver is not None:
-                self.driver.reset()
-                self.state = self.driver.rigid_state(self._poses(self.sim_time), self.sim_time)
+            self._place_on_skeleton()
         t0 = time.perf_counter()
         info = self.integrator.step(self.state, self._control(self.sim_time), self.h)
         self._k += 1
@@ -313,6 +315,18 @@ class Scene:
                                       "physics.step or the binding gains, or turn warping on")
         return rep
 
+    def follow_inputs(self, max_steps: int | None = None, on_step: Callable[[], None] | None = None) -> StepReport:
+        """physics.clock = input, called after every joint-state sample: start at the first accepted stamp,
+        then step up to the newest. The node and a replay (recording/replay.py) both step through this, so
+        the same inputs give the same states. ``on_step()`` also sees the state at the start."""
+        if self.sim_time is None:
+            if self.driver is None or not self.stream.ready:
+                return StepReport()
+            self.start(self.first_stamp)
+            if on_step is not None:
+                on_step()
+        return self.advance_to(self.stream.newest, max_steps, on_step=on_step)
+
     def _drop(self, t_new: float) -> None:
         """Skip simulated time up to t_new and put the body back on the skeleton there."""
         if t_new > self.sim_time:
@@ -349,10 +363,7 @@ class Scene:
 
     def volume_error(self) -> float:
         """Relative change of the body's volume from rest."""
-        x = self.positions()[self.model.mesh.tets]
-        e = x[:, 1:] - x[:, :1]
-        vol = np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])).sum() / 6.0
-        return vol / self.rest_volume - 1.0
+        return float(signed_volumes(self.positions(), self.model.mesh.tets).sum()) / self.rest_volume - 1.0
 
     def energy(self) -> float:
         return self.model.kinetic_energy(self.state.v) + self.model.elastic_energy(self.state.u)

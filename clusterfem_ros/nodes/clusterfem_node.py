@@ -139,36 +139,32 @@ class ClusterFemNode(Node):
             return
         if stamp == 0.0:
             stamp = now_ns * 1e-9
-        input_clock = self.config["physics.clock"] == "input"
-        if input_clock and scene.sim_time is not None:
-            self._advance(scene.stream.newest)              # finish the samples before, then take this one
         for kind, message in scene.push_joint_state(stamp, names, q, v, now=now_ns * 1e-9):
             if kind == "unknown_joint":
                 self.get_logger().warning(message)          # reported once per name by the joint map
             else:
                 self.get_logger().warning(f"{message} [{kind}: {scene.inputs.rejected.get(kind, 0)} so far]",
                                           throttle_duration_sec=2.0)
-        if input_clock and scene.sim_time is None and scene.stream.ready:
-            scene.start(scene.first_stamp)
+        if self.config["physics.clock"] == "input":
+            self._advance(None)
 
     # -- physics ---------------------------------------------------------------------------------
     def _on_physics(self) -> None:
         """Wall clock: advance to now, 70 % of a timer period at most (slow motion beyond). Input clock:
-        advance to the newest joint-state stamp, every step, so a replay of the same inputs is identical
-        (recording/replay.py does exactly this)."""
-        scene = self.scene
-        if scene is None:
-            return
-        if self.config["physics.clock"] == "input":
-            if scene.sim_time is not None:
-                self._advance(scene.stream.newest)
+        nothing here; each joint-state sample steps the scene up to its stamp (Scene.follow_inputs)."""
+        if self.scene is None or self.config["physics.clock"] == "input":
             return
         self._advance(self._now(), deadline=time.perf_counter() + 0.7 / self.config["physics.timer_hz"])
 
-    def _advance(self, target: float, deadline: float | None = None) -> None:
+    def _advance(self, target: float | None, deadline: float | None = None) -> None:
+        """Step to target (None: follow the inputs); a divergence resets the body and is logged."""
         scene = self.scene
+        max_steps = self.config["physics.max_catchup_steps"]
         try:
-            scene.advance_to(target, max_steps=self.config["physics.max_catchup_steps"], deadline=deadline)
+            if target is None:
+                scene.follow_inputs(max_steps)
+            else:
+                scene.advance_to(target, max_steps=max_steps, deadline=deadline)
         except (DivergenceError, StabilityError) as exc:
             self.divergences += 1
             self.get_logger().error(f"{exc}; the body is reset ({self.divergences} resets so far)",

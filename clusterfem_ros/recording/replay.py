@@ -63,8 +63,8 @@ def read_surfaces(folder: str | Path, topic: str = "/clusterfem/surface") -> lis
 
 
 def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.ndarray]:
-    """Drive ``scene`` (fresh) as the node does with physics.clock = input: before each sample, step up
-    to the newest stamp; then take the sample. Returns the triangle-list surface points at each
+    """Drive ``scene`` (fresh) as the node does with physics.clock = input: take each sample, then step
+    up to the newest stamp (Scene.follow_inputs). Returns the triangle-list surface points at each
     simulated time in ``at_ns`` that the replay passes through."""
     wanted = sorted(set(at_ns))
     got: dict[int, np.ndarray] = {}
@@ -82,22 +82,13 @@ def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.
 
     from ..fem.stability import DivergenceError, StabilityError
     max_steps = scene.config["physics.max_catchup_steps"]
-
-    def advance():                                        # as ClusterFemNode._advance
+    for s in samples:                                     # as ClusterFemNode._on_joint_state / _advance
+        stamp = s.stamp if s.stamp != 0.0 else s.log_ns * 1e-9     # the node stamps unstamped samples so
+        scene.push_joint_state(stamp, s.names, s.q, s.v, now=s.log_ns * 1e-9)
         try:
-            scene.advance_to(scene.stream.newest, max_steps=max_steps, on_step=collect)
+            scene.follow_inputs(max_steps, on_step=collect)
         except (DivergenceError, StabilityError):
             scene.reset()
-
-    for s in samples:                                     # the node's order (nodes/clusterfem_node.py)
-        if scene.sim_time is not None:
-            advance()
-        scene.push_joint_state(s.stamp, s.names, s.q, s.v, now=s.log_ns * 1e-9)
-        if scene.sim_time is None and scene.stream.ready:
-            scene.start(scene.first_stamp)
-            collect()
-    if scene.sim_time is not None:
-        advance()
     return got
 
 
