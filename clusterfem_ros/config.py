@@ -122,9 +122,11 @@ class SceneConfig:
     def __getitem__(self, name: str) -> Any:
         return self.values[name]
 
-    def with_values(self, **overrides: Any) -> "SceneConfig":
-        """A copy with parameters replaced; keys use '__' for '.' (body__kind='sphere')."""
-        return from_mapping({**self.values, **{k.replace("__", "."): v for k, v in overrides.items()}})
+    def with_values(self, values: dict[str, Any] | None = None, **overrides: Any) -> "SceneConfig":
+        """A copy with parameters replaced, from a {name: value} mapping and/or keywords that use '__'
+        for '.' (body__kind='sphere')."""
+        return from_mapping({**self.values, **(values or {}),
+                             **{k.replace("__", "."): v for k, v in overrides.items()}})
 
 
 def from_mapping(values: dict[str, Any]) -> SceneConfig:

@@ -177,7 +177,7 @@ class Scene:
         choice = choose_from_file(path, scene=config["body.kind"], budget_mm=config["budget.max_error_mm"])
         _say(progress, f"error budget {config['budget.max_error_mm']:g} mm: {choice.point.describe()}, "
                        f"measured max error {choice.point.errors['max_mm']:.3g} mm ({path})")
-        return config.with_values(**{k.replace(".", "__"): v for k, v in choice.overrides.items()})
+        return config.with_values(choice.overrides)
 
     def _bind(self, progress) -> None:
         from .body.binding import bind_to_skeleton

@@ -42,7 +42,6 @@ class ClusterFemNode(Node):
         self.recorder = None
         self.counts: dict[str, int] = {}      # messages per topic published (outputs) or received (inputs)
         self.divergences = 0
-        self.refused_steps = 0
         self._stats = {"t_wall": time.perf_counter(), "steps": 0}
         self._rtf = 0.0
         self._marker_pub = self.create_publisher(Marker, SURFACE_TOPIC, 1)
@@ -104,7 +103,7 @@ class ClusterFemNode(Node):
                 self._output_timers[key] = self.create_timer(1.0 / self.config[key], fn)
 
     def _on_live_change(self, changes: dict) -> None:
-        self.config = self.config.with_values(**{k.replace(".", "__"): v for k, v in changes.items()})
+        self.config = self.config.with_values(changes)
         if any(k.endswith("rate_hz") for k in changes):
             self._make_output_timers()
 
