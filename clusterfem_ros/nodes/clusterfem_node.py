@@ -188,12 +188,12 @@ class ClusterFemNode(Node):
     def _publish_surface(self) -> None:
         if not self._wanted(self._marker_pub):
             return
-        verts, tris = self.scene.surface()
-        vm = self.scene.vertex_von_mises()[self.scene.surface_vertices]
-        rgba = map_scalars(vm, self.config["output.colormap"], 0.0, self._stress_max())
-        try:
+        try:                               # non-finite state or stress: never published
+            verts, tris = self.scene.surface()
+            vm = self.scene.vertex_von_mises()[self.scene.surface_vertices]
+            rgba = map_scalars(vm, self.config["output.colormap"], 0.0, self._stress_max())
             data = surface_marker_cdr(verts, tris, rgba, self.config["output.frame_id"], self._sim_stamp(), "clusterfem", 0)
-        except ValueError as exc:          # non-finite: never published
+        except ValueError as exc:
             self.get_logger().error(f"surface not published: {exc}", throttle_duration_sec=2.0)
             return
         self._marker_pub.publish(data)
