@@ -4,9 +4,10 @@ Modes: the lowest k eigenpairs of K phi = lambda M phi on the free DOFs (fixed a
 removed), M-orthonormal (Phi^T M Phi = I, Phi^T K Phi = diag lambda). For k < the free DOF count they
 come from scipy's eigsh in shift-invert mode with sigma = -1e-4 * tr(K)/tr(M) (a small *negative*
 shift): K - sigma M is then positive definite even when the body is unconstrained, so the six rigid
-modes (lambda = 0) factorize without a singular matrix and come out first; the eigsh vectors are then
-refined by one Rayleigh-Ritz step (a k x k eigh) so the basis is M-orthonormal to round-off and the
-tiny negative lambdas of rigid modes are clamped to 0. Small systems (or k >= free DOFs) use dense eigh.
+modes (lambda = 0) factorize (fem/spd_factor.py) without a singular matrix and come out first; the eigsh
+vectors are then refined by one Rayleigh-Ritz step (a k x k eigh) so the basis is M-orthonormal to
+round-off and the tiny negative lambdas of rigid modes are clamped to 0. Small systems (or k >= free
+DOFs) use dense eigh.
 
 Each mode is a damped oscillator with the model's Rayleigh damping, c = xi + zeta lambda, driven by
 the projected force g = Phi^T f, f = gravity + f_ext + attachments (as forces, evaluated at the start of
@@ -30,6 +31,7 @@ import scipy.sparse.linalg as spla
 from .integrators.base import StepCommon, StepInfo
 from .material import ParameterError
 from .model import Control, FemModel, State
+from .spd_factor import factorize_spd
 
 DENSE_MAX_DOFS = 600
 
@@ -62,7 +64,8 @@ def modal_basis(model: FemModel, k: int, held: np.ndarray | None = None) -> Moda
         M = sp.diags(m).tocsc()
         sigma = -1e-4 * K.diagonal().sum() / m.sum()
         v0 = np.random.default_rng(0).standard_normal(free.size)
-        _, phi = spla.eigsh(K, k=k, M=M, sigma=sigma, which="LM", v0=v0, tol=1e-12)
+        shifted = factorize_spd(K - sigma * M)
+        _, phi = spla.eigsh(K, k=k, M=M, sigma=sigma, which="LM", v0=v0, tol=1e-12, OPinv=shifted.operator())
         Kr = phi.T @ (K @ phi)
         Mr = phi.T @ (m[:, None] * phi)
         lam, W = sla.eigh(0.5 * (Kr + Kr.T), 0.5 * (Mr + Mr.T))

@@ -4,7 +4,8 @@
 
 Fixed and prescribed DOFs are removed from the system. Attachment gains enter A (h kd m + h^2 kp m on
 their diagonal) so stiff constraints stay stable. The direct solver factorizes A once per (h, constraint
-set) and reuses the factor; the CG solver (the paper's choice) is Jacobi-preconditioned and warm-started.
+set) and reuses the factor (fem/spd_factor.py: SuperLU in symmetric mode); the CG solver (the paper's
+choice) is Jacobi-preconditioned and warm-started.
 
 ``warp=True`` (stiffness warping, the paper's comparison). Linearisation about the current state, with
 the vertex rotations R_i (fem/warping.py) frozen over the step:
@@ -23,6 +24,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..model import Control, FemModel, State
+from ..spd_factor import factorize_spd
 from ..warping import VertexFrames, vertex_rotations, warped_force
 from .base import StepCommon, StepInfo
 
@@ -72,7 +74,7 @@ class StandardImplicit:
             A_ff = A[free][:, free].tocsc()
             self._free = free
             self._A = A_ff
-            self._lu = spla.splu(A_ff) if self.solver == "direct" else None
+            self._lu = factorize_spd(A_ff) if self.solver == "direct" else None
             self._jacobi = sp.diags(1.0 / A_ff.diagonal()) if self.solver == "cg" else None
             if K is None:
                 self._dv_prev = None
