@@ -6,13 +6,17 @@ Every method runs the same scene (the object's bottom fixed, gravity, same mater
 is timed after warm-up (JIT compilation excluded). 'stream' is a bare pass that reads every block
 and column index of the clusters once, vectorized: the memory-bound floor for the force kernel.
 
-The kernel is not memory-bound: the clusters of the paper's shapes (~3800 blocks, 0.3 MB) sit in L2.
-Per block it issues 13 scalar loads (9 block entries, 3 gathered w_j, 1 column index) and 18 flops; a
-Zen 1 core at 2 GHz retires 2 loads per cycle, so >= 6.5 cycles = 3.3 ns per block, and ~4.8 ns is
-measured (the same loads with the products replaced by adds: ~4.2 ns). The stream pass reads 10 numbers
-per block with 4-wide vector loads (its fastmath reduction may reassociate), ~1.5 ns per block. Closing
-that gap needs vector loads of the blocks, i.e. several rows per SIMD lane (a padded, interleaved layout
-with gathered w), not a different scalar loop.
+The kernel is not memory-bound: the clusters of the paper's shapes (~3600 blocks, 0.26 MB) sit in L2, and
+the stream reads them at ~30 B/cycle (2.4 cycles per block for the 72 bytes of entries, +1.3 for the int64
+column index it converts), ~1.6 ns per block at ~2.35 GHz. The kernel's per-block floor is its loads: a
+scalar loop issues 13 (9 entries, 3 gathered w, 1 index; ~5.1 ns/block measured, 3.0-3.3x the stream).
+cluster_force_kernel._row_force is LLVM IR (numba runs no SLP vectorizer) with 8 loads per block: the
+entries as 4 x 16 + 8 bytes, w as 16 + 8 bytes, 2-wide FMAs on two accumulator sets. On one long row that
+loop runs at ~4.8 cycles per block (the same loads without w: 3.0), ~1.3x the stream. What is left is per
+row and per call, about a third of the time: the loop exit mispredicts on the varying cluster sizes
+(sorting rows by size saved ~6%), the row's reduction and store, and the w = u + zeta v pass (~0.6 us, store
+bound). Measured ~3.0 ns per block, 1.8-1.9x the stream (from 3.0-3.3x). Closer needs the per-row cost
+shared by several rows (rows per SIMD lane, SELL-C style, padded and sorted): a change of cluster layout.
 """
 from __future__ import annotations
 
