@@ -96,6 +96,11 @@ def test_quick_command_end_to_end(tmp_path):
     pts = read_points(tmp_path / "speed_error.csv")
     assert {p.scene for p in pts} == {"sphere", "jelly_man"}
     assert (tmp_path / "speed_error.png").is_file() and (tmp_path / "figure5.png").is_file()
+    md = (tmp_path / "speed_error.md").read_text()
+    peer = md[md.index("## A peer: MuJoCo"):]                      # the peer runs in the same run (pinned)
+    row = next(line for line in peer.splitlines() if line.startswith("| sphere ("))
+    ours_ms, mujoco_ms = (float(c) for c in row.split("|")[2:4])
+    assert ours_ms > 0 and mujoco_ms > 0
 
 
 def test_mujoco_peer_runs_the_same_mesh_when_installed(small):

@@ -2,8 +2,8 @@
 
     python -m clusterfem_ros.bench.peer_mujoco [--shapes sphere cube torus] [--step 1e-3] [--duration 0.5]
 
-MuJoCo is optional (``pip install mujoco``; not in requirements.lock): without it this prints how to
-install it and exits 0. Each paper shape, bottom 20 % pinned, falls under gravity from rest for
+MuJoCo is pinned in requirements.lock (4.0.0) and runs in the speed-vs-error report's run; without it
+this prints how to install it and exits 0. Each paper shape, bottom 20 % pinned, falls under gravity from rest for
 ``duration`` s in both simulators at the same step; printed per shape: ms/step of each (median of
 per-step wall times after warm-up), the peak sag, and how far MuJoCo's final shape is from our
 converged reference of the linear model (speed_error_report.reference).
@@ -85,7 +85,14 @@ def run_ours(sc, h: float) -> dict:
     return {"ms": r.ms_per_step, "u": r.u, "substeps": r.substeps}
 
 
+HEADERS = ["shape", "ours ms/step", "MuJoCo ms/step", "MuJoCo/ours", "peak sag mm ref / ours / MuJoCo",
+           "final max |u - u_ref| mm ours / MuJoCo", "vertex mass g"]
+NOTE = ("u_ref: our linear model's converged reference. MuJoCo's distance from it is model difference "
+        "(mass lumping, no mass damping, nonlinear strain) plus its integration error, not only error.")
+
+
 def compare(shapes, h: float, duration: float, integrator: str, progress=print) -> list[list[str]] | None:
+    """One row per shape (HEADERS), or None when MuJoCo is not installed."""
     mujoco = mujoco_or_none()
     if mujoco is None:
         return None
@@ -132,10 +139,8 @@ def main(argv: list[str] | None = None) -> int:
           f"zeta={MATERIAL.zeta:g} (ours also xi={MATERIAL.xi}); MuJoCo integrator {args.integrator}", flush=True)
     rows = compare(args.shapes, args.step, args.duration, args.integrator,
                    progress=lambda s: print(s, file=sys.stderr, flush=True))
-    print(table(["shape", "ours ms/step", "MuJoCo ms/step", "MuJoCo/ours", "peak sag mm ref / ours / MuJoCo",
-                 "final max |u - u_ref| mm ours / MuJoCo", "vertex mass g"], rows))
-    print("u_ref: our linear model's converged reference. MuJoCo's distance from it is model difference "
-          "(mass lumping, no mass damping, nonlinear strain) plus its integration error, not only error.")
+    print(table(HEADERS, rows))
+    print(NOTE)
     return 0
 
 

@@ -40,7 +40,8 @@ element von Mises stress (corotated for the warped model), and max |V - V_ref| /
 Writes into ``--out``: speed_error.csv (the measured points, read by clusterfem_ros.method_choice),
 speed_error.md (tables, beside the paper's Table 1), speed_error.png (error against compute per
 simulated second, log-log, Pareto front marked) and figure5.png (displacement difference to the
-reference on the surface, clustered vs modal 30: the paper's Figure 5).
+reference on the surface, clustered vs modal 30: the paper's Figure 5). In the same run the shapes go
+through MuJoCo's tetrahedral flex (bench/peer_mujoco.py: ms/step and what each computes) unless --no-peer.
 """
 from __future__ import annotations
 
@@ -300,7 +301,8 @@ def table1_rows(points: list[MeasuredPoint], h: float = TABLE_H) -> list[list[st
     return rows
 
 
-def write_markdown(path: Path, points, cfg: dict, seconds: float, budget_example: tuple | None) -> None:
+def write_markdown(path: Path, points, cfg: dict, seconds: float, budget_example: tuple | None,
+                   peer: list[list[str]] | None = None) -> None:
     lines = [f"# Speed against error ({'quick' if cfg.get('quick') else 'full'} run)", "",
              "Regenerate: `python -m clusterfem_ros.bench.speed_error_report"
              + (" --quick" if cfg.get("quick") else "") + f" --out {path.parent}`", "",
@@ -326,6 +328,11 @@ def write_markdown(path: Path, points, cfg: dict, seconds: float, budget_example
                           f"{p.errors['rel_l2']:.2e}", f"{p.errors['max_mm']:.3g}", f"{p.errors['von_mises_rel']:.2e}",
                           f"{p.errors['volume_pct']:.2e}", "*" if id(p) in front else "", p.info.get("status", "")]
                          for p in pts]), ""]
+    if peer is not None:
+        from . import peer_mujoco
+        lines += [f"## A peer: MuJoCo's tetrahedral flex, same mesh, material, load and step (h = {TABLE_H:g} s)", "",
+                  table(peer_mujoco.HEADERS, peer) if peer else "MuJoCo is not installed: no peer rows.", "",
+                  peer_mujoco.NOTE + " What each simulator computes: `clusterfem_ros/bench/peer_mujoco.py`.", ""]
     if budget_example:
         lines += ["## Method choice from these points", ""] + [f"- {s}" for s in budget_example] + [""]
     path.write_text("\n".join(lines))
@@ -423,7 +430,7 @@ def write_outputs(out: Path, points, extras: dict, cfg: dict) -> dict:
     paths = {"csv": write_points(out / "speed_error.csv", points), "md": out / "speed_error.md",
              "png": out / "speed_error.png", "figure5": out / "figure5.png"}
     examples = budget_examples(points)
-    write_markdown(paths["md"], points, cfg, extras["seconds"], examples)
+    write_markdown(paths["md"], points, cfg, extras["seconds"], examples, extras.get("peer"))
     plot_speed_error(paths["png"], points)
     if not plot_figure5(paths["figure5"], extras):
         del paths["figure5"]
@@ -435,6 +442,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="sphere + jelly man, 0.2 s runs, 3 steps (~1-2 min)")
     ap.add_argument("--out", default=None, help="output folder (default reports/speed_error[_quick])")
     ap.add_argument("--scenes", nargs="+", choices=FULL["scenes"], help="only these scenes")
+    ap.add_argument("--no-peer", action="store_true", help="skip the MuJoCo peer (bench.peer_mujoco) in this run")
     args = ap.parse_args(argv)
     cfg = dict(QUICK if args.quick else FULL, quick=args.quick)
     if args.scenes:
@@ -442,7 +450,13 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out or ("reports/speed_error_quick" if args.quick else "reports/speed_error"))
     print(f"speed vs error: scenes {', '.join(cfg['scenes'])}; methods {', '.join(METHODS)}; "
           f"material E={MATERIAL.E:g} Pa nu={MATERIAL.nu} xi={MATERIAL.xi} zeta={MATERIAL.zeta:g}", flush=True)
-    points, extras = run_report(cfg, progress=lambda s: print(s, file=sys.stderr, flush=True))
+    say = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
+    points, extras = run_report(cfg, progress=say)
+    shapes = [s for s in cfg["scenes"] if s != "jelly_man"]
+    if shapes and not args.no_peer:
+        from .peer_mujoco import compare
+        say("peer: the same shapes in MuJoCo's flex")
+        extras["peer"] = compare(shapes, TABLE_H, cfg["duration"], "Euler", progress=say) or []
     paths = write_outputs(out, points, extras, cfg)
     print(paths["md"].read_text())
     print("wrote " + ", ".join(str(p) for p in paths.values()))
