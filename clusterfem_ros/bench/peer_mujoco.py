@@ -3,10 +3,10 @@
     python -m clusterfem_ros.bench.peer_mujoco [--shapes sphere cube torus] [--step 1e-3] [--duration 0.5]
 
 MuJoCo is pinned in requirements.lock (4.0.0) and runs in the speed-vs-error report's run; without it
-this prints how to install it and exits 0. Each paper shape, bottom 20 % pinned, falls under gravity from rest for
-``duration`` s in both simulators at the same step; printed per shape: ms/step of each (median of
-per-step wall times after warm-up), the peak sag, and how far MuJoCo's final shape is from our
-converged reference of the linear model (speed_error_report.reference).
+this prints how to install it and exits 0. Each paper shape, bottom 20 % pinned, falls under gravity
+from rest for ``duration`` s in both simulators at the same step; printed per shape: ms/step of each
+(median of per-step wall times after warm-up), the peak sag, and how far MuJoCo's final shape is from
+our converged reference of the linear model (speed_error_report.reference).
 
 What each computes (so the comparison is honest):
 - ours: linear (Cauchy-strain) FEM, lumped mass by tet volume, Rayleigh damping D = xi M + zeta K,

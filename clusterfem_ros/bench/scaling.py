@@ -9,13 +9,13 @@ n ~ tets^(1/3), since h_crit ~ 1/n).
 
 Methods: clustered (serial kernel and the threaded build on both cores), clustered + warping (same),
 standard implicit (direct: SuperLU in symmetric mode, factorized once, fem/spd_factor.py; CG:
-Jacobi-preconditioned, warm-started) and modal 30. Each (size, method) runs in its own process so its memory can be measured: 'model MB' is
-the resident memory the assembled model adds, 'method MB' the peak resident memory of the method's
-set-up and stepping above that (Linux peak-RSS counter reset with /proc/self/clear_refs; the method's
-numba code is loaded on a tiny model first, so neither counts compiled code). ms/step is the median
-after warm-up (JIT excluded); set-up (factorization, eigen-solve, largest eigenvalue) is reported
-separately. The full run takes about 25 minutes on 2 cores (implicit direct and modal 30 spend 200 and
-280 s setting up at 214k tets).
+Jacobi-preconditioned, warm-started) and modal 30. Each (size, method) runs in its own process so its
+memory can be measured: 'model MB' is the resident memory the assembled model adds, 'method MB' the peak
+resident memory of the method's set-up and stepping above that (Linux peak-RSS counter reset with
+/proc/self/clear_refs; the method's numba code is loaded on a tiny model first, so neither counts
+compiled code). ms/step is the median after warm-up (JIT excluded); set-up (factorization, eigen-solve,
+largest eigenvalue) is reported separately. The full run took 864 s on 2 cores (implicit direct and
+modal 30 spend 190 and 240 s setting up at 214k tets).
 """
 from __future__ import annotations
 
