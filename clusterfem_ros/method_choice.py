@@ -127,7 +127,9 @@ def choose(points: Iterable[MeasuredPoint], budget: float, metric: str = "max_mm
         raise ChoiceError(f"no successful measured point{where}: every run failed or diverged")
     good = [p for p in pts if p.errors[metric] <= budget]
     if not good:
-        best = min(pts, key=lambda p: (p.errors[metric], p.cost))
+        # errors equal to 9 digits count as equal (clustered and standard explicit differ only by round-off),
+        # and then the cheaper point is named
+        best = min(pts, key=lambda p: (float(f"{p.errors[metric]:.9g}"), p.cost))
         raise ChoiceError(f"no measured method meets {metric} <= {budget:g}{where}; the best achievable is "
                           f"{best.errors[metric]:.4g} ({best.describe()}): raise the budget to at least that, "
                           "or measure smaller steps / more modes")

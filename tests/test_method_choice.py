@@ -55,6 +55,12 @@ def test_no_point_meets_the_budget_names_the_best_achievable():
         choose(POINTS, 0.01, "max_mm", "sphere")
 
 
+def test_best_achievable_names_the_cheaper_of_two_points_equal_to_round_off():
+    same = [pt("standard_explicit", 1e-3, 0.3, 0.13 * (1 - 1e-13)), pt("clustered", 1e-3, 0.05, 0.13)]
+    with pytest.raises(ChoiceError, match=r"best achievable is 0\.13 \(clustered at h = 0\.001"):
+        choose(same, 0.01, "max_mm", "sphere")
+
+
 @pytest.mark.parametrize("budget", [0.0, -1.0, math.nan, math.inf, "1"])
 def test_bad_budget_is_refused(budget):
     with pytest.raises(ChoiceError, match="budget"):
