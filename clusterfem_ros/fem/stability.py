@@ -15,7 +15,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .model import FemModel
+from .material import Material
+from .model import Control, FemModel
 
 
 class StabilityError(RuntimeError):
@@ -49,6 +50,14 @@ def critical_step(lam_max: float, xi: float, zeta: float, kp: float = 0.0, kd: f
         return math.inf if c == 0.0 else 2.0 / c
     h = (math.sqrt(c * c + 4.0 * w2) - c) / w2
     return min(h, 2.0 / c) if c > 0 else h
+
+
+def control_critical_step(lam_max: float, material: Material, control: Control | None = None) -> float:
+    """critical_step with the stiffest attachment gains of ``control`` (none: the free body's)."""
+    kp = kd = 0.0
+    if control is not None and control.attachments.index.size:
+        kp, kd = float(control.attachments.kp.max()), float(control.attachments.kd.max())
+    return critical_step(lam_max, material.xi, material.zeta, kp, kd)
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import numpy as np
 from ..cluster_force_kernel import cluster_args, force_rows_parallel, force_rows_serial
 from ..model import Control, FemModel, State
 from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL
-from ..stability import critical_step, max_eigenvalue, plan_substeps
+from ..stability import control_critical_step, max_eigenvalue, plan_substeps
 from ..warping import VertexFrames, warp_cluster_args, warped_rows_parallel, warped_rows_serial
 from .base import StepCommon, StepInfo
 
@@ -227,16 +227,11 @@ class ClusteredExplicit:
         self._common = StepCommon(model)
         m = model.material
         self._zeta, self._xi = float(m.zeta), float(m.xi)
-        self._h_crit_free = critical_step(self.lam_max, m.xi, m.zeta)
         self._plan_key = None
         self._plan = None
 
     def critical_step(self, control: Control | None = None) -> float:
-        if control is None or not control.attachments.index.size:
-            return self._h_crit_free
-        kp, kd = float(control.attachments.kp.max()), float(control.attachments.kd.max())
-        m = self.model.material
-        return critical_step(self.lam_max, m.xi, m.zeta, kp, kd)
+        return control_critical_step(self.lam_max, self.model.material, control)
 
     def _plan_for(self, h: float, control: Control):
         """The sub-step plan, recomputed only when h or the attachments' largest gains change."""

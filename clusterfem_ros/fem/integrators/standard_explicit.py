@@ -10,7 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..model import Control, FemModel, State
-from ..stability import critical_step, max_eigenvalue, plan_substeps
+from ..stability import control_critical_step, max_eigenvalue, plan_substeps
 from ..warping import VertexFrames, vertex_rotations
 from .base import StepCommon, StepInfo
 
@@ -38,11 +38,7 @@ class StandardExplicit:
         self._common = StepCommon(model)
 
     def critical_step(self, control: Control | None = None) -> float:
-        kp = kd = 0.0
-        if control is not None and control.attachments.index.size:
-            kp, kd = float(control.attachments.kp.max()), float(control.attachments.kd.max())
-        m = self.model.material
-        return critical_step(self.lam_max, m.xi, m.zeta, kp, kd)
+        return control_critical_step(self.lam_max, self.model.material, control)
 
     def step(self, state: State, control: Control, h: float) -> StepInfo:
         plan = plan_substeps(h, self.critical_step(control), self.safety, self.max_substeps)
