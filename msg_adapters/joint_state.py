@@ -52,14 +52,13 @@ def joint_state_fields(msg: JointState) -> tuple[float, list[str], np.ndarray, O
 
 def joint_state_to_arrays(msg: JointState) -> tuple[float, list[str], np.ndarray, Optional[np.ndarray]]:
     """(stamp in seconds, names, positions (n,), velocities (n,) or None if the message has none)."""
-    n = len(msg.name)
-    q = np.asarray(msg.position, dtype=np.float64)
+    stamp, names, q, v = joint_state_fields(msg)
+    n = len(names)
     if q.shape != (n,):
         raise ValueError(f"JointState has {n} names but {len(q)} positions")
-    v = np.asarray(msg.velocity, dtype=np.float64)
-    if len(v) not in (0, n):
+    if v is not None and len(v) != n:
         raise ValueError(f"JointState has {n} names but {len(v)} velocities (expected 0 or {n})")
-    return stamp_to_seconds(msg.header.stamp), list(msg.name), q, (v if len(v) else None)
+    return stamp, names, q, v
 
 
 def joint_state_cdr(names: Sequence[str], positions: np.ndarray, velocities: Optional[np.ndarray] = None,
