@@ -30,8 +30,8 @@ from .fem.voxel_mesh import paper_mesh
 
 
 MEASURED_POINTS = Path(__file__).resolve().parent.parent / "reports" / "speed_error" / "speed_error.csv"
-MAX_VOLUME_ERROR = 0.5
-VOLUME_CHECK_STEPS = 50     # the divergence check on the volume runs at least this many steps apart      # |V/V0 - 1| beyond this is a diverged state, not a deformation
+MAX_VOLUME_ERROR = 0.5      # |V/V0 - 1| beyond this is a diverged state, not a deformation
+VOLUME_CHECK_STEPS = 50     # the divergence check on the volume runs at least this many steps apart
 
 
 @dataclass
@@ -279,9 +279,10 @@ class Scene:
                    on_step: Callable[[], None] | None = None) -> StepReport:
         """Step while sim_time + h <= t, until ``deadline`` (time.perf_counter()) if given.
 
-        ``on_step()`` is called after every step. Steps not done by the deadline stay owed: physics runs in slow motion behind its inputs. When it
-        is more than ``max_steps`` steps behind, the gap is dropped (counted in ``dropped_s``) and the body
-        is put back on the skeleton's pose, so a slow machine never yanks the body across the gap.
+        ``on_step()`` is called after every step. Steps not done by the deadline stay owed: physics runs in
+        slow motion behind its inputs. When it is more than ``max_steps`` steps behind, the gap is dropped
+        (counted in ``dropped_s``) and the body is put back on the skeleton's pose, so a slow machine never
+        yanks the body across the gap.
 
         Raises DivergenceError when the state stops being finite or the body is crushed or blown up
         (volume off by more than ``MAX_VOLUME_ERROR``); the caller resets it.
