@@ -1,6 +1,22 @@
-"""Stiffness warping (eq. 10) on the constant clusters: per-vertex rotations, then
+"""Stiffness warping (eq. 10) on the constant clusters: per-vertex rotations R_i, then, with w = x + zeta v,
 
-    f_i = -R_i sum_j K_ij (R_i^T x_j - x0_j)  -  zeta R_i sum_j K_ij R_i^T v_j  -  xi m_i v_i.
+    f_i = -sum_j 1/2 (R_i K_ij R_i^T + R_j K_ij R_j^T) (w_j - w_i - R_i (x0_j - x0_i))  -  xi m_i v_i.
+
+Eq. 10 as printed is f_i = -R_i sum_j K_ij (R_i^T x_j - x0_j) = -sum_j R_i K_ij R_i^T (x_j - x_i - R_i (x0_j - x0_i))
+(sum_j K_ij = 0): the same, with the block R_i K_ij R_i^T where we use its mean with R_j K_ij R_j^T. Why:
+with the rotations held, eq. 10's force is linear in x with Jacobian blocks R_i K_ij R_i^T, and block
+(j, i) = R_j K_ij^T R_j^T is not the transpose of block (i, j) once R_i != R_j. A non-symmetric stiffness
+is not the gradient of any energy: it circulates energy (flutter). Where neighbouring rotations differ a
+lot, as around a held vertex torn 0.5 m from its neighbours, eq. 10 gained energy: 1.3-3.1x the work put
+in on the stability table's bar, growing exponentially with the rotations frozen; the mean blocks are
+symmetric, so with held rotations the force is conservative, and the same case settles (max E / budget
+0.93; bench/stability_table.py, tests/test_hard_cases.py). What stays exactly as in eq. 10: the same
+constant clusters and per-vertex rotations; zero force for any rigid motion (all R_i equal: the two halves
+coincide with eq. 10); linear FEM to second order for small deformations (the first-order part of
+w_j - w_i - R_i d_ij is the linear one for every block of the row, since R_i is the row's); translation
+invariance. Cost: two more 3x3 products and a rotation gather per block. Stiffness damping uses the same
+symmetric blocks on the velocity differences (a rigid spin is not damped); xi M v is unchanged.
+Rotations are held fixed within the force: no dR/dx terms.
 
 Rotation of vertex i: the least-squares deformation gradient of its cluster neighbourhood
     F_i = [sum_j (x_j - x_i)(x0_j - x0_i)^T] S_i^-1,   S_i = sum_j (x0_j - x0_i)(x0_j - x0_i)^T,
@@ -14,12 +30,9 @@ the tolerance and the accuracy it trades). When the neighbourhood is inverted or
 (2016)'s iteration R <- exp(w) R, w = sum_c r_c x f_c / |sum_c r_c . f_c|, warm-started from the vertex's
 previous rotation, gives the nearest proper rotation instead.
 
-Since sum_j K_ij t = 0 for any translation t, the kernel uses x_j - x_i (fewer round-off losses):
-f_i = -R_i (sum_j K_ij R_i^T (x_j - x_i + zeta v_j) - b_i) - xi m_i v_i with the constant
-b_i = sum_j K_ij (x0_j - x0_i), which is eq. 10 with the rest-shape term summed once.
-Damping: the stiffness part is warped like the elastic force (the velocity is rotated into the rest
-frame, damped by the constant blocks, rotated back), so a rigid spin is not damped; the mass part
-xi M v is rotation invariant and unchanged. Rotations are held fixed within the force: no dR/dx terms.
+The kernel makes two passes: all rotations (a row's force reads its neighbours'), then the forces,
+per block y = R_i^T (w_j - w_i) - d_ij (so the bracket is R_i y): the R_i half is R_i sum_j K_ij y, the
+row's rotation applied once after the loop; the R_j half is sum_j R_j (K_ij (R_j^T (R_i y))).
 
 ``warped_force`` and ``vertex_rotations`` are the checked public entries; tests/naive_warping.py holds
 the numpy twin. ``_rotation_of`` (scalar, one matrix) is also used by fem/stress.py.
@@ -338,15 +351,12 @@ def _orthogonal(r00, r01, r02, r10, r11, r12, r20, r21, r22):
 
 
 @numba.njit(**SERIAL)
-def _chunk_forces(r0, nl, rows, ptr, cols, blocks, rest, u, v, w, bvec, mass, xi, F, P, converged, how, tmp,
-                  rot, out, forces):
-    """Per chunk vertex i = rows[r0 + l]: rot[i] <- lane l's polar factor P[:, l] if every lane converged or
-    this one is orthogonal, else the scalar _rotation_of of F[:, l] (inverted/flat: Mueller from the previous
-    rotation; or no convergence). Then, if ``forces``, out[i] <- -R_i (sum_j K_ij R_i^T (w_j - x_i) - b_i)
-    - xi m_i v_i, with w = x + zeta v and b_i = sum_j K_ij (x0_j - x0_i): eq. 10, constant part hoisted."""
+def _chunk_rotations(r0, nl, rows, F, P, converged, how, tmp, rot):
+    """rot[i] (i = rows[r0 + l]) <- lane l's polar factor P[:, l] if every lane converged or this one is
+    orthogonal, else the scalar _rotation_of of F[:, l] (inverted/flat: Mueller from the previous rotation;
+    or no convergence)."""
     for l in range(nl):
-        r = r0 + l
-        i = rows[r]
+        i = rows[r0 + l]
         r00, r01, r02 = P[0, l], P[1, l], P[2, l]
         r10, r11, r12 = P[3, l], P[4, l], P[5, l]
         r20, r21, r22 = P[6, l], P[7, l], P[8, l]
@@ -359,79 +369,132 @@ def _chunk_forces(r0, nl, rows, ptr, cols, blocks, rest, u, v, w, bvec, mass, xi
                 for b in range(3):
                     tmp[0, a, b] = F[3 * a + b, l]
             _rotation_of(tmp[0], tmp[1], rot[i])
-            r00, r01, r02 = rot[i, 0, 0], rot[i, 0, 1], rot[i, 0, 2]
-            r10, r11, r12 = rot[i, 1, 0], rot[i, 1, 1], rot[i, 1, 2]
-            r20, r21, r22 = rot[i, 2, 0], rot[i, 2, 1], rot[i, 2, 2]
-        if not forces:
-            continue
-        xi0 = rest[i, 0] + u[i, 0]
-        xi1 = rest[i, 1] + u[i, 1]
-        xi2 = rest[i, 2] + u[i, 2]
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        for k in range(ptr[r], ptr[r + 1]):
-            j = cols[k]
-            z0 = w[j, 0] - xi0
-            z1 = w[j, 1] - xi1
-            z2 = w[j, 2] - xi2
-            y0 = r00 * z0 + r10 * z1 + r20 * z2
-            y1 = r01 * z0 + r11 * z1 + r21 * z2
-            y2 = r02 * z0 + r12 * z1 + r22 * z2
-            fx += blocks[k, 0, 0] * y0 + blocks[k, 0, 1] * y1 + blocks[k, 0, 2] * y2
-            fy += blocks[k, 1, 0] * y0 + blocks[k, 1, 1] * y1 + blocks[k, 1, 2] * y2
-            fz += blocks[k, 2, 0] * y0 + blocks[k, 2, 1] * y1 + blocks[k, 2, 2] * y2
-        fx -= bvec[i, 0]
-        fy -= bvec[i, 1]
-        fz -= bvec[i, 2]
-        d = xi * mass[i]
-        out[i, 0] = -(r00 * fx + r01 * fy + r02 * fz) - d * v[i, 0]
-        out[i, 1] = -(r10 * fx + r11 * fy + r12 * fz) - d * v[i, 1]
-        out[i, 2] = -(r20 * fx + r21 * fy + r22 * fz) - d * v[i, 2]
 
 
 @numba.njit(**SERIAL)
-def _warp_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out, forces):
-    """Chunk c (shared-cluster chunks first, then boundary ones): rotations, and forces if ``forces``."""
+def _chunk_forces(r0, nl, rows, ptr, cols, blocks, rest, v, w, mass, xi, rot, out):
+    """out[i] (i = rows[r0 + l]) <- the warped force (module docstring) with w = x + zeta v:
+
+        f_i = -1/2 sum_j (R_i K_ij R_i^T + R_j K_ij R_j^T) (w_j - w_i - R_i d_ij) - xi m_i v_i,  d_ij = x0_j - x0_i,
+
+    evaluated as y = R_i^T (w_j - w_i) - d_ij (so w_j - w_i - R_i d_ij = R_i y): the R_i half is
+    R_i sum_j K_ij y, rotated once per row. Every rotation must be current: this reads the neighbours'."""
+    for l in range(nl):
+        r = r0 + l
+        i = rows[r]
+        r00, r01, r02 = rot[i, 0, 0], rot[i, 0, 1], rot[i, 0, 2]
+        r10, r11, r12 = rot[i, 1, 0], rot[i, 1, 1], rot[i, 1, 2]
+        r20, r21, r22 = rot[i, 2, 0], rot[i, 2, 1], rot[i, 2, 2]
+        wi0 = w[i, 0]
+        wi1 = w[i, 1]
+        wi2 = w[i, 2]
+        pi0 = rest[i, 0]
+        pi1 = rest[i, 1]
+        pi2 = rest[i, 2]
+        fx = 0.0            # sum_j K_ij y_j: the row's own rotation's half, rotated after the loop
+        fy = 0.0
+        fz = 0.0
+        gx = 0.0            # sum_j R_j K_ij R_j^T R_i y_j: the neighbours' rotations' half
+        gy = 0.0
+        gz = 0.0
+        for k in range(ptr[r], ptr[r + 1]):
+            j = cols[k]
+            z0 = w[j, 0] - wi0
+            z1 = w[j, 1] - wi1
+            z2 = w[j, 2] - wi2
+            y0 = r00 * z0 + r10 * z1 + r20 * z2 - (rest[j, 0] - pi0)
+            y1 = r01 * z0 + r11 * z1 + r21 * z2 - (rest[j, 1] - pi1)
+            y2 = r02 * z0 + r12 * z1 + r22 * z2 - (rest[j, 2] - pi2)
+            k00, k01, k02 = blocks[k, 0, 0], blocks[k, 0, 1], blocks[k, 0, 2]
+            k10, k11, k12 = blocks[k, 1, 0], blocks[k, 1, 1], blocks[k, 1, 2]
+            k20, k21, k22 = blocks[k, 2, 0], blocks[k, 2, 1], blocks[k, 2, 2]
+            fx += k00 * y0 + k01 * y1 + k02 * y2
+            fy += k10 * y0 + k11 * y1 + k12 * y2
+            fz += k20 * y0 + k21 * y1 + k22 * y2
+            t0 = r00 * y0 + r01 * y1 + r02 * y2
+            t1 = r10 * y0 + r11 * y1 + r12 * y2
+            t2 = r20 * y0 + r21 * y1 + r22 * y2
+            s00, s01, s02 = rot[j, 0, 0], rot[j, 0, 1], rot[j, 0, 2]
+            s10, s11, s12 = rot[j, 1, 0], rot[j, 1, 1], rot[j, 1, 2]
+            s20, s21, s22 = rot[j, 2, 0], rot[j, 2, 1], rot[j, 2, 2]
+            q0 = s00 * t0 + s10 * t1 + s20 * t2
+            q1 = s01 * t0 + s11 * t1 + s21 * t2
+            q2 = s02 * t0 + s12 * t1 + s22 * t2
+            p0 = k00 * q0 + k01 * q1 + k02 * q2
+            p1 = k10 * q0 + k11 * q1 + k12 * q2
+            p2 = k20 * q0 + k21 * q1 + k22 * q2
+            gx += s00 * p0 + s01 * p1 + s02 * p2
+            gy += s10 * p0 + s11 * p1 + s12 * p2
+            gz += s20 * p0 + s21 * p1 + s22 * p2
+        d = xi * mass[i]
+        out[i, 0] = -0.5 * ((r00 * fx + r01 * fy + r02 * fz) + gx) - d * v[i, 0]
+        out[i, 1] = -0.5 * ((r10 * fx + r11 * fy + r12 * fz) + gy) - d * v[i, 1]
+        out[i, 2] = -0.5 * ((r20 * fx + r21 * fy + r22 * fz) + gz) - d * v[i, 2]
+
+
+@numba.njit(**SERIAL)
+def _chunk_rows(c, sh_rows, sh_ptr, sh_cols, sh_blocks, sh_grad, bd_rows, bd_ptr, bd_cols, bd_blocks, bd_grad):
+    """Chunk c's cluster arrays (shared-cluster chunks first, then boundary ones) and its first row, rows."""
     nsh = (sh_rows.shape[0] + LANES - 1) // LANES
     if c < nsh:
         rows, ptr, cols, blocks, grad, r0 = sh_rows, sh_ptr, sh_cols, sh_blocks, sh_grad, c * LANES
     else:
         rows, ptr, cols, blocks, grad, r0 = bd_rows, bd_ptr, bd_cols, bd_blocks, bd_grad, (c - nsh) * LANES
-    nl = min(LANES, rows.shape[0] - r0)
+    return rows, ptr, cols, blocks, grad, r0, min(LANES, rows.shape[0] - r0)
+
+
+@numba.njit(**SERIAL)
+def _rotate_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                  sh_grad, bd_grad, u, rot, scratch, how, tmp):
+    """Chunk c's vertex rotations: gradients gathered into lanes, polar iteration on all lanes, stored."""
+    rows, ptr, cols, blocks, grad, r0, nl = _chunk_rows(c, sh_rows, sh_ptr, sh_cols, sh_blocks, sh_grad,
+                                                        bd_rows, bd_ptr, bd_cols, bd_blocks, bd_grad)
     buf = scratch[c]
     _chunk_gradients(r0, nl, rows, ptr, cols, grad, u, buf[0], buf[1], how[c])
     P, converged = _polar_lanes(nl, buf[1], buf[2])
-    _chunk_forces(r0, nl, rows, ptr, cols, blocks, rest, u, v, w, bvec, mass, xi, buf[0], P, converged, how[c],
-                  tmp[c], rot, out, forces)
+    _chunk_rotations(r0, nl, rows, buf[0], P, converged, how[c], tmp[c], rot)
+
+
+@numba.njit(**SERIAL)
+def _force_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                 rest, sh_grad, bd_grad, v, w, mass, xi, rot, out):
+    rows, ptr, cols, blocks, grad, r0, nl = _chunk_rows(c, sh_rows, sh_ptr, sh_cols, sh_blocks, sh_grad,
+                                                        bd_rows, bd_ptr, bd_cols, bd_blocks, bd_grad)
+    _chunk_forces(r0, nl, rows, ptr, cols, blocks, rest, v, w, mass, xi, rot, out)
 
 
 def _warped_rows_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                        rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out):
-    """out <- eq. 10 force of (u, v) given w = x0 + u + zeta v; rot <- the vertex rotations."""
+                        rest, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out):
+    """out <- the warped force of (u, v) given w = x0 + u + zeta v; rot <- the vertex rotations.
+    Two passes: every rotation first (a row's force reads its neighbours'), then the forces."""
     for c in prange(scratch.shape[0]):
-        _warp_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                    rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out, True)
+        _rotate_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                      sh_grad, bd_grad, u, rot, scratch, how, tmp)
+    for c in prange(scratch.shape[0]):
+        _force_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                     rest, sh_grad, bd_grad, v, w, mass, xi, rot, out)
 
 
 def _warped_force_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                         rest, bvec, sh_grad, bd_grad, u, v, w, mass, zeta, xi, rot, scratch, how, tmp, out):
-    """out <- eq. 10 force of (u, v); rot <- the vertex rotations; w, scratch, how, tmp: workspace."""
+                         rest, sh_grad, bd_grad, u, v, w, mass, zeta, xi, rot, scratch, how, tmp, out):
+    """out <- the warped force of (u, v); rot <- the vertex rotations; w, scratch, how, tmp: workspace."""
     for i in prange(u.shape[0]):
         for c in range(3):
             w[i, c] = rest[i, c] + u[i, c] + zeta * v[i, c]
     for c in prange(scratch.shape[0]):
-        _warp_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                    rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out, True)
+        _rotate_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                      sh_grad, bd_grad, u, rot, scratch, how, tmp)
+    for c in prange(scratch.shape[0]):
+        _force_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                     rest, sh_grad, bd_grad, v, w, mass, xi, rot, out)
 
 
 def _rotation_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                     rest, bvec, sh_grad, bd_grad, u, v, w, mass, zeta, xi, rot, scratch, how, tmp, out):
+                     rest, sh_grad, bd_grad, u, v, w, mass, zeta, xi, rot, scratch, how, tmp, out):
     """rot <- the vertex rotations of u (same arguments as the force kernel; v, w, out unused)."""
     for c in prange(scratch.shape[0]):
-        _warp_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                    rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out, False)
+        _rotate_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
+                      sh_grad, bd_grad, u, rot, scratch, how, tmp)
 
 
 warped_kernel_serial, warped_kernel_parallel = serial_and_parallel(_warped_force_kernel)
@@ -457,12 +520,11 @@ def rest_gram_inverse(model: FemModel) -> np.ndarray:
 
 @dataclass
 class VertexFrames:
-    """What warping keeps per model: rest positions, S_i^-1, b_i, each vertex's last rotation (the fallback's
+    """What warping keeps per model: rest positions, S_i^-1, each vertex's last rotation (the fallback's
     warm start) and the kernels' workspace."""
     rest: np.ndarray        # (n, 3)
     s0inv: np.ndarray       # (n, 3, 3)
     rot: np.ndarray         # (n, 3, 3), updated by every force / rotation call
-    bvec: np.ndarray        # (n, 3): b_i = sum_j K_ij (x0_j - x0_i)
     sh_grad: np.ndarray     # (shared blocks, 3): g = S_i^-1 (x0_j - x0_i) per cluster block
     bd_grad: np.ndarray     # (boundary blocks, 3)
     bd_ptr: np.ndarray      # (l+1,): 4 r, the boundary clusters' block ranges
@@ -478,15 +540,12 @@ class VertexFrames:
         chunks = -(-len(cl.shared_rows) // LANES) - (-len(cl.boundary_rows) // LANES)
         rest = np.ascontiguousarray(model.rest, dtype=np.float64)
         bd_ptr = 4 * np.arange(len(cl.boundary_rows) + 1, dtype=np.int64)
-        bvec = np.zeros((n, 3))
-        _rest_force(cl.shared_rows, cl.shared_ptr, cl.shared_cols, cl.shared_blocks, rest, bvec)
-        _rest_force(cl.boundary_rows, bd_ptr, cl.boundary_cols, cl.boundary_blocks, rest, bvec)
         s0inv = rest_gram_inverse(model)
 
         def grad(rows, ptr, cols):
             i = np.repeat(rows, np.diff(ptr))
             return np.ascontiguousarray(np.einsum("kab,kb->ka", s0inv[i], rest[cols] - rest[i]))
-        return cls(rest, s0inv, np.repeat(np.eye(3)[None], n, axis=0), bvec,
+        return cls(rest, s0inv, np.repeat(np.eye(3)[None], n, axis=0),
                    grad(cl.shared_rows, cl.shared_ptr, cl.shared_cols), grad(cl.boundary_rows, bd_ptr, cl.boundary_cols),
                    bd_ptr,
                    np.zeros((n, 3)), np.zeros((chunks, 3, 9, LANES)), np.zeros((chunks, LANES), dtype=np.int8),
@@ -494,28 +553,7 @@ class VertexFrames:
 
     def kernel_args(self) -> tuple:
         """The frames' arrays in kernel argument order, around (u, v, w, mass, zeta, xi)."""
-        return (self.rest, self.bvec, self.sh_grad, self.bd_grad), (self.rot, self.scratch, self.how, self.tmp)
-
-
-@numba.njit(**SERIAL)
-def _rest_force(rows, ptr, cols, blocks, rest, b):
-    """b[i] <- sum_j K_ij (x0_j - x0_i), summed in the force kernel's order."""
-    for r in range(rows.shape[0]):
-        i = rows[r]
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        for k in range(ptr[r], ptr[r + 1]):
-            j = cols[k]
-            y0 = rest[j, 0] - rest[i, 0]
-            y1 = rest[j, 1] - rest[i, 1]
-            y2 = rest[j, 2] - rest[i, 2]
-            fx += blocks[k, 0, 0] * y0 + blocks[k, 0, 1] * y1 + blocks[k, 0, 2] * y2
-            fy += blocks[k, 1, 0] * y0 + blocks[k, 1, 1] * y1 + blocks[k, 1, 2] * y2
-            fz += blocks[k, 2, 0] * y0 + blocks[k, 2, 1] * y1 + blocks[k, 2, 2] * y2
-        b[i, 0] = fx
-        b[i, 1] = fy
-        b[i, 2] = fz
+        return (self.rest, self.sh_grad, self.bd_grad), (self.rot, self.scratch, self.how, self.tmp)
 
 
 def warp_cluster_args(model: FemModel, frames: VertexFrames) -> tuple:
@@ -561,7 +599,7 @@ def vertex_rotations(model: FemModel, u: np.ndarray, frames: VertexFrames | None
 
 def warped_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None, frames: VertexFrames | None = None,
                  out: np.ndarray | None = None, threads: bool | None = None) -> np.ndarray:
-    """Eq. 10 elastic + damping force, (n, 3): -R_i sum_j K_ij (R_i^T x_j - x0_j) - zeta (...) v - xi m v."""
+    """Warped elastic + damping force, (n, 3): eq. 10 with symmetric blocks (module docstring)."""
     u, = _check(model, u=u)
     v, = _check(model, v=np.zeros_like(u) if v is None else v)
     frames = VertexFrames.from_model(model) if frames is None else frames

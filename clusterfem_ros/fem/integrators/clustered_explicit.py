@@ -2,8 +2,8 @@
 
 All sub-steps of one step run inside one numba call: fixed vertices held at rest, force, constraint forces,
 velocity and position updates, with no Python in between. ``warp=True`` swaps in the stiffness-warped
-force of eq. 10 (fem/warping.py) on the same clusters; the linear path is a separate compiled function.
-The critical step is the linear one: R_i K R_i^T has K's spectrum, so warping does not shift it much.
+force (fem/warping.py: eq. 10, symmetrised) on the same clusters; the linear path is a separate compiled function.
+The critical step is the linear one: the warped blocks are K's rotated, so warping does not shift it much.
 
 Python per step is kept to what can change: the sub-step plan is cached while h and the attachment gains'
 maxima are unchanged, prescribed vertices cost nothing when there are none, and divergence is still
@@ -104,10 +104,10 @@ def _make_symplectic_euler(force):
 
 
 def _make_warped_symplectic_euler(force):
-    """The fused step around one build of the warped force kernel (eq. 10); w = x0 + u + zeta v."""
+    """The fused step around one build of the warped force kernel; w = x0 + u + zeta v."""
 
     def warped_symplectic_euler(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                                rest, bvec, sh_grad, bd_grad, rot, scratch, how, tmp,
+                                rest, sh_grad, bd_grad, rot, scratch, how, tmp,
                                 mass, inv_mass, fixed, u, v, f_const, att_idx, att_u, att_v, att_a, att_kp, att_kd,
                                 zeta, xi, h, nsub, w, f):
         n = u.shape[0]
@@ -115,7 +115,7 @@ def _make_warped_symplectic_euler(force):
         umax, probe = _probe(u, v) if nsub == 0 else (0.0, 0.0)
         for s in range(nsub):
             force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                  rest, bvec, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, f)
+                  rest, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, f)
             _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f)
             umax, probe = _update(n, h, zeta, inv_mass, f, f_const, rest, u, v, w, True)
         return umax, probe

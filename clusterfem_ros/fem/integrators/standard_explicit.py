@@ -1,9 +1,9 @@
 """Standard explicit FEM: the same symplectic Euler as the clustered method, on the assembled scipy
 matrices with D and K applied separately. The like-for-like reference for the "lossless" claim.
 
-``warp=True``: eq. 10 on the assembled matrix. Each sub-step the vertex rotations R_i are extracted
-(fem/warping.py) and the block-sparse K is warped row by row, blocks R_i K_ij R_i^T, so
-f = -K_w (x + zeta v) + R_i (K x0)_i - xi M v; the clustered warped kernel must match it to round-off."""
+``warp=True``: the warped force (fem/warping.py: eq. 10 symmetrised) on the assembled matrix. Each sub-step
+the vertex rotations R_i are extracted and the block-sparse K is warped into the symmetric K_w, blocks
+(R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (see _warped_force); the clustered warped kernel must match it to round-off."""
 from __future__ import annotations
 
 import numpy as np
@@ -28,7 +28,6 @@ class StandardExplicit:
             self._Kb = model.K.tobsr(blocksize=(3, 3))
             self._Kb.sort_indices()
             self._block_row = np.repeat(np.arange(model.n_vertices), np.diff(self._Kb.indptr))
-            self._Kx0 = (model.K @ model.rest.reshape(-1)).reshape(-1, 3)
         self.safety = safety
         self.max_substeps = max_substeps
         self.lam_max = max_eigenvalue(model) if lam_max is None else lam_max
@@ -68,12 +67,32 @@ class StandardExplicit:
         return StepInfo(substeps=plan.substeps, margin=plan.margin)
 
     def _warped_force(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Eq. 10 with the assembled matrix, (n, 3)."""
+        """The warped force (fem/warping.py) with assembled matrices, (n, 3): with w = x + zeta v and the
+        symmetric block-sparse K_w, blocks J_ij = (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2,
+            f_i = -sum_j J_ij (w_j - w_i - R_i (x0_j - x0_i))
+                = -(K_w w)_i + (sum_j J_ij) w_i + (Q x0)_i - (sum_j Q_ij) R_i x0_i,  Q blocks J_ij R_i,
+        then - xi M v."""
         R = vertex_rotations(self.model, u, self.frames)
-        Rr = R[self._block_row]
-        Kb = self._Kb
-        Kw = sp.bsr_matrix((Rr @ Kb.data @ np.swapaxes(Rr, 1, 2), Kb.indices, Kb.indptr), shape=Kb.shape)
+        Ri, Rj = R[self._block_row], R[self._Kb.indices]
+        K = self._Kb.data
+        J = 0.5 * (Ri @ K @ np.swapaxes(Ri, 1, 2) + Rj @ K @ np.swapaxes(Rj, 1, 2))
+        Q = J @ Ri
         m = self.model.material
-        x = self.model.rest + u
-        f = -(Kw @ (x + m.zeta * v).reshape(-1)).reshape(-1, 3) + np.einsum("nij,nj->ni", R, self._Kx0)
+        x0 = self.model.rest
+        w = x0 + u + m.zeta * v
+        f = (-self._apply(self._blocks(J), w) + np.einsum("nij,nj->ni", self._row_sums(J), w)
+             + self._apply(self._blocks(Q), x0) - np.einsum("nij,nj->ni", self._row_sums(Q), x0))
         return f - m.xi * self.model.mass[:, None] * v
+
+    def _blocks(self, data: np.ndarray) -> sp.bsr_matrix:
+        Kb = self._Kb
+        return sp.bsr_matrix((data, Kb.indices, Kb.indptr), shape=Kb.shape)
+
+    @staticmethod
+    def _apply(A: sp.bsr_matrix, x: np.ndarray) -> np.ndarray:
+        return (A @ x.reshape(-1)).reshape(-1, 3)
+
+    def _row_sums(self, data: np.ndarray) -> np.ndarray:
+        out = np.zeros((self.model.n_vertices, 3, 3))
+        np.add.at(out, self._block_row, data)
+        return out

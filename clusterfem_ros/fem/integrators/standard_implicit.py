@@ -12,10 +12,11 @@ the vertex rotations R_i (fem/warping.py) frozen over the step:
     K_w = R K R^T,  R = blockdiag(R_i)   (blocks R_i K_ij R_j^T: symmetric positive semi-definite, so CG works),
     D_w = xi M + zeta K_w,   A = M + h D_w + h^2 K_w,
     rhs = h [ f_w(u, v) - h K_w v + f ],
-with f_w the exact eq. 10 force (elastic + damping, the clustered warped kernel). The step's fixed point
-is eq. 10's; K_w differs from eq. 10's own Jacobian (blocks R_i K_ij R_i^T, not symmetric) by
-O(|R_i - R_j|) and leaves out dR/dx, which only costs Newton-like accuracy, not consistency (the
-method stays first order). A is re-assembled and re-factorized every step.
+with f_w the exact warped force (elastic + damping, the clustered warped kernel). The step's fixed point
+is f_w's; K_w differs from f_w's own Jacobian with held rotations (blocks (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2,
+symmetric but not always positive semi-definite) by O(|R_i - R_j|) and leaves out dR/dx, which only costs
+Newton-like accuracy, not consistency (the method stays first order). A is re-assembled and re-factorized
+every step.
 """
 from __future__ import annotations
 
