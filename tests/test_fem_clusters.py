@@ -6,7 +6,7 @@ import scipy.sparse as sp
 from numba import prange
 
 from clusterfem_ros.fem.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
-from clusterfem_ros.fem.cluster_force_kernel import clustered_force
+from clusterfem_ros.fem.cluster_force_kernel import cluster_args, clustered_force, force_rows_serial
 from clusterfem_ros.fem.clusters import build_clusters
 from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.numba_config import serial_and_parallel
@@ -77,6 +77,16 @@ def test_bad_state_shape_is_named():
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
     with pytest.raises(ValueError, match=r"u has shape \(3, 3\), expected \(343, 3\)"):
         clustered_force(cl, np.zeros((3, 3)), np.zeros((343, 3)), np.ones(343), 0.0, 0.0)
+
+
+
+def test_row_kernel_refuses_a_workspace_without_the_padding_column():
+    """The row kernel loads w[j] as 32 bytes: a 3-column w would read past the array's end."""
+    mesh = paper_mesh("cube")
+    cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
+    n = mesh.n_vertices
+    with pytest.raises(ValueError, match="4 columns"):
+        force_rows_serial(*cluster_args(cl), np.zeros((n, 3)), np.zeros((n, 3)), np.ones(n), 0.0, np.zeros((n, 3)))
 
 
 def _thread_ids(out):

@@ -6,17 +6,19 @@ Every method runs the same scene (the object's bottom fixed, gravity, same mater
 is timed after warm-up (JIT compilation excluded). 'stream' is a bare pass that reads every block
 and column index of the clusters once, vectorized: the memory-bound floor for the force kernel.
 
-The kernel is not memory-bound: the clusters of the paper's shapes (~3600 blocks, 0.26 MB) sit in L2, and
-the stream reads them at ~30 B/cycle (2.4 cycles per block for the 72 bytes of entries, +1.3 for the int64
-column index it converts), ~1.6 ns per block at ~2.35 GHz. The kernel's per-block floor is its loads: a
-scalar loop issues 13 (9 entries, 3 gathered w, 1 index; ~5.1 ns/block measured, 3.0-3.3x the stream).
-cluster_force_kernel._row_force is LLVM IR (numba runs no SLP vectorizer) with 8 loads per block: the
-entries as 4 x 16 + 8 bytes, w as 16 + 8 bytes, 2-wide FMAs on two accumulator sets. On one long row that
-loop runs at ~4.8 cycles per block (the same loads without w: 3.0), ~1.3x the stream. What is left is per
-row and per call, about a third of the time: the loop exit mispredicts on the varying cluster sizes
-(sorting rows by size saved ~6%), the row's reduction and store, and the w = u + zeta v pass (~0.6 us, store
-bound). Measured ~3.0 ns per block, 1.8-1.9x the stream (from 3.0-3.3x). Closer needs the per-row cost
-shared by several rows (rows per SIMD lane, SELL-C style, padded and sorted): a change of cluster layout.
+The floor is the stream over 64-byte-aligned copies of the block arrays (the model's own arrays are only
+16-byte aligned, and a stream over them ran up to 1.7x slower on this host while the kernel did not
+change; the table shows both). Measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions ran
+on a Zen 1, where the same stream was ~1.6 ns/block and the kernel 1.8-2.2x it): the clusters of the paper's
+shapes (~3800 blocks, 0.3 MB) sit in L2 and the aligned stream reads them at ~0.55 ns per block (80 bytes:
+9 entries and the int64 index). cluster_force_kernel._row_force is LLVM IR (numba runs no SLP vectorizer):
+6 loads per block (index, w[j] as one 32-byte load from rows padded to 4, two 32-byte and one 8-byte load
+of entries, wz), two 4-wide and one scalar FMA on two accumulator sets; it replaced a 2-wide version with
+8 loads (6.5-6.6 -> 5.7-6.0 us on the sphere). Fitting kernel time = a blocks + b rows (rows padded to
+equal length for the second point) gave a ~1.5 ns per block and b ~3 ns per row on this host: the per-block
+loop, not the loop exit (sorting rows by length changed nothing), is what keeps the kernel at 2.7-3.0x
+the aligned stream. Closing that needs several rows per SIMD register (a SELL-C layout, padded and
+sorted), and the gathered w makes even that a long way from the stream.
 """
 from __future__ import annotations
 
@@ -60,18 +62,32 @@ def _force_loop(a0, a1, a2, a3, a4, a5, a6, u, v, m, zeta, xi, w, f, reps):
         force_kernel_serial(a0, a1, a2, a3, a4, a5, a6, u, v, m, zeta, xi, w, f)
 
 
-def kernel_vs_stream(model, reps: int = 200) -> tuple[float, float]:
-    """(force kernel s, streaming pass s) per call, timed inside numba so dispatch is excluded."""
+def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
+    """A copy of ``a`` whose data starts on an ``alignment``-byte boundary."""
+    buf = np.empty(a.nbytes + alignment, dtype=np.uint8)
+    start = (-buf.ctypes.data) % alignment
+    out = buf[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    out[...] = a
+    return out
+
+
+def kernel_vs_stream(model, reps: int = 200) -> tuple[float, float, float]:
+    """(force kernel s, streaming pass s, streaming pass on the arrays as built s) per call, timed inside
+    numba so dispatch is excluded. The floor is the stream over 64-byte-aligned copies: numpy gives the
+    cluster arrays 16-byte alignment, and on this host (AVX-512) a stream over 16- but not 32-byte-aligned
+    blocks ran 1.6x slower (3.6 vs 2.2 us on the sphere) while the kernel did not change (6.5-6.7 us)."""
     cl = model.clusters
     n = model.n_vertices
     rng = np.random.default_rng(0)
     u, v = rng.normal(size=(2, n, 3))
-    w, f = np.empty((n, 3)), np.empty((n, 3))
+    w, f = np.zeros((n, 4)), np.empty((n, 3))
     args = cluster_args(cl)
     kern = median_seconds(lambda: _force_loop(*args, u, v, model.mass, 1e-3, 1.0, w, f, reps)) / reps
-    stream = median_seconds(lambda: _stream(cl.shared_cols, cl.shared_blocks, cl.boundary_cols,
-                                            cl.boundary_blocks, reps)) / reps
-    return kern, stream
+    data = (cl.shared_cols, cl.shared_blocks, cl.boundary_cols, cl.boundary_blocks)
+    aligned = tuple(aligned_copy(a) for a in data)
+    stream = median_seconds(lambda: _stream(*aligned, reps)) / reps
+    as_built = median_seconds(lambda: _stream(*data, reps)) / reps
+    return kern, stream, as_built
 
 
 def bench_shape(name: str, h: float, scale: float) -> dict:
@@ -92,7 +108,7 @@ def bench_shape(name: str, h: float, scale: float) -> dict:
         if method == "clustered":
             out["substeps"] = info.substeps
             out["margin"] = info.margin
-    out["kernel"], out["stream"] = kernel_vs_stream(model)
+    out["kernel"], out["stream"], out["stream_as_built"] = kernel_vs_stream(model)
     return out
 
 
@@ -118,13 +134,16 @@ def main(argv: list[str] | None = None) -> int:
                      f"{ms(r['implicit_cg'])} ({r['implicit_cg'] / c:.1f}x)",
                      f"{r['kernel'] * 1e6:.1f} / {r['stream'] * 1e6:.1f} = {r['kernel'] / r['stream']:.2f} "
                      f"({r['kernel'] * 1e9 / r['blocks']:.1f} ns/block)",
+                     f"{r['stream_as_built'] * 1e6:.1f} ({r['kernel'] / r['stream_as_built']:.2f})",
                      "{:.2f} / {:.2f} / {:.2f}".format(*PAPER_MS[name])])
         if name == "sphere":
             ok &= r["standard_explicit"] / c >= 2 and r["implicit_direct"] / c >= 20
     print(table(["mesh", "verts", "tets", "clustered ms/step", "sub-steps", "margin", "standard explicit",
-                 "implicit direct", "implicit CG", "kernel/stream us", "paper std/clust/modal ms"], rows))
+                 "implicit direct", "implicit CG", "kernel/stream us", "stream as built us", "paper std/clust/modal ms"],
+                rows))
     print("ratios in brackets: method time / clustered time (higher = clustered faster). "
-          "kernel/stream: the clustered force pass against a bare read of the same block data.")
+          "kernel/stream: the clustered force pass against a bare read of the same block data, 64-byte "
+          "aligned (the floor); 'as built': the same read of the model's own arrays (alignment as numpy gave it).")
     print(f"sphere targets (>= 2x standard explicit, >= 20x implicit direct): {'met' if ok else 'NOT met'}")
     return 0
 

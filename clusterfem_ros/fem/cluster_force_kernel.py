@@ -22,6 +22,7 @@ from .numba_config import PARALLEL, PARALLEL_MIN_VERTICES, SERIAL, serial_and_pa
 
 _F64 = ir.DoubleType()
 _V2 = ir.VectorType(_F64, 2)
+_V4 = ir.VectorType(_F64, 4)
 _I64 = ir.IntType(64)
 _I32 = ir.IntType(32)
 
@@ -41,7 +42,7 @@ def _pick(i0, i1):
 
 def _fma(builder, a, b, c):
     """a * b + c, one rounding (llvm.fma: exact on every target, no fastmath flag involved)."""
-    name = "llvm.fma.f64" if a.type == _F64 else "llvm.fma.v2f64"
+    name = {_F64: "llvm.fma.f64", _V2: "llvm.fma.v2f64", _V4: "llvm.fma.v4f64"}[a.type]
     fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(a.type, [a.type] * 3), name)
     return builder.call(fn, [a, b, c])
 
@@ -50,28 +51,31 @@ def _load2(builder, p, offset):
     return builder.load(builder.bitcast(builder.gep(p, [_k(offset)]), _V2.as_pointer()), align=8)
 
 
+def _load4(builder, p, offset):
+    return builder.load(builder.bitcast(builder.gep(p, [_k(offset)]), _V4.as_pointer()), align=8)
+
+
 def _block_fma(builder, blocks, cols, w, wstride, k, acc):
     """acc + the nine products of block k with w[cols[k]], elementwise (no sum yet).
 
-    The block's nine numbers e0..e8 (row-major) pair with (wx wy wz wx wy wz wx wy wz), so four 2-wide FMAs
-    cover e0..e7 with (wx,wy) (wz,wx) (wy,wz) (wx,wy) and one scalar FMA takes e8 * wz. acc: four <2 x double>
-    and one double. w is gathered with one 16-byte and one 8-byte load; the two mixed pairs are shuffles.
+    The block's nine numbers e0..e8 (row-major) pair with (wx wy wz wx | wy wz wx wy | wz): two 4-wide FMAs
+    and one scalar FMA. w rows are padded to 4 numbers, so w[j] is one 32-byte load whose two shuffles give
+    the 4-wide operands (and one 8-byte load gives wz for the scalar). acc: two <4 x double> and one double.
+    Six loads per block (index, w, 4 + 4 + 1 entries, wz).
     """
     j = builder.load(builder.gep(cols, [k]), align=8)
     wrow = builder.gep(w, [builder.mul(j, wstride)])
-    wxy = _load2(builder, wrow, 0)
+    w4 = _load4(builder, wrow, 0)
     wz = builder.load(builder.gep(wrow, [_k(2)]), align=8)
-    z = builder.insert_element(ir.Constant(_V2, ir.Undefined), wz, _lane(0))
-    wzx = builder.shuffle_vector(z, wxy, _pick(0, 2))
-    wyz = builder.shuffle_vector(wxy, z, _pick(1, 2))
+    wa = builder.shuffle_vector(w4, w4, ir.Constant(ir.VectorType(_I32, 4), [0, 1, 2, 0]))
+    wb = builder.shuffle_vector(w4, w4, ir.Constant(ir.VectorType(_I32, 4), [1, 2, 0, 1]))
     b = builder.gep(blocks, [builder.mul(k, _k(9))])
-    out = [_fma(builder, _load2(builder, b, 2 * t), wv, acc[t]) for t, wv in enumerate((wxy, wzx, wyz, wxy))]
-    out.append(_fma(builder, builder.load(builder.gep(b, [_k(8)]), align=8), wz, acc[4]))
-    return out
+    return [_fma(builder, _load4(builder, b, 0), wa, acc[0]), _fma(builder, _load4(builder, b, 4), wb, acc[1]),
+            _fma(builder, builder.load(builder.gep(b, [_k(8)]), align=8), wz, acc[2])]
 
 
 def _zero_acc():
-    return [ir.Constant(_V2, [0.0, 0.0])] * 4 + [ir.Constant(_F64, 0.0)]
+    return [ir.Constant(_V4, [0.0] * 4)] * 2 + [ir.Constant(_F64, 0.0)]
 
 
 def _phis(builder, incoming):
@@ -96,9 +100,10 @@ def _row_force(typingctx, i, k0, k1, cols, blocks, w, v, mass, xi, out):
 
     Written in LLVM IR because numba's pipeline runs no SLP vectorizer: the scalar loop issued 13 loads per
     block (9 entries, 3 gathered w, the index), the load ports were the limit. Here the entries are read as
-    4 x 16 bytes + 8 and w as 16 + 8 bytes (8 loads), with two sets of accumulators (even and odd blocks) so
-    the 5-cycle FMA latency is not a chain. Fixed order: serial and threaded builds give the same bits.
-    blocks (nb, 3, 3), cols (nb,), w (n, >= 3), v and out (n, 3), mass (n,): C-contiguous (checked at typing).
+    2 x 32 bytes + 8 and w as 32 + 8 bytes (6 loads, see _block_fma), with two sets of accumulators (even and
+    odd blocks) so the FMA latency is not a chain. Fixed order: serial and threaded builds give the same bits.
+    blocks (nb, 3, 3), cols (nb,), v and out (n, 3), mass (n,): C-contiguous (checked at typing); w (n, 4)
+    C-contiguous, the 4th column padding (read, never used): callers check w.shape[1] == 4.
     """
     for name, a in (("i", i), ("k0", k0), ("k1", k1)):
         if not isinstance(a, types.Integer):
@@ -161,13 +166,15 @@ def _row_force(typingctx, i, k0, k1, cols, blocks, w, v, mass, xi, out):
         builder.branch(done)
         builder.position_at_end(done)
         acc = [builder.fadd(a, b) for a, b in zip(_phis(builder, [(even, after), (tail, odd)]), odd_acc)]
-        # e0..e8 = acc lanes; f = (e0+e1+e2, e3+e4+e5, e6+e7+e8); out = -d v - f, d = xi m_i
-        e03 = builder.shuffle_vector(acc[0], acc[1], _pick(0, 3))
-        e14 = builder.shuffle_vector(acc[0], acc[2], _pick(1, 2))
-        e25 = builder.shuffle_vector(acc[1], acc[2], _pick(0, 3))
+        # A = (e0 e1 e2 e3), B = (e4 e5 e6 e7), e8: f = (e0+e1+e2, e3+e4+e5, e6+e7+e8); out = -d v - f, d = xi m_i
+        A, B = acc[0], acc[1]
+        pair = ir.VectorType(_I32, 2)
+        e03 = builder.shuffle_vector(A, B, ir.Constant(pair, [0, 3]))
+        e14 = builder.shuffle_vector(A, B, ir.Constant(pair, [1, 4]))
+        e25 = builder.shuffle_vector(A, B, ir.Constant(pair, [2, 5]))
         fxy = builder.fadd(builder.fadd(e03, e14), e25)
-        fz = builder.fadd(builder.fadd(builder.extract_element(acc[3], _lane(0)),
-                                       builder.extract_element(acc[3], _lane(1))), acc[4])
+        fz = builder.fadd(builder.fadd(builder.extract_element(B, _lane(2)), builder.extract_element(B, _lane(3))),
+                          acc[2])
         d = builder.fmul(xiv, builder.load(builder.gep(mp, [iv])))
         dd = builder.insert_element(ir.Constant(_V2, ir.Undefined), d, _lane(0))
         dd = builder.shuffle_vector(dd, dd, _pick(0, 0))
@@ -184,7 +191,9 @@ def _row_force(typingctx, i, k0, k1, cols, blocks, w, v, mass, xi, out):
 
 def _force_rows_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks, w, v, mass, xi, out):
     """out <- -K w - xi M v from the clusters, w = u + zeta v given: shared rows, then boundary rows, in
-    one loop (one parallel region in the threaded build)."""
+    one loop (one parallel region in the threaded build). w: (n, 4), rows padded for one 32-byte load."""
+    if w.shape[1] != 4:
+        raise ValueError("the cluster force kernel needs w with 4 columns (x, y, z, padding)")
     ns = sh_rows.shape[0]
     for r in prange(ns + bd_rows.shape[0]):
         if r < ns:
@@ -200,7 +209,7 @@ force_rows_serial, force_rows_parallel = serial_and_parallel(_force_rows_kernel)
 def _make_force_kernel(rows):
     def force_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
                      u, v, mass, zeta, xi, w, out):
-        """w <- u + zeta v, then the rows: the same row loop the clustered integrator runs (and the core
+        """w[:, :3] <- u + zeta v (w: (n, 4)), then the rows: the same row loop the clustered integrator runs (and the core
         benchmark times). Splitting shared and boundary rows into two loops measured ~8% faster serial,
         but costs the threaded build a second parallel region per sub-step."""
         n = u.shape[0]
@@ -238,7 +247,7 @@ def clustered_force(cl: Clusters, u: np.ndarray, v: np.ndarray, mass: np.ndarray
             raise ValueError(f"{name} has shape {a.shape}, expected ({n}, 3) for this mesh")
     if out is None:
         out = np.empty((n, 3))
-    w = np.empty((n, 3))
+    w = np.zeros((n, 4))
     pick_kernel(n, threads)(*cluster_args(cl), u, v, np.ascontiguousarray(mass, dtype=np.float64),
                             float(zeta), float(xi), w, out)
     return out

@@ -221,7 +221,7 @@ class ClusteredExplicit:
             self._model_args = cluster_args(model.clusters)
             self._builds = (_step_serial, _step_parallel)
         self._step = self._builds[self.threads]
-        self._w = np.empty((n, 3))
+        self._w = np.zeros((n, 4))            # x, y, z and padding: the linear kernel loads a row as 32 bytes
         self._f = np.empty((n, 3))
         self._inv_mass = np.where(model.fixed, 0.0, 1.0 / model.mass)
         self._common = StepCommon(model)
