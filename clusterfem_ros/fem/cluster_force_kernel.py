@@ -209,8 +209,8 @@ force_rows_serial, force_rows_parallel = serial_and_parallel(_force_rows_kernel)
 def _make_force_kernel(rows):
     def force_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
                      u, v, mass, zeta, xi, w, out):
-        """w[:, :3] <- u + zeta v (w: (n, 4)), then the rows: the same row loop the clustered integrator runs (and the core
-        benchmark times). Splitting shared and boundary rows into two loops measured ~8% faster serial,
+        """w[:, :3] <- u + zeta v (w: (n, 4)), then the rows: the same row loop the clustered integrator runs
+        (and the core benchmark times). Splitting shared and boundary rows into two loops measured ~8% faster serial,
         but costs the threaded build a second parallel region per sub-step."""
         n = u.shape[0]
         for i in prange(n):

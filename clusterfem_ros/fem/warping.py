@@ -14,8 +14,9 @@ symmetric, so with held rotations the force is conservative, and the same case s
 constant clusters and per-vertex rotations; zero force for any rigid motion (all R_i equal: the two halves
 coincide with eq. 10); linear FEM to second order for small deformations (the first-order part of
 w_j - w_i - R_i d_ij is the linear one for every block of the row, since R_i is the row's); translation
-invariance. Cost: two more 3x3 products and a rotation gather per block. Stiffness damping uses the same
-symmetric blocks on the velocity differences (a rigid spin is not damped); xi M v is unchanged.
+invariance. Cost: six 3x3 matrix-vector products per block instead of two, and a rotation gather.
+Stiffness damping uses the same symmetric blocks on the velocity differences (a rigid spin is not
+damped); xi M v is unchanged.
 Rotations are held fixed within the force: no dR/dx terms.
 
 Rotation of vertex i: the least-squares deformation gradient of its cluster neighbourhood

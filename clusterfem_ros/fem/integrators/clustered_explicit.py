@@ -2,7 +2,8 @@
 
 All sub-steps of one step run inside one numba call: fixed vertices held at rest, force, constraint forces,
 velocity and position updates, with no Python in between. ``warp=True`` swaps in the stiffness-warped
-force (fem/warping.py: eq. 10, symmetrised) on the same clusters; the linear path is a separate compiled function.
+force (fem/warping.py: eq. 10, symmetrised) on the same clusters; the linear path is a separate compiled
+function.
 The critical step is the linear one: the warped blocks are K's rotated, so warping does not shift it much.
 
 Python per step is kept to what can change: the sub-step plan is cached while h and the attachment gains'

@@ -1,9 +1,10 @@
 """Standard explicit FEM: the same symplectic Euler as the clustered method, on the assembled scipy
 matrices with D and K applied separately. The like-for-like reference for the "lossless" claim.
 
-``warp=True``: the warped force (fem/warping.py: eq. 10 symmetrised) on the assembled matrix. Each sub-step
-the vertex rotations R_i are extracted and the block-sparse K is warped into the symmetric K_w, blocks
-(R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (see _warped_force); the clustered warped kernel must match it to round-off."""
+``warp=True``: the warped force (fem/warping.py: eq. 10 symmetrised) on the assembled matrix. Each
+sub-step the vertex rotations R_i are extracted and the block-sparse K is warped into the symmetric K_w,
+blocks (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (see _warped_force); the clustered warped kernel must match
+it to round-off."""
 from __future__ import annotations
 
 import numpy as np

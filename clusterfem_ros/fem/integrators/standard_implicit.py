@@ -13,10 +13,10 @@ the vertex rotations R_i (fem/warping.py) frozen over the step:
     D_w = xi M + zeta K_w,   A = M + h D_w + h^2 K_w,
     rhs = h [ f_w(u, v) - h K_w v + f ],
 with f_w the exact warped force (elastic + damping, the clustered warped kernel). The step's fixed point
-is f_w's; K_w differs from f_w's own Jacobian with held rotations (blocks (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2,
-symmetric but not always positive semi-definite) by O(|R_i - R_j|) and leaves out dR/dx, which only costs
-Newton-like accuracy, not consistency (the method stays first order). A is re-assembled and re-factorized
-every step.
+is f_w's; K_w differs from f_w's own Jacobian with held rotations (blocks (R_i K_ij R_i^T + R_j K_ij
+R_j^T) / 2, symmetric but not always positive semi-definite) by O(|R_i - R_j|) and leaves out dR/dx,
+which only costs Newton-like accuracy, not consistency (the method stays first order). A is re-assembled
+and re-factorized every step.
 """
 from __future__ import annotations
 
