@@ -49,7 +49,7 @@ PARAMS: tuple[Param, ...] = (
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
     Param("physics.timer_hz", 100.0, "rate of the physics timer; each tick advances the steps due since the last", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
-    Param("physics.max_substeps", 64, "refuse a step needing more explicit sub-steps than this", 1, 100000),
+    Param("physics.max_substeps", 64, "explicit methods refuse a step needing more sub-steps than this; implicit with warping sub-steps up to it where rotations turn fast", 1, 100000),
     Param("physics.clock", "wall", "'wall': physics follows the ROS clock; 'input': it follows the newest joint-state "
           "stamp (deterministic replay of a recording)", choices=("wall", "input")),
     Param("physics.max_catchup_steps", 250, "physics may run behind its inputs by this many steps (slow motion); beyond, the gap is dropped and the body re-placed on the skeleton", 1, 100000),

@@ -81,6 +81,8 @@ class Scene:
             options["k"] = config["modal.k"]
         if config["warping"] and method != "modal":
             options["warp"] = True
+            if method.startswith("implicit"):
+                options["max_substeps"] = config["physics.max_substeps"]
         _say(progress, f"setting up method '{method}'{' with warping' if options.get('warp') else ''}")
         self.integrator = make_integrator(method, self.model, **options)
         self.state = State.rest(self.model)

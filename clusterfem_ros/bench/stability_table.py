@@ -38,6 +38,8 @@ METHODS: dict[str, tuple[str, dict]] = {
     "standard explicit": ("standard_explicit", {}),
     "implicit direct": ("implicit_direct", {}),
     "implicit cg": ("implicit_cg", {}),
+    "implicit direct+warp": ("implicit_direct", {"warp": True}),
+    "implicit cg+warp": ("implicit_cg", {"warp": True}),
     "modal 30": ("modal", {"k": 30}),
 }
 EXPLICIT = ("clustered", "clustered+warp", "standard explicit")
@@ -117,7 +119,10 @@ def run(method: str, case: Case, scale: float = 1.0, steps: int = 100, max_subst
     options = dict(options)
     if method in EXPLICIT:
         options["max_substeps"] = max_substeps
-    integ = make_integrator(kind, model, **options)
+    try:
+        integ = make_integrator(kind, model, **options)
+    except StabilityError as exc:
+        return Result(method, case.name, "refused", message=str(exc))
     warped = bool(options.get("warp"))
     corot = ElementCorotation(model) if warped else None
 
