@@ -197,3 +197,23 @@ def test_rest_state_gives_exactly_zero_warped_force():
     model = build_model(paper_mesh("sphere"), MAT)
     zero = np.zeros((model.n_vertices, 3))
     assert not np.any(warped_force(model, zero, zero))
+
+
+def test_implicit_velocity_matrix_is_the_held_rotation_jacobian_and_translation_invariant():
+    """standard_implicit's H: H dx = -(f(u + dx) - f(u)) with the rotations of u held (the force is affine in x
+    then), and H t = 0 for a translation t, where R K R^T (the system matrix) is not."""
+    model = build_model(box_mesh((0.3, 0.1, 0.1), (3, 1, 1)), MAT)
+    rng = np.random.default_rng(4)
+    u = 0.3 * rng.standard_normal((model.n_vertices, 3)) * 0.1          # large, rough: rotations differ
+    integ = make_integrator("implicit_direct", model, warp=True)
+    Kw, H = integ._warped_matrices(u)
+    twin = naive.BlockTwin(model.K, model.rest)
+    R = twin.rotations(u)
+    zero = np.zeros_like(u)
+    dx = rng.standard_normal(u.shape)
+    df = twin.force(u + dx, zero, model.mass, 0.0, 0.0, R=R) - twin.force(u, zero, model.mass, 0.0, 0.0, R=R)
+    assert np.abs(H @ dx.reshape(-1) + df.reshape(-1)).max() < 1e-9 * np.abs(df).max()
+    t = np.tile([0.3, -1.0, 2.0], model.n_vertices)
+    scale = abs(model.K).max() * np.abs(t).max()
+    assert np.abs(H @ t).max() < 1e-12 * scale
+    assert np.abs(Kw @ t).max() > 1e-3 * scale

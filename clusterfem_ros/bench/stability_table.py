@@ -7,8 +7,10 @@ case changes it. Per run we track the energy E = kinetic + elastic (linear 1/2 u
 element energy for warped methods) against the budget: initial energy + work of gravity and external
 forces (f . du per step) + the energy a prescribed vertex injects when it is set (E after - E before).
 Bounded = no NaN / divergence and max E / budget <= ENERGY_SLACK (symplectic Euler's energy oscillates
-a little above the true value near its step limit). Refused = StabilityError at the first step (before
-the state is touched): the explicit step would need more than --max-substeps sub-steps.
+a little above the true value near its step limit). Refused = StabilityError when the method is set up
+(implicit with warping on nu > 0.49) or at the first step, before the state is touched (the explicit step
+would need more than --max-substeps sub-steps). Implicit with warping sub-steps where vertex rotations
+turn fast (fem/integrators/standard_implicit.py); its sub-step count is in the table.
 Volume error = max over the run of |sum of signed tet volumes / rest - 1|.
 """
 from __future__ import annotations

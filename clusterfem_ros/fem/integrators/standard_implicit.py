@@ -11,12 +11,15 @@ choice) is Jacobi-preconditioned and warm-started.
 the vertex rotations R_i (fem/warping.py) frozen over the step:
     K_w = R K R^T,  R = blockdiag(R_i)   (blocks R_i K_ij R_j^T: symmetric positive semi-definite, so CG works),
     D_w = xi M + zeta K_w,   A = M + h D_w + h^2 K_w,
-    rhs = h [ f_w(u, v) - h K_w v + f ],
-with f_w the exact warped force (elastic + damping, the clustered warped kernel). The step's fixed point
-is f_w's; K_w differs from f_w's own Jacobian with held rotations (blocks (R_i K_ij R_i^T + R_j K_ij
-R_j^T) / 2, symmetric but not always positive semi-definite) by O(|R_i - R_j|) and leaves out dR/dx,
-which only costs Newton-like accuracy, not consistency (the method stays first order). A is re-assembled
-and re-factorized every step.
+    rhs = h [ f_w(u, v) - h H v + f ],
+with f_w the exact warped force (elastic + damping, the clustered warped kernel) and H its Jacobian with
+the rotations held (off-diagonal blocks (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2, diagonal blocks minus the
+sum of their row's others). The step's fixed point is f_w's; A's K_w differs from H by O(|R_i - R_j|) and
+both leave out dR/dx, which only costs Newton-like accuracy, not consistency (the method stays first
+order). The velocity term must be H, not K_w: K_w is not translation invariant (K_w t != 0 once the R_i
+differ), and a body falling at metres per second picked up forces ~ |K| |R_i - R_j| |v| from round-off-
+sized rotation differences, which grew into a deformation of 0.1 m and a spin within 2 s of free fall
+(tests/test_hard_cases.py). A is re-assembled and re-factorized every step.
 
 Because the rotations are held over a step, the step treats their change explicitly, and that has a
 limit of its own. Measured on the stability table's bar: a 180 deg twist released at h = 10 ms gained
@@ -71,6 +74,7 @@ class StandardImplicit:
             self._Kb = model.K.tobsr(blocksize=(3, 3))
             self._Kb.sort_indices()
             self._block_row = np.repeat(np.arange(model.n_vertices), np.diff(self._Kb.indptr))
+            self._diagonal = self._Kb.indices == self._block_row
         self.cg_rtol = cg_rtol
         self.cg_maxiter = cg_maxiter
         self.K = model.K
@@ -80,12 +84,20 @@ class StandardImplicit:
         self._key = None
         self._dv_prev: np.ndarray | None = None
 
-    def _warped_stiffness(self, u: np.ndarray) -> sp.csr_matrix:
-        """K_w = R K R^T with the current vertex rotations (blocks R_i K_ij R_j^T)."""
+    def _warped_matrices(self, u: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+        """(K_w, H) with the current vertex rotations: K_w = R K R^T (blocks R_i K_ij R_j^T) for the system
+        matrix, H = f_w's held-rotation Jacobian (off-diagonal blocks (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2,
+        each diagonal block minus its row's others: H t = 0 for every translation t) for the velocity term."""
         R = vertex_rotations(self.model, u, self.frames)
         Kb = self._Kb
-        data = R[self._block_row] @ Kb.data @ np.swapaxes(R[Kb.indices], 1, 2)
-        return sp.bsr_matrix((data, Kb.indices, Kb.indptr), shape=Kb.shape).tocsr()
+        Ri, Rj = R[self._block_row], R[Kb.indices]
+        Kw = Ri @ Kb.data @ np.swapaxes(Rj, 1, 2)
+        H = 0.5 * (Ri @ Kb.data @ np.swapaxes(Ri, 1, 2) + Rj @ Kb.data @ np.swapaxes(Rj, 1, 2))
+        off = ~self._diagonal
+        rows = np.zeros((self.model.n_vertices, 3, 3))
+        np.add.at(rows, self._block_row[off], H[off])
+        H[self._diagonal] = -rows[self._block_row[self._diagonal]]
+        return tuple(sp.bsr_matrix((d, Kb.indices, Kb.indptr), shape=Kb.shape).tocsr() for d in (Kw, H))
 
     def _system(self, h: float, held: np.ndarray, control: Control, K: sp.csr_matrix | None = None):
         att = control.attachments
@@ -136,10 +148,10 @@ class StandardImplicit:
             held = self.model.fixed
         u, v = state.u.reshape(-1), state.v.reshape(-1)
         if self.warp:
-            Kw = self._warped_stiffness(state.u)
+            Kw, H = self._warped_matrices(state.u)
             free = self._system(h, held, control, Kw)
             fw = warped_force(self.model, state.u, state.v, self.frames).reshape(-1)
-            f = self._common.constant_forces(control).reshape(-1) + fw - h * (Kw @ v)
+            f = self._common.constant_forces(control).reshape(-1) + fw - h * (H @ v)
         else:
             free = self._system(h, held, control)
             f = self._common.constant_forces(control).reshape(-1) - self.D @ v - self.K @ (u + h * v)
