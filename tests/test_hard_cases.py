@@ -1,11 +1,13 @@
 """Hard cases x methods (the stability table, small): every run stays bounded or refuses at set-up."""
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from clusterfem_ros.bench import stability_table as st
 from clusterfem_ros.fem.corotational import ElementCorotation
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.model import Control, State
+from clusterfem_ros.fem.warping import vertex_rotations
 from tests import naive_warping as naive
 
 STEPS = 40
@@ -159,3 +161,36 @@ def test_a_falling_body_stays_rigid_with_warped_implicit(method):
     print(f"{method} + warping after 3 s of fall at {speed:.1f} m/s: non-rigid part {np.abs(p - p0 @ R.T).max():.2e} m")
     assert speed > 5.0
     assert np.abs(p - p0 @ R.T).max() < 1e-9
+
+
+def test_symmetric_blocks_leave_only_a_small_diagonal_skew_part_in_the_torn_state():
+    """The held-rotation Jacobian, 10 steps after the teleport: eq. 10's is non-symmetric in every block pair;
+    ours only in each vertex's own diagonal block, and much less (README, "Where we depart from eq. 10")."""
+    case = next(c for c in st.CASES if c.name == "teleport 0.5 m")
+    model = case.model(1.0)
+    integ = make_integrator("clustered", model, warp=True)
+    state = State.rest(model)
+    end = np.flatnonzero(np.isclose(model.rest[:, 0], st.LENGTH))[:1]
+    for k in range(10):
+        pu = np.array([[0.0, 0.0, case.teleport if k >= 1 else 0.0]])
+        integ.step(state, Control(prescribed_index=end, prescribed_u=pu, prescribed_v=np.zeros((1, 3))), case.h)
+    R = vertex_rotations(model, state.u)
+    Kb = model.K.tobsr(blocksize=(3, 3))
+    row = np.repeat(np.arange(model.n_vertices), np.diff(Kb.indptr))
+    Ri, Rj = R[row], R[Kb.indices]
+    diag = Kb.indices == row
+    eq10 = Ri @ Kb.data @ np.swapaxes(Ri, 1, 2)
+    ours = 0.5 * (eq10 + Rj @ Kb.data @ np.swapaxes(Rj, 1, 2))
+    others = np.zeros((model.n_vertices, 3, 3))
+    np.add.at(others, row[~diag], ours[~diag])
+    ours[diag] = -others[row[diag]]
+    on_diagonal = np.kron(np.eye(model.n_vertices), np.ones((3, 3))).astype(bool)
+    skew = {}
+    for name, blocks in (("eq10", eq10), ("ours", ours)):
+        A = sp.bsr_matrix((blocks, Kb.indices, Kb.indptr), shape=Kb.shape).toarray()
+        S = 0.5 * (A - A.T)
+        skew[name] = (np.linalg.norm(S[on_diagonal]) / np.linalg.norm(A), np.linalg.norm(S[~on_diagonal]) / np.linalg.norm(A))
+    print(f"torn state, |skew| / |Jacobian| (diagonal blocks, off-diagonal): eq. 10 {skew['eq10'][0]:.1e}, "
+          f"{skew['eq10'][1]:.1e}; ours {skew['ours'][0]:.1e}, {skew['ours'][1]:.1e}")
+    assert skew["ours"][1] < 1e-14 and skew["eq10"][0] < 1e-14
+    assert skew["ours"][0] < 0.2 * skew["eq10"][1]

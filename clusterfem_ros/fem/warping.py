@@ -8,9 +8,13 @@ with the rotations held, eq. 10's force is linear in x with Jacobian blocks R_i 
 (j, i) = R_j K_ij^T R_j^T is not the transpose of block (i, j) once R_i != R_j. A non-symmetric stiffness
 is not the gradient of any energy: it circulates energy (flutter). Where neighbouring rotations differ a
 lot, as around a held vertex torn 0.5 m from its neighbours, eq. 10 gained energy: 1.3-3.1x the work put
-in on the stability table's bar, growing exponentially with the rotations frozen; the mean blocks are
-symmetric, so with held rotations the force is conservative, and the same case settles (max E / budget
-0.93; bench/stability_table.py, tests/test_hard_cases.py). What stays exactly as in eq. 10: the same
+in on the stability table's bar, growing exponentially with the rotations frozen. With the mean blocks,
+block (j, i) of the held-rotation Jacobian is the transpose of block (i, j); what stays non-symmetric is
+each vertex's own diagonal block, -sum_j of its row's others (K_ij is not symmetric, so the R_j halves do
+not sum to a symmetric block). In the torn state that skew part was 0.24 % of the Jacobian's norm against
+eq. 10's 4.1 % (largest imaginary eigenvalue part 340x smaller), and the case settles (max E / budget
+0.93; bench/stability_table.py, tests/test_hard_cases.py). Exact symmetry and translation invariance
+together need one rotation per element (fem/corotational.py). What stays exactly as in eq. 10: the same
 constant clusters and per-vertex rotations; zero force for any rigid motion (all R_i equal: the two halves
 coincide with eq. 10); linear FEM to second order for small deformations (the first-order part of
 w_j - w_i - R_i d_ij is the linear one for every block of the row, since R_i is the row's); translation
