@@ -22,15 +22,15 @@ sized rotation differences, which grew into a deformation of 0.1 m and a spin wi
 (tests/test_hard_cases.py). A is re-assembled and re-factorized every step.
 
 Because the rotations are held over a step, the step treats their change explicitly, and that has a
-limit of its own. Measured on the stability table's bar: a 180 deg twist released at h = 10 ms gained
-energy (4.3x the work put in) and a vertex torn 0.5 m diverged, while both stay bounded once the step is
-cut so that no vertex rotation turns by more than ~0.1 rad per step (h/4 and h/16). So a warped step is
+limit of its own. Measured on the stability table's bar at h = 10 ms, one step each: a released 180 deg
+twist and a vertex torn 0.5 m both ran away (energy many times the work put in, then divergence), while
+both stay bounded once the step is cut so that no vertex rotation turns by more than ~0.1 rad. So a warped step is
 checked after it is taken: if some R_i turned by more than ``max_rotation`` (rad), the step is redone
 from its start as 2, 4, ... equal sub-steps (prescribed vertices and attachment targets advanced within
 the step), up to ``max_substeps``, which is then taken whatever the turn (a vertex torn from its
 neighbours keeps turning fast: the torn bar ran bounded at h / 64 although some R_i turned 0.1-0.3 rad per
-sub-step). StepInfo.substeps reports the count. Near incompressibility is
-refused at set-up: with nu = 0.499 the warped implicit step diverged at every step tried (h / 64
+sub-step). StepInfo.substeps reports the count. Near incompressibility is refused at set-up: with
+nu = 0.499 the warped implicit step diverged at every step tried (h / 64 with up to 64 sub-steps
 included), as the held rotations miss the dR/dx coupling through the volumetric stiffness, which grows
 as 1 / (1 - 2 nu); nu <= WARP_MAX_NU = 0.49 stayed bounded.
 """
