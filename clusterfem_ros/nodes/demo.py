@@ -21,6 +21,25 @@ from pathlib import Path
 os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "SHM")
 
 
+PLAYER_START_TIMEOUT_S = 60.0
+
+
+def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
+    """Hold the timed run until the player's first joint state has arrived: its process start (imports,
+    kernels) took 1-3 s on a fresh clone, which would otherwise eat into --duration with a body at rest."""
+    t0 = time.perf_counter()
+    while sim.diagnostics()["inputs_accepted"] == 0:
+        if player.poll() is not None:
+            raise SystemExit(f"[demo] the mocap player exited with code {player.returncode} before sending a "
+                             "joint state: run `python -m clusterfem_ros.nodes.player_node` to see why")
+        if time.perf_counter() - t0 > PLAYER_START_TIMEOUT_S:
+            raise SystemExit(f"[demo] no joint state from the player within {PLAYER_START_TIMEOUT_S:g} s: check that "
+                             "both processes share ROS_DOMAIN_ID and FASTDDS_BUILTIN_TRANSPORTS (scripts/env.sh)")
+        time.sleep(0.05)
+    print(f"[demo] first joint state from the player after {time.perf_counter() - t0:.1f} s: the timed run starts",
+          flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=8.0, help="seconds of wall time to run (default 8)")
@@ -57,6 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         executor.add_node(sim)
         spin = threading.Thread(target=executor.spin, daemon=True)
         spin.start()
+        _wait_for_first_input(sim, player)
         t0 = time.perf_counter()
         last_steps = 0
         while time.perf_counter() - t0 < args.duration:
