@@ -11,7 +11,7 @@ from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.fem.tet_mesh import signed_volumes
 from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
-from clusterfem_ros.fem.warping import VertexFrames, vertex_rotations, warped_force
+from clusterfem_ros.fem.warping import AssembledWarp, VertexFrames, vertex_rotations, warped_force
 from tests import naive_warping as naive
 from tests.meshes import random_delaunay_mesh
 
@@ -200,13 +200,14 @@ def test_rest_state_gives_exactly_zero_warped_force():
 
 
 def test_implicit_velocity_matrix_is_the_held_rotation_jacobian_and_translation_invariant():
-    """standard_implicit's H: H dx = -(f(u + dx) - f(u)) with the rotations of u held (the force is affine in x
+    """AssembledWarp.jacobian, standard_implicit's velocity matrix H: H dx = -(f(u + dx) - f(u)) with the rotations of u held (the force is affine in x
     then), and H t = 0 for a translation t, where R K R^T (the system matrix) is not."""
     model = build_model(box_mesh((0.3, 0.1, 0.1), (3, 1, 1)), MAT)
     rng = np.random.default_rng(4)
     u = 0.3 * rng.standard_normal((model.n_vertices, 3)) * 0.1          # large, rough: rotations differ
-    integ = make_integrator("implicit_direct", model, warp=True)
-    Kw, H = integ._warped_matrices(u)
+    assembled = AssembledWarp(model)
+    Rk = vertex_rotations(model, u)
+    Kw, H = assembled.rotated(Rk), assembled.jacobian(Rk)
     twin = naive.BlockTwin(model.K, model.rest)
     R = twin.rotations(u)
     zero = np.zeros_like(u)

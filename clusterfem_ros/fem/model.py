@@ -115,6 +115,11 @@ class Attachments:
         z3 = np.zeros((0, 3))
         return cls(np.zeros(0, np.int64), z3, z3.copy(), z3.copy(), np.zeros(0), np.zeros(0))
 
+    def at(self, tau: float) -> "Attachments":
+        """The targets tau into the step: u* + tau v* + tau^2 a* / 2, v* + tau a*."""
+        return Attachments(self.index, self.target_u + tau * self.target_v + 0.5 * tau * tau * self.target_a,
+                           self.target_v + tau * self.target_a, self.target_a, self.kp, self.kd)
+
 
 @dataclass
 class Control:
@@ -125,3 +130,12 @@ class Control:
     prescribed_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     prescribed_u: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     prescribed_v: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+    def at(self, tau: float) -> "Control":
+        """The control of a sub-step starting tau into the step: prescribed vertices and attachment targets
+        moved on along their velocities (and the attachments' accelerations)."""
+        if tau == 0.0:
+            return self
+        att = self.attachments.at(tau) if self.attachments.index.size else self.attachments
+        return Control(f_ext=self.f_ext, attachments=att, prescribed_index=self.prescribed_index,
+                       prescribed_u=self.prescribed_u + tau * self.prescribed_v, prescribed_v=self.prescribed_v)

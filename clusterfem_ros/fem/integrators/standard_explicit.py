@@ -2,17 +2,16 @@
 matrices with D and K applied separately. The like-for-like reference for the "lossless" claim.
 
 ``warp=True``: the warped force (fem/warping.py: eq. 10 symmetrised) on the assembled matrix. Each
-sub-step the vertex rotations R_i are extracted and the block-sparse K is warped into the symmetric K_w,
-blocks (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (see _warped_force); the clustered warped kernel must match
-it to round-off."""
+sub-step the vertex rotations R_i are extracted and the block-sparse K is warped, blocks
+(R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (warping.AssembledWarp); the clustered warped kernel must match it
+to round-off."""
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..model import Control, FemModel, State
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
-from ..warping import VertexFrames, vertex_rotations
+from ..warping import AssembledWarp, VertexFrames, vertex_rotations
 from .base import StepCommon, StepInfo
 
 
@@ -26,9 +25,7 @@ class StandardExplicit:
         if self.warp:
             self.name = "standard_explicit_warp"
             self.frames = VertexFrames.from_model(model)
-            self._Kb = model.K.tobsr(blocksize=(3, 3))
-            self._Kb.sort_indices()
-            self._block_row = np.repeat(np.arange(model.n_vertices), np.diff(self._Kb.indptr))
+            self._assembled = AssembledWarp(model)
         self.safety = safety
         self.max_substeps = max_substeps
         self.lam_max = max_eigenvalue(model) if lam_max is None else lam_max
@@ -57,10 +54,9 @@ class StandardExplicit:
                 f = -(self.K @ u) - (self.D @ v)
             f = f.reshape(-1, 3) + f_const
             if att.index.size:
-                tu = att.target_u + tau * att.target_v + 0.5 * tau * tau * att.target_a
-                tv = att.target_v + tau * att.target_a
-                fa = m_att * (att.target_a + att.kp[:, None] * (tu - state.u[att.index])
-                              + att.kd[:, None] * (tv - state.v[att.index]))
+                a = att.at(tau)
+                fa = m_att * (a.target_a + a.kp[:, None] * (a.target_u - state.u[att.index])
+                              + a.kd[:, None] * (a.target_v - state.v[att.index]))
                 np.add.at(f, att.index, fa)
             v += hs * (inv_mass * f).reshape(-1)
             u += hs * v
@@ -68,32 +64,5 @@ class StandardExplicit:
         return StepInfo(substeps=plan.substeps, margin=plan.margin)
 
     def _warped_force(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """The warped force (fem/warping.py) with assembled matrices, (n, 3): with w = x + zeta v and the
-        symmetric block-sparse K_w, blocks J_ij = (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2,
-            f_i = -sum_j J_ij (w_j - w_i - R_i (x0_j - x0_i))
-                = -(K_w w)_i + (sum_j J_ij) w_i + (Q x0)_i - (sum_j Q_ij) R_i x0_i,  Q blocks J_ij R_i,
-        then - xi M v."""
-        R = vertex_rotations(self.model, u, self.frames)
-        Ri, Rj = R[self._block_row], R[self._Kb.indices]
-        K = self._Kb.data
-        J = 0.5 * (Ri @ K @ np.swapaxes(Ri, 1, 2) + Rj @ K @ np.swapaxes(Rj, 1, 2))
-        Q = J @ Ri
-        m = self.model.material
-        x0 = self.model.rest
-        w = x0 + u + m.zeta * v
-        f = (-self._apply(self._blocks(J), w) + np.einsum("nij,nj->ni", self._row_sums(J), w)
-             + self._apply(self._blocks(Q), x0) - np.einsum("nij,nj->ni", self._row_sums(Q), x0))
-        return f - m.xi * self.model.mass[:, None] * v
-
-    def _blocks(self, data: np.ndarray) -> sp.bsr_matrix:
-        Kb = self._Kb
-        return sp.bsr_matrix((data, Kb.indices, Kb.indptr), shape=Kb.shape)
-
-    @staticmethod
-    def _apply(A: sp.bsr_matrix, x: np.ndarray) -> np.ndarray:
-        return (A @ x.reshape(-1)).reshape(-1, 3)
-
-    def _row_sums(self, data: np.ndarray) -> np.ndarray:
-        out = np.zeros((self.model.n_vertices, 3, 3))
-        np.add.at(out, self._block_row, data)
-        return out
+        """The warped force (fem/warping.py) with assembled matrices, (n, 3)."""
+        return self._assembled.force(vertex_rotations(self.model, u, self.frames), u, v)

@@ -40,10 +40,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ..model import Attachments, Control, FemModel, State
+from ..model import Control, FemModel, State
 from ..spd_factor import factorize_spd
 from ..stability import StabilityError
-from ..warping import VertexFrames, vertex_rotations, warped_force
+from ..warping import AssembledWarp, VertexFrames, vertex_rotations, warped_force
 from .base import StepCommon, StepInfo
 
 WARP_MAX_NU = 0.49
@@ -71,10 +71,7 @@ class StandardImplicit:
         self.max_substeps = int(max_substeps)
         if self.warp:
             self.frames = VertexFrames.from_model(model)
-            self._Kb = model.K.tobsr(blocksize=(3, 3))
-            self._Kb.sort_indices()
-            self._block_row = np.repeat(np.arange(model.n_vertices), np.diff(self._Kb.indptr))
-            self._diagonal = self._Kb.indices == self._block_row
+            self._assembled = AssembledWarp(model)
         self.cg_rtol = cg_rtol
         self.cg_maxiter = cg_maxiter
         self.K = model.K
@@ -83,21 +80,6 @@ class StandardImplicit:
         self._common = StepCommon(model)
         self._key = None
         self._dv_prev: np.ndarray | None = None
-
-    def _warped_matrices(self, u: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix]:
-        """(K_w, H) with the current vertex rotations: K_w = R K R^T (blocks R_i K_ij R_j^T) for the system
-        matrix, H = f_w's held-rotation Jacobian (off-diagonal blocks (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2,
-        each diagonal block minus its row's others: H t = 0 for every translation t) for the velocity term."""
-        R = vertex_rotations(self.model, u, self.frames)
-        Kb = self._Kb
-        Ri, Rj = R[self._block_row], R[Kb.indices]
-        Kw = Ri @ Kb.data @ np.swapaxes(Rj, 1, 2)
-        H = 0.5 * (Ri @ Kb.data @ np.swapaxes(Ri, 1, 2) + Rj @ Kb.data @ np.swapaxes(Rj, 1, 2))
-        off = ~self._diagonal
-        rows = np.zeros((self.model.n_vertices, 3, 3))
-        np.add.at(rows, self._block_row[off], H[off])
-        H[self._diagonal] = -rows[self._block_row[self._diagonal]]
-        return tuple(sp.bsr_matrix((d, Kb.indices, Kb.indptr), shape=Kb.shape).tocsr() for d in (Kw, H))
 
     def _system(self, h: float, held: np.ndarray, control: Control, K: sp.csr_matrix | None = None):
         att = control.attachments
@@ -130,10 +112,10 @@ class StandardImplicit:
             last = 2 * n > self.max_substeps
             iterations, turned = 0, 0.0
             for s in range(n):
-                sub = _advanced(control, s * h / n)
+                sub = control.at(s * h / n)
                 self._common.apply_prescribed(state, sub)    # a prescribed jump is input, not the step's turn
                 R0 = vertex_rotations(self.model, state.u, self.frames)
-                iterations += self._step(state, sub, h / n).iterations
+                iterations += self._step(state, sub, h / n, R0).iterations
                 turned = max(turned, _largest_turn(R0, vertex_rotations(self.model, state.u, self.frames)))
                 if turned > self.max_rotation and not last:
                     break
@@ -142,14 +124,15 @@ class StandardImplicit:
             state.u[:], state.v[:], state.t = start.u, start.v, start.t
             n *= 2
 
-    def _step(self, state: State, control: Control, h: float) -> StepInfo:
+    def _step(self, state: State, control: Control, h: float, R: np.ndarray | None = None) -> StepInfo:
+        """One linearly implicit step; R: the vertex rotations of state.u (warped steps)."""
         held = self._common.apply_prescribed(state, control)
         if held is None:
             held = self.model.fixed
         u, v = state.u.reshape(-1), state.v.reshape(-1)
         if self.warp:
-            Kw, H = self._warped_matrices(state.u)
-            free = self._system(h, held, control, Kw)
+            free = self._system(h, held, control, self._assembled.rotated(R))      # K_w = R K R^T: PSD
+            H = self._assembled.jacobian(R)                  # the force's Jacobian: translation invariant
             fw = warped_force(self.model, state.u, state.v, self.frames).reshape(-1)
             f = self._common.constant_forces(control).reshape(-1) + fw - h * (H @ v)
         else:
@@ -194,16 +177,3 @@ def _largest_turn(R0: np.ndarray, R1: np.ndarray) -> float:
     c = 0.5 * (np.einsum("nij,nij->n", R0, R1) - 1.0)
     return float(np.arccos(np.clip(c, -1.0, 1.0)).max()) if len(c) else 0.0
 
-
-def _advanced(control: Control, tau: float) -> Control:
-    """The control of a sub-step starting tau into the step: prescribed vertices and attachment targets moved
-    on along their velocities (and the attachments' accelerations)."""
-    if tau == 0.0:
-        return control
-    att = control.attachments
-    if att.index.size:
-        att = Attachments(att.index, att.target_u + tau * att.target_v + 0.5 * tau * tau * att.target_a,
-                          att.target_v + tau * att.target_a, att.target_a, att.kp, att.kd)
-    return Control(f_ext=control.f_ext, attachments=att, prescribed_index=control.prescribed_index,
-                   prescribed_u=control.prescribed_u + tau * control.prescribed_v,
-                   prescribed_v=control.prescribed_v)
