@@ -10,7 +10,7 @@ from ..model import Control, FemModel, State
 from ..stability import check_finite
 
 
-@dataclass
+@dataclass(frozen=True)
 class StepInfo:
     substeps: int = 1
     margin: float = float("inf")    # h_crit / h_sub for explicit methods; inf for unconditionally stable ones
