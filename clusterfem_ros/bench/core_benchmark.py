@@ -1,6 +1,6 @@
 """Issue-2 benchmark: ms/step of the clustered and standard methods on the paper's three objects.
 
-    python -m clusterfem_ros.bench.core_benchmark [--step 1e-3] [--scale 1.0]
+    python -m clusterfem_ros.bench.core_benchmark [--step 1e-3] [--scale 1.0] [--sizes 1,2,4]
 
 Every method runs the same scene (the object's bottom fixed, gravity, same material and step) and
 is timed after warm-up (JIT compilation excluded). 'stream' is a bare pass that reads every block
@@ -17,8 +17,15 @@ of entries, wz), two 4-wide and one scalar FMA on two accumulator sets; it repla
 8 loads (6.5-6.6 -> 5.7-6.0 us on the sphere). Fitting kernel time = a blocks + b rows (rows padded to
 equal length for the second point) gave a ~1.5 ns per block and b ~3 ns per row on this host: the per-block
 loop, not the loop exit (sorting rows by length changed nothing), is what keeps the kernel at 2.7-3.0x
-the aligned stream. Closing that needs several rows per SIMD register (a SELL-C layout, padded and
-sorted), and the gathered w makes even that a long way from the stream.
+the aligned stream. Experiments of 2026-11-23 (all on the sphere, none kept): 4 or 8 accumulator sets
+instead of 2, 8-wide FMAs, w stored pre-shuffled (no shuffles at all), column indices pre-multiplied
+(no imul), blocks padded to 12 or 16 numbers for aligned loads: each moved the kernel by 10 % or less.
+What does move it: the same kernel with w hoisted out of the loop (no gather) ran 1.2 instead of 1.45 ns
+per block; all blocks put in one row ran 1.22 with the gather and 0.66 without (the stream's speed). So ~0.55 ns per block is the gather
+(index, w and wz loads: 6 loads per block instead of 3) and ~0.25 ns per block the row boundaries.
+A SELL-C layout with AVX-512 gathers still loads every w component once per block. Once the clusters
+leave L2 the two meet: at 4x the sphere's resolution (16 MB of clusters) the kernel is ~1.1x the stream
+(the second table; --sizes).
 """
 from __future__ import annotations
 
@@ -90,6 +97,20 @@ def kernel_vs_stream(model, reps: int = 200) -> tuple[float, float, float]:
     return kern, stream, as_built
 
 
+def stream_by_size(scales: list[float]) -> list[list[object]]:
+    """Kernel against stream on the sphere as its cluster data grows out of L1/L2 into L3 and memory."""
+    rows = []
+    for scale in scales:
+        mesh = paper_mesh("sphere", scale)
+        model = build_model(mesh, MATERIAL)
+        cl = model.clusters
+        kern, stream, _ = kernel_vs_stream(model, reps=max(5, 800_000 // cl.n_blocks))
+        rows.append([f"{scale:g}", mesh.n_vertices, mesh.n_tets, cl.n_blocks, f"{cl.nbytes / 1e6:.2f}",
+                     f"{kern * 1e6:.1f}", f"{stream * 1e6:.1f}", f"{kern / stream:.2f}",
+                     f"{kern * 1e9 / cl.n_blocks:.2f} / {stream * 1e9 / cl.n_blocks:.2f}"])
+    return rows
+
+
 def bench_shape(name: str, h: float, scale: float) -> dict:
     mesh = paper_mesh(name, scale)
     zmin = mesh.vertices[:, 2].min()
@@ -116,7 +137,13 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--step", type=float, default=1e-3, help="physics step h in seconds (default 1e-3)")
     ap.add_argument("--scale", type=float, default=1.0, help="mesh refinement factor (1 = the paper's sizes)")
+    ap.add_argument("--sizes", default="1,2,4",
+                    help="sphere scales for the kernel/stream-by-size table (comma-separated; '' skips it)")
     args = ap.parse_args(argv)
+    try:
+        sizes = [float(x) for x in args.sizes.split(",") if x.strip()]
+    except ValueError:
+        ap.error(f"--sizes {args.sizes!r}: expected comma-separated numbers such as 1,2,4")
     print(f"material E={MATERIAL.E:g} Pa nu={MATERIAL.nu} rho={MATERIAL.rho:g} xi={MATERIAL.xi} "
           f"zeta={MATERIAL.zeta:g}; h = {args.step:g} s; numba threads off (serial kernels)", flush=True)
     rows, ok = [], True
@@ -145,6 +172,11 @@ def main(argv: list[str] | None = None) -> int:
           "kernel/stream: the clustered force pass against a bare read of the same block data, 64-byte "
           "aligned (the floor); 'as built': the same read of the model's own arrays (alignment as numpy gave it).")
     print(f"sphere targets (>= 2x standard explicit, >= 20x implicit direct): {'met' if ok else 'NOT met'}")
+    if sizes:
+        print("  timing kernel and stream by size ...", file=sys.stderr, flush=True)
+        print("\nkernel/stream as the sphere's cluster data grows (same kernel, same aligned stream):")
+        print(table(["scale", "verts", "tets", "blocks", "cluster MB", "kernel us", "stream us", "kernel/stream",
+                     "ns/block kernel / stream"], stream_by_size(sizes)))
     return 0
 
 
