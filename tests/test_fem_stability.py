@@ -81,3 +81,30 @@ def test_divergence_is_detected_and_raised_never_returned():
     with pytest.raises(DivergenceError, match="reduce the step"):
         for _ in range(5000):
             integ.step(s, Control(), 1e-3)
+
+
+@pytest.mark.parametrize("warp", [False, True])
+@pytest.mark.parametrize("where", ["free vertex velocity", "held vertex force", "attachment target"])
+def test_a_non_finite_value_anywhere_in_a_clustered_step_is_raised(where, warp):
+    """The fused step returns one flag, 'every |u| <= limit', for both builds (with and without attachments):
+    a nan or inf must reach it from a velocity, from a held vertex (inverse mass 0) or from a constraint."""
+    from clusterfem_ros.fem.model import Attachments
+    mesh = paper_mesh("cube", 0.5)
+    fixed = mesh.vertices[:, 2] < mesh.vertices[:, 2].min() + 1e-9
+    model = build_model(mesh, Material(E=3e4, nu=0.3), fixed=fixed)
+    integ = make_integrator("clustered", model, warp=warp, threads=False)
+    s, control = State.rest(model), Control()
+    free, held = int(np.flatnonzero(~fixed)[0]), int(np.flatnonzero(fixed)[0])
+    integ.step(s, control, 1e-3)
+    if where == "free vertex velocity":
+        s.v[free, 1] = np.nan
+    elif where == "held vertex force":
+        f = np.zeros((model.n_vertices, 3))
+        f[held, 0] = np.inf
+        control = Control(f_ext=f)
+    else:
+        z = np.zeros((1, 3))
+        control = Control(attachments=Attachments(np.array([free]), np.full((1, 3), np.nan), z, z.copy(),
+                                                  np.array([100.0]), np.array([10.0])))
+    with pytest.raises(DivergenceError, match="non-finite"):
+        integ.step(s, control, 1e-3)
