@@ -6,7 +6,7 @@ import scipy.sparse as sp
 from numba import prange
 
 from clusterfem_ros.fem.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
-from clusterfem_ros.fem.cluster_force_kernel import cluster_args, clustered_force, force_rows_serial
+from clusterfem_ros.fem.cluster_force_kernel import cluster_args, clustered_force, scratch, stiffness_slices_serial
 from clusterfem_ros.fem.clusters import build_clusters
 from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.numba_config import serial_and_parallel
@@ -80,13 +80,13 @@ def test_bad_state_shape_is_named():
 
 
 
-def test_row_kernel_refuses_a_workspace_without_the_padding_column():
-    """The row kernel loads w[j] as 32 bytes: a 3-column w would read past the array's end."""
+def test_slice_kernel_refuses_a_workspace_without_the_padding_column():
+    """The slice kernel loads w[j] as 32 bytes: a 3-column w would read past the array's end."""
     mesh = paper_mesh("cube")
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
-    n = mesh.n_vertices
+    _, kw = scratch(cl.slices)
     with pytest.raises(ValueError, match="4 columns"):
-        force_rows_serial(*cluster_args(cl), np.zeros((n, 3)), np.zeros((n, 3)), np.ones(n), 0.0, np.zeros((n, 3)))
+        stiffness_slices_serial(*cluster_args(cl.slices), np.zeros((mesh.n_vertices, 3)), kw)
 
 
 def _thread_ids(out):

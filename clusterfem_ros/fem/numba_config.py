@@ -21,6 +21,14 @@ PARALLEL_MIN_VERTICES = 20000
 AUTO_THREADS_MIN_VERTICES = 1000
 
 
+def simd_lanes() -> int:
+    """Doubles per vector register on this host: 8 with AVX-512, else 4 (AVX2; LLVM splits wider vectors on
+    anything narrower, so any choice computes the same numbers). The cluster slices take one row per lane."""
+    import llvmlite.binding as llvm
+    llvm.initialize_native_target()
+    return 8 if llvm.get_host_cpu_features().get("avx512f", False) else 4
+
+
 def serial_and_parallel(fn):
     """(serial, parallel) numba builds of one kernel source.
 

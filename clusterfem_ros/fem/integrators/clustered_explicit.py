@@ -17,7 +17,8 @@ import time
 import numba
 import numpy as np
 
-from ..cluster_force_kernel import cluster_args, force_rows_parallel, force_rows_serial
+from ..cluster_force_kernel import (cluster_args, finish_parallel, finish_serial, scratch, stiffness_slices_parallel,
+                                   stiffness_slices_serial)
 from ..model import Control, FemModel, State
 from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
@@ -93,33 +94,35 @@ _NO_VEC = np.zeros((0, 3))
 _NO_GAIN = np.zeros(0)
 
 
-def _make_symplectic_euler(force):
-    """The fused step around one build of the linear force kernel (a closure: numba inlines the call), and
+def _make_symplectic_euler(stiffness, finish):
+    """The fused step around one build of the linear force kernel (closures: numba inlines the calls), and
     the same step for a body with no attachments.
 
-    ``w`` = u + zeta v is the kernel's input; it is refreshed in the update loop, so a sub-step makes one
-    pass over the vertices besides the force. Returns False if any |u| passed ``limit`` or anything is not finite.
-    The attachment-free variant exists because numba's dispatch costs ~75 ns per array argument: six empty
-    arrays were 0.45 us of a 9 us step on the paper's sphere.
+    ``w`` = u + zeta v is the kernel's input; it is refreshed in the update loop, so a sub-step makes the
+    slice sweep and two passes over the vertices (finish: f = -K w - xi M v in vertex order; update).
+    Returns False if any |u| passed ``limit`` or anything is not finite. The attachment-free variant exists
+    because numba's dispatch costs ~75 ns per array argument: six empty arrays were 0.45 us of a 9 us step
+    on the paper's sphere.
     """
 
-    def symplectic_euler(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
+    def symplectic_euler(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, slot, kw,
                          mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
                          att_idx, att_u, att_v, att_a, att_kp, att_kd):
         n = u.shape[0]
         _prepare(n, zeta, fixed, u, u, v, w, False)
         ok = _probe(u, v, limit) if nsub == 0 else True
         for s in range(nsub):
-            force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks, w, v, mass, xi, f)
+            stiffness(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, w, kw)
+            finish(slot, sh_cols.shape[1], kw, v, mass, xi, f)
             _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f)
             ok = _update(n, h, zeta, inv_mass3, f, f_const, u, u, v, w, False, limit, s + 1 < nsub)
         return ok
 
     step = numba.njit(**SERIAL)(symplectic_euler)
 
-    def free_symplectic_euler(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
+    def free_symplectic_euler(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, slot, kw,
                               mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f):
-        return step(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_cols, bd_blocks,
+        return step(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, slot, kw,
                     mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
                     _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
 
@@ -158,8 +161,8 @@ def _make_warped_symplectic_euler(force):
 
 
 # (attached, attachment-free) builds, serial and threaded kernels
-_step_serial = _make_symplectic_euler(force_rows_serial)
-_step_parallel = _make_symplectic_euler(force_rows_parallel)
+_step_serial = _make_symplectic_euler(stiffness_slices_serial, finish_serial)
+_step_parallel = _make_symplectic_euler(stiffness_slices_parallel, finish_parallel)
 _warped_step_serial = _make_warped_symplectic_euler(warped_rows_serial)
 _warped_step_parallel = _make_warped_symplectic_euler(warped_rows_parallel)
 
@@ -252,11 +255,13 @@ class ClusteredExplicit:
             fixed, work = self.frames.kernel_args()
             self._model_args = warp_cluster_args(model, self.frames) + fixed + work
             self._builds = (_warped_step_serial, _warped_step_parallel)
+            self._w = np.zeros((n, 4))
         else:
-            self._model_args = cluster_args(model.clusters)
+            slices = model.clusters.slices
+            self._w, kw = scratch(slices)     # w rows padded to 4: the kernel loads a row as 32 bytes
+            self._model_args = cluster_args(slices) + (slices.slot, kw)
             self._builds = (_step_serial, _step_parallel)
         self._step = self._builds[self.threads]
-        self._w = np.zeros((n, 4))            # x, y, z and padding: the linear kernel loads a row as 32 bytes
         self._f = np.empty((n, 3))
         self._inv_mass3 = np.repeat(np.where(model.fixed, 0.0, 1.0 / model.mass), 3)
         self._common = StepCommon(model)

@@ -1,0 +1,109 @@
+"""The clusters packed for the SIMD force kernel: slices of C rows, one row per vector lane (SELL-C).
+
+The per-vertex clusters (clusters.py, eqs. 5-6) keep their blocks row after row, each block's nine numbers
+together. A kernel that walks one row at a time must then gather w_j for every block and add its nine
+products into one 3-vector, which on this machine cost 2.7x a bare read of the same blocks (see
+bench/core_benchmark.py). Here C rows are walked together, lane l of every vector belonging to row l of the
+slice: entry (r, c) of the k-th block of the C rows is one C-wide load, the C neighbours' w are loaded as
+rows and transposed once per position, and each row's sum stays in its own lane, so there is no horizontal
+sum and no per-row loop exit.
+
+- Shared clusters (variable length) are sorted longest first and cut into slices of C; a slice has as many
+  positions as its longest row, shorter rows are padded with zero blocks whose column is the row's own
+  vertex (so a padded entry adds exactly 0 and depends on nothing else). Sorting keeps the padding small
+  (2-3 % on the paper's shapes).
+- Boundary clusters (exactly four blocks each, eq. 6) fill slices of four positions in vertex order, with no
+  pointer, as in clusters.py.
+
+The kernel's output is per slice, (3, C) numbers each: ``slot[i]`` is where vertex i's x lies in it (its y
+and z follow at +C and +2C). Nothing is approximated: every block of the clusters appears once, unchanged.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .clusters import Clusters
+
+
+def aligned_zeros(shape: tuple[int, ...], dtype=np.float64, alignment: int = 64) -> np.ndarray:
+    """Zeros whose data starts on an ``alignment``-byte boundary (numpy gives only 16): a C-wide block load
+    then never straddles two cache lines."""
+    nbytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
+    buf = np.zeros(nbytes + alignment, dtype=np.uint8)
+    start = (-buf.ctypes.data) % alignment
+    return buf[start:start + nbytes].view(dtype).reshape(shape)
+
+
+@dataclass(frozen=True)
+class ClusterSlices:
+    lanes: int                   # C: rows per slice
+    n_vertices: int
+    shared_ptr: np.ndarray       # (s+1,) position range of each shared slice
+    shared_cols: np.ndarray      # (ps, C) neighbour vertex per position and lane
+    shared_blocks: np.ndarray    # (ps, 9, C) block entry (row-major 3x3) per position and lane
+    boundary_cols: np.ndarray    # (4 b, C)
+    boundary_blocks: np.ndarray  # (4 b, 9, C)
+    slot: np.ndarray             # (n,) offset of vertex i's x in the (n_slices, 3, C) output
+
+    @property
+    def n_slices(self) -> int:
+        return len(self.shared_ptr) - 1 + len(self.boundary_cols) // 4
+
+    @property
+    def n_padded_blocks(self) -> int:
+        return (len(self.shared_cols) + len(self.boundary_cols)) * self.lanes
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (self.shared_ptr, self.shared_cols, self.shared_blocks, self.boundary_cols,
+                                      self.boundary_blocks, self.slot))
+
+
+def _fill(rows: np.ndarray, lengths: np.ndarray, first: np.ndarray, cols: np.ndarray, blocks: np.ndarray,
+          lanes: int, slice_start: np.ndarray, n_positions: int) -> tuple[np.ndarray, np.ndarray]:
+    """Scatter rows (vertex ``rows[r]``, blocks first[r]..first[r]+lengths[r]) into lanes r % C of slices r // C,
+    slice s starting at position slice_start[s]. Unused entries: zero block, the lane's own vertex."""
+    n_rows = len(rows)
+    own = np.zeros(-(-n_rows // lanes) * lanes, np.int64)
+    own[:n_rows] = rows
+    own = own.reshape(-1, lanes)
+    out_cols = np.repeat(own, np.diff(np.r_[slice_start, n_positions]), axis=0)
+    out_blocks = aligned_zeros((n_positions, 9, lanes))
+    r = np.repeat(np.arange(n_rows), lengths)                       # row of each block
+    k = np.arange(len(r)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    pos, lane = slice_start[r // lanes] + k, r % lanes
+    src = np.repeat(first, lengths) + k
+    out_cols[pos, lane] = cols[src]
+    out_blocks[pos, :, lane] = blocks[src].reshape(-1, 9)
+    return np.ascontiguousarray(out_cols), out_blocks
+
+
+def slice_clusters(cl: Clusters, lanes: int) -> ClusterSlices:
+    """Pack ``cl`` into slices of ``lanes`` rows (see the module docstring)."""
+    if lanes not in (2, 4, 8):
+        raise ValueError(f"lanes = {lanes}: the slice kernel is built for 2, 4 or 8 rows per slice")
+    length = np.diff(cl.shared_ptr)
+    order = np.argsort(-length, kind="stable")                      # longest first
+    n_sh = len(order)
+    n_sh_slices = -(-n_sh // lanes)
+    padded = np.zeros(n_sh_slices * lanes, np.int64)
+    padded[:n_sh] = length[order]
+    shared_ptr = np.zeros(n_sh_slices + 1, np.int64)
+    np.cumsum(padded.reshape(-1, lanes).max(axis=1, initial=0), out=shared_ptr[1:])
+    sh_cols, sh_blocks = _fill(cl.shared_rows[order], length[order], cl.shared_ptr[:-1][order], cl.shared_cols,
+                               cl.shared_blocks, lanes, shared_ptr[:-1], int(shared_ptr[-1]))
+
+    n_bd = len(cl.boundary_rows)
+    n_bd_slices = -(-n_bd // lanes)
+    bd_cols, bd_blocks = _fill(cl.boundary_rows, np.full(n_bd, 4, np.int64), 4 * np.arange(n_bd, dtype=np.int64),
+                               cl.boundary_cols, cl.boundary_blocks, lanes,
+                               4 * np.arange(n_bd_slices, dtype=np.int64), 4 * n_bd_slices)
+
+    lane_index = np.empty(cl.n_vertices, np.int64)                  # slice * C + lane of every vertex
+    lane_index[cl.shared_rows[order]] = np.arange(n_sh)
+    lane_index[cl.boundary_rows] = n_sh_slices * lanes + np.arange(n_bd)
+    slot = (lane_index // lanes) * 3 * lanes + lane_index % lanes
+    return ClusterSlices(lanes=lanes, n_vertices=cl.n_vertices, shared_ptr=shared_ptr, shared_cols=sh_cols,
+                         shared_blocks=sh_blocks, boundary_cols=bd_cols, boundary_blocks=bd_blocks, slot=slot)

@@ -1,0 +1,83 @@
+"""The clusters packed C rows at a time (SELL-C): the same blocks, and the same force at every width."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from clusterfem_ros.fem.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
+from clusterfem_ros.fem.cluster_force_kernel import cluster_args, force_kernel_parallel, force_kernel_serial, scratch
+from clusterfem_ros.fem.cluster_slices import slice_clusters
+from clusterfem_ros.fem.clusters import build_clusters
+from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.voxel_mesh import paper_mesh
+from tests.meshes import random_delaunay_mesh
+
+MAT = Material(E=2.0e5, nu=0.35, rho=1100.0, xi=3.0, zeta=0.02)
+MESHES = {"sphere": lambda: paper_mesh("sphere"), "torus": lambda: paper_mesh("torus"),
+          "delaunay": random_delaunay_mesh}
+
+
+def _lanes_of(sl):
+    """(vertex of every lane slot of the shared part, of the boundary part): -1 where a lane is padding."""
+    C = sl.lanes
+    n_sh_slices = len(sl.shared_ptr) - 1
+    lane_index = (sl.slot // (3 * C)) * C + sl.slot % C
+    owner = -np.ones(sl.n_slices * C, np.int64)
+    owner[lane_index] = np.arange(sl.n_vertices)
+    return owner[:n_sh_slices * C].reshape(-1, C), owner[n_sh_slices * C:].reshape(-1, C)
+
+
+@pytest.mark.parametrize("name", MESHES)
+@pytest.mark.parametrize("lanes", [2, 4, 8])
+def test_slices_hold_every_block_once_and_pad_only_with_zero_blocks_on_the_own_vertex(name, lanes):
+    mesh = MESHES[name]()
+    cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
+    sl = slice_clusters(cl, lanes)
+    sh_owner, bd_owner = _lanes_of(sl)
+    entries, padding = {}, 0
+    sections = [(sh_owner, sl.shared_ptr, sl.shared_cols, sl.shared_blocks),
+                (bd_owner, 4 * np.arange(len(bd_owner) + 1), sl.boundary_cols, sl.boundary_blocks)]
+    for owner, ptr, cols, blocks in sections:
+        for s in range(len(owner)):
+            for p in range(ptr[s], ptr[s + 1]):
+                for lane in range(lanes):
+                    i, j, b = owner[s, lane], cols[p, lane], blocks[p, :, lane].reshape(3, 3)
+                    if i < 0 or not b.any():
+                        assert not b.any() and (i < 0 or j == i), f"padding at slice {s}, position {p}, lane {lane}"
+                        padding += 1
+                        continue
+                    assert (i, j) not in entries, f"block ({i}, {j}) appears twice"
+                    entries[i, j] = b
+    dense = cl.to_dense_rows()
+    assert len(entries) == cl.n_blocks
+    for (i, j), b in entries.items():
+        np.testing.assert_array_equal(b, dense[i][j])
+    assert padding == sl.n_padded_blocks - cl.n_blocks
+    # shared rows sorted longest first keep the padding small
+    assert sl.n_padded_blocks <= 1.15 * cl.n_blocks + 3 * lanes * lanes
+
+
+@pytest.mark.parametrize("lanes", [2, 4, 8])
+@pytest.mark.parametrize("threads", [False, True])
+def test_every_lane_width_gives_the_assembled_force_to_round_off(lanes, threads):
+    mesh = paper_mesh("torus")
+    cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
+    sl = slice_clusters(cl, lanes)
+    rng = np.random.default_rng(lanes)
+    u = rng.normal(scale=1e-2, size=(mesh.n_vertices, 3))
+    v = rng.normal(scale=1e-1, size=(mesh.n_vertices, 3))
+    K = assemble_stiffness(mesh, MAT)
+    m = lumped_mass(mesh, MAT.rho)
+    ref = (-(K @ u.ravel()) - (MAT.xi * sp.diags(np.repeat(m, 3)) + MAT.zeta * K) @ v.ravel()).reshape(-1, 3)
+    w, kw = scratch(sl)
+    f = np.empty_like(u)
+    kernel = force_kernel_parallel if threads else force_kernel_serial
+    kernel(*cluster_args(sl), sl.slot, u, v, m, MAT.zeta, MAT.xi, w, kw, f)
+    rel = np.abs(f - ref).max() / np.abs(ref).max()
+    assert rel <= 1e-12, f"{lanes} lanes: relative difference {rel:.3g}"
+
+
+def test_a_lane_count_the_kernel_has_no_build_for_is_refused():
+    mesh = paper_mesh("cube")
+    cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
+    with pytest.raises(ValueError, match="lanes = 3"):
+        slice_clusters(cl, 3)
