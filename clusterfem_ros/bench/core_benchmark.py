@@ -6,26 +6,25 @@ Every method runs the same scene (the object's bottom fixed, gravity, same mater
 is timed after warm-up (JIT compilation excluded). 'stream' is a bare pass that reads every block
 and column index of the clusters once, vectorized: the memory-bound floor for the force kernel.
 
-The floor is the stream over 64-byte-aligned copies of the block arrays (the model's own arrays are only
-16-byte aligned, and a stream over them ran up to 1.7x slower on this host while the kernel did not
-change; the table shows both). Measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions ran
-on a Zen 1, where the same stream was ~1.6 ns/block and the kernel 1.8-2.2x it): the clusters of the paper's
-shapes (~3800 blocks, 0.3 MB) sit in L2 and the aligned stream reads them at ~0.55 ns per block (80 bytes:
-9 entries and the int64 index). cluster_force_kernel._row_force is LLVM IR (numba runs no SLP vectorizer):
-6 loads per block (index, w[j] as one 32-byte load from rows padded to 4, two 32-byte and one 8-byte load
-of entries, wz), two 4-wide and one scalar FMA on two accumulator sets; it replaced a 2-wide version with
-8 loads (6.5-6.6 -> 5.7-6.0 us on the sphere). Fitting kernel time = a blocks + b rows (rows padded to
-equal length for the second point) gave a ~1.5 ns per block and b ~3 ns per row on this host: the per-block
-loop, not the loop exit (sorting rows by length changed nothing), is what keeps the kernel at 2.7-3.0x
-the aligned stream. Experiments of 2026-11-23 (all on the sphere, none kept): 4 or 8 accumulator sets
-instead of 2, 8-wide FMAs, w stored pre-shuffled (no shuffles at all), column indices pre-multiplied
-(no imul), blocks padded to 12 or 16 numbers for aligned loads: each moved the kernel by 10 % or less.
-What does move it: the same kernel with w hoisted out of the loop (no gather) ran 1.2 instead of 1.45 ns
-per block; all blocks put in one row ran 1.22 with the gather and 0.66 without (the stream's speed). So ~0.55 ns per block is the gather
-(index, w and wz loads: 6 loads per block instead of 3) and ~0.25 ns per block the row boundaries.
-A SELL-C layout with AVX-512 gathers still loads every w component once per block. Once the clusters
-leave L2 the two meet: at 4x the sphere's resolution (16 MB of clusters) the kernel is ~1.1x the stream
-(the second table; --sizes).
+The floor is the stream over 64-byte-aligned copies of the clusters' block and index arrays (numpy
+gives them 16-byte alignment, over which the stream ran up to 1.7x slower on this host). 'kernel' is the
+whole force the integrator needs, f = -K (u + zeta v) - xi M v: the w pass, the sweep over the blocks and
+the finish in vertex order (cluster_force_kernel.force_kernel_serial). 'sweep' is the pass over the block
+data alone (stiffness_slices_serial).
+
+History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions ran on a Zen 1):
+- The row kernel (one cluster row at a time, the nine products of a block in 4-wide FMAs, w[j] gathered
+  per block) was 5.7-6.0 us on the sphere, 2.7-2.9x the stream, however it was arranged: 4 or 8
+  accumulator sets, 8-wide FMAs, pre-shuffled w, pre-multiplied indices, padded or aligned blocks each
+  moved it 10 % or less. With w hoisted (no gather) it ran 1.2 instead of 1.45 ns per block, and with
+  all blocks in one row 0.66 ns (the stream's speed): the gather and the per-row reduction were the cost.
+- Slices of C rows (cluster_slices.py, SELL-C; C = 8 here) remove the per-row reduction and turn the
+  per-block gather into C row loads and one transpose per position: the sweep is 2.9-3.1 us on the sphere,
+  1.4-1.5x the stream. A C prototype of the same layout (gcc -O3 -march=native, intrinsics) ran 2.9-3.2 us,
+  so the IR kernel is at what this layout gives.
+- What is left between the sweep and the whole force is per vertex: the w pass (~0.4 us) and the finish
+  (~0.6 us: -xi m_i v_i, and reading each vertex's -K w from its slot), which keep the whole force at
+  ~2.0x the stream on the paper's shapes. Once the clusters leave L2 the ratio falls (the second table).
 """
 from __future__ import annotations
 
@@ -35,7 +34,7 @@ import sys
 import numba
 import numpy as np
 
-from ..fem.cluster_force_kernel import cluster_args, force_kernel_serial, scratch
+from ..fem.cluster_force_kernel import cluster_args, force_kernel_serial, scratch, stiffness_slices_serial
 from ..fem.integrators import make_integrator
 from ..fem.material import Material
 from ..fem.model import Control, State, build_model
@@ -69,6 +68,12 @@ def _force_loop(a0, a1, a2, a3, a4, slot, u, v, m, zeta, xi, w, kw, f, reps):
         force_kernel_serial(a0, a1, a2, a3, a4, slot, u, v, m, zeta, xi, w, kw, f)
 
 
+@numba.njit(cache=True)
+def _sweep_loop(a0, a1, a2, a3, a4, w, kw, reps):
+    for _ in range(reps):
+        stiffness_slices_serial(a0, a1, a2, a3, a4, w, kw)
+
+
 def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
     """A copy of ``a`` whose data starts on an ``alignment``-byte boundary."""
     buf = np.empty(a.nbytes + alignment, dtype=np.uint8)
@@ -78,8 +83,8 @@ def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
     return out
 
 
-def kernel_vs_stream(model, reps: int = 200) -> tuple[float, float, float]:
-    """(force kernel s, stream over the clusters' blocks s, stream over the kernel's slices s) per call, timed
+def kernel_vs_stream(model, reps: int = 200) -> tuple[float, float, float, float]:
+    """(force kernel s, sweep s, stream over the clusters' blocks s, stream over the slices s) per call, timed
     inside numba so dispatch is excluded. The kernel is the whole force: w = u + zeta v, the slice sweep and
     the finish (-xi M v, vertex order). The floor is the stream over 64-byte-aligned copies of the clusters'
     own blocks and indices (numpy gives them 16-byte alignment, over which the stream ran up to 1.7x slower
@@ -93,11 +98,12 @@ def kernel_vs_stream(model, reps: int = 200) -> tuple[float, float, float]:
     f = np.empty((n, 3))
     args = cluster_args(sl)
     kern = median_seconds(lambda: _force_loop(*args, sl.slot, u, v, model.mass, 1e-3, 1.0, w, kw, f, reps)) / reps
+    sweep = median_seconds(lambda: _sweep_loop(*args, w, kw, reps)) / reps
     aligned = tuple(aligned_copy(a) for a in (cl.shared_cols, cl.shared_blocks, cl.boundary_cols, cl.boundary_blocks))
     stream = median_seconds(lambda: _stream(*aligned, reps)) / reps
     sliced = (sl.shared_cols.reshape(-1), sl.shared_blocks, sl.boundary_cols.reshape(-1), sl.boundary_blocks)
     stream_slices = median_seconds(lambda: _stream(*sliced, reps)) / reps
-    return kern, stream, stream_slices
+    return kern, sweep, stream, stream_slices
 
 
 def stream_by_size(scales: list[float]) -> list[list[object]]:
@@ -107,10 +113,10 @@ def stream_by_size(scales: list[float]) -> list[list[object]]:
         mesh = paper_mesh("sphere", scale)
         model = build_model(mesh, MATERIAL)
         cl = model.clusters
-        kern, stream, _ = kernel_vs_stream(model, reps=max(5, 800_000 // cl.n_blocks))
+        kern, sweep, stream, _ = kernel_vs_stream(model, reps=max(5, 800_000 // cl.n_blocks))
         rows.append([f"{scale:g}", mesh.n_vertices, mesh.n_tets, cl.n_blocks, f"{cl.nbytes / 1e6:.2f}",
-                     f"{kern * 1e6:.1f}", f"{stream * 1e6:.1f}", f"{kern / stream:.2f}",
-                     f"{kern * 1e9 / cl.n_blocks:.2f} / {stream * 1e9 / cl.n_blocks:.2f}"])
+                     f"{kern * 1e6:.1f}", f"{sweep * 1e6:.1f}", f"{stream * 1e6:.1f}", f"{kern / stream:.2f}",
+                     f"{sweep / stream:.2f}"])
     return rows
 
 
@@ -132,7 +138,7 @@ def bench_shape(name: str, h: float, scale: float) -> dict:
         if method == "clustered":
             out["substeps"] = info.substeps
             out["margin"] = info.margin
-    out["kernel"], out["stream"], out["stream_slices"] = kernel_vs_stream(model)
+    out["kernel"], out["sweep"], out["stream"], out["stream_slices"] = kernel_vs_stream(model)
     return out
 
 
@@ -162,25 +168,25 @@ def main(argv: list[str] | None = None) -> int:
                      f"{ms(r['standard_explicit'])} ({r['standard_explicit'] / c:.1f}x)",
                      f"{ms(r['implicit_direct'])} ({r['implicit_direct'] / c:.1f}x)",
                      f"{ms(r['implicit_cg'])} ({r['implicit_cg'] / c:.1f}x)",
-                     f"{r['kernel'] * 1e6:.1f} / {r['stream'] * 1e6:.1f} = {r['kernel'] / r['stream']:.2f} "
-                     f"({r['kernel'] * 1e9 / r['blocks']:.1f} ns/block)",
-                     f"{r['stream_slices'] * 1e6:.1f} ({r['kernel'] / r['stream_slices']:.2f})",
+                     f"{r['kernel'] * 1e6:.1f} / {r['stream'] * 1e6:.1f} = {r['kernel'] / r['stream']:.2f}",
+                     f"{r['sweep'] * 1e6:.1f} / {r['stream'] * 1e6:.1f} = {r['sweep'] / r['stream']:.2f}",
+                     f"{r['stream_slices'] * 1e6:.1f}",
                      "{:.2f} / {:.2f} / {:.2f}".format(*PAPER_MS[name])])
         if name == "sphere":
             ok &= r["standard_explicit"] / c >= 2 and r["implicit_direct"] / c >= 20
     print(table(["mesh", "verts", "tets", "clustered ms/step", "sub-steps", "margin", "standard explicit",
-                 "implicit direct", "implicit CG", "kernel/stream us", "stream over slices us", "paper std/clust/modal ms"],
+                 "implicit direct", "implicit CG", "kernel/stream us", "sweep/stream us", "stream over slices us", "paper std/clust/modal ms"],
                 rows))
     print("ratios in brackets: method time / clustered time (higher = clustered faster). "
           "kernel/stream: the whole clustered force (w, slice sweep, finish) against a bare read of the "
-          "clusters' blocks and indices, 64-byte aligned (the floor); 'over slices': the same read of the "
-          "kernel's padded slices.")
+          "clusters' blocks and indices, 64-byte aligned (the floor); sweep/stream: the pass over the blocks "
+          "alone; 'over slices': the bare read of the kernel's padded slices.")
     print(f"sphere targets (>= 2x standard explicit, >= 20x implicit direct): {'met' if ok else 'NOT met'}")
     if sizes:
         print("  timing kernel and stream by size ...", file=sys.stderr, flush=True)
         print("\nkernel/stream as the sphere's cluster data grows (same kernel, same aligned stream):")
-        print(table(["scale", "verts", "tets", "blocks", "cluster MB", "kernel us", "stream us", "kernel/stream",
-                     "ns/block kernel / stream"], stream_by_size(sizes)))
+        print(table(["scale", "verts", "tets", "blocks", "cluster MB", "kernel us", "sweep us", "stream us",
+                     "kernel/stream", "sweep/stream"], stream_by_size(sizes)))
     return 0
 
 

@@ -8,10 +8,10 @@ slice: entry (r, c) of the k-th block of the C rows is one C-wide load, the C ne
 rows and transposed once per position, and each row's sum stays in its own lane, so there is no horizontal
 sum and no per-row loop exit.
 
-- Shared clusters (variable length) are sorted longest first and cut into slices of C; a slice has as many
-  positions as its longest row, shorter rows are padded with zero blocks whose column is the row's own
-  vertex (so a padded entry adds exactly 0 and depends on nothing else). Sorting keeps the padding small
-  (2-3 % on the paper's shapes).
+- Shared clusters (variable length) are sorted longest first within windows of WINDOW rows and cut into
+  slices of C; a slice has as many positions as its longest row, shorter rows are padded with zero blocks
+  whose column is the row's own vertex (so a padded entry adds exactly 0 and depends on nothing else).
+  Sorting keeps the padding small (0.5-2.5 % on the paper's shapes).
 - Boundary clusters (exactly four blocks each, eq. 6) fill slices of four positions in vertex order, with no
   pointer, as in clusters.py.
 
@@ -25,6 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from .clusters import Clusters
+
+
+# Shared rows are sorted by length within windows of this many rows, not globally. A global sort put all
+# long rows in the first slices, and the threaded sweep, which hands each thread an equal range of slices,
+# ran 1.9 instead of 1.3 ms on a 320k-tet box (first half of the slices 1.9 ms, second 0.8 ms serial).
+# Windows keep every range's mix of lengths, and the paper's shapes (< 1024 shared rows) pad as little
+# as with the global sort.
+WINDOW = 1024
 
 
 def aligned_zeros(shape: tuple[int, ...], dtype=np.float64, alignment: int = 64) -> np.ndarray:
@@ -85,7 +93,7 @@ def slice_clusters(cl: Clusters, lanes: int) -> ClusterSlices:
     if lanes not in (2, 4, 8):
         raise ValueError(f"lanes = {lanes}: the slice kernel is built for 2, 4 or 8 rows per slice")
     length = np.diff(cl.shared_ptr)
-    order = np.argsort(-length, kind="stable")                      # longest first
+    order = np.lexsort((-length, np.arange(len(length)) // WINDOW))   # longest first within each window
     n_sh = len(order)
     n_sh_slices = -(-n_sh // lanes)
     padded = np.zeros(n_sh_slices * lanes, np.int64)
