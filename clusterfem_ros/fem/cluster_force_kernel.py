@@ -4,10 +4,10 @@
 
 so one sweep over the K clusters serves both matrices: f_i = f_s + f_b, the shared clusters'
 contribution plus the boundary clusters'. The sweep runs over the clusters packed C rows at a time
-(cluster_slices.py): each slice leaves -(K w) of its C rows in a (3, C) block of a scratch array, and a
+(cluster_slices.py): each slice leaves K w of its C rows in a (3, C) block of a scratch array, and a
 pass over the vertices finishes f_i = -(K w)_i - xi m_i v_i in vertex order (the clustered integrator
-fuses that pass with its update). ``clustered_force`` is the checked public entry; the ``_`` kernels take
-arrays and scalars only. tests/naive.py holds the plain numpy twin.
+runs the same two passes inside its fused step). ``clustered_force`` is the checked public entry; the
+``_`` kernels take arrays and scalars only. tests/naive.py holds the plain numpy twin.
 """
 from __future__ import annotations
 
@@ -185,7 +185,7 @@ finish_serial, finish_parallel = serial_and_parallel(_finish_kernel)
 def _make_force_kernel(stiffness, finish):
     def force_kernel(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, slot, u, v, mass, zeta, xi, w, kw, out):
         """w[:, :3] <- u + zeta v (w: (n, 4)), the slice sweep, then the finish: f = -K w - xi M v (the
-        integrator runs the same sweep, its finish fused into the update; the core benchmark times this)."""
+        clustered integrator runs the same sweep and finish inside its step; the core benchmark times this)."""
         n = u.shape[0]
         for i in prange(n):
             for c in range(3):
