@@ -313,9 +313,10 @@ class Scene:
             self._next_volume_check = self.steps_done + VOLUME_CHECK_STEPS
             err = self.volume_error()
             if not abs(err) <= MAX_VOLUME_ERROR:
-                raise DivergenceError(f"the body's volume is off by {err * 100:+.3g} % at t = {self.sim_time:.6g} s "
-                                      f"(limit {MAX_VOLUME_ERROR * 100:g} %): the state has diverged; lower "
-                                      "physics.step or the binding gains, or turn warping on")
+                way_out = "physics.step or the binding gains" + ("" if self.config["warping"] else ", or turn warping on")
+                raise DivergenceError(f"the body's volume is off by {err * 100:+.3g} % at t = "
+                                      f"{self.sim_time - self.start_time:.3f} s after the start (limit "
+                                      f"{MAX_VOLUME_ERROR * 100:g} %): the state has diverged; lower {way_out}")
         return rep
 
     def follow_inputs(self, max_steps: int | None = None, on_step: Callable[[], None] | None = None) -> StepReport:

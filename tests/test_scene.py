@@ -96,3 +96,20 @@ def test_an_error_budget_picks_the_cheapest_measured_method_and_refuses_an_impos
         Scene.apply_error_budget(base.with_values(budget__max_error_mm=0.1))
     scene = Scene.build(base.with_values(budget__max_error_mm=0.4, warping=True))
     assert scene.h == 5e-4 and scene.integrator.name == "clustered"       # warping off: the measured point's
+
+
+@pytest.mark.parametrize("warping", [False, True])
+def test_a_crushed_body_is_reported_with_the_time_since_start_and_a_way_out_that_applies(warping):
+    """The volume check names the time on the scene's own clock (not a 1.8e9 s ROS stamp) and suggests
+    turning warping on only when it is off."""
+    from clusterfem_ros.fem.stability import DivergenceError
+    scene = Scene.build(SceneConfig().with_values(body__kind="cube", skeleton__source="none", warping=warping,
+                                                  physics__step=1e-3))
+    t0 = 1.795e9
+    scene.advance_to(t0)
+    scene.advance_to(t0 + 0.01)
+    with pytest.raises(DivergenceError, match=r"volume is off by [-+][0-9.e+]+ % at t = 0\.[0-9]+ s after the start") as err:
+        for k in range(11, 200):
+            scene.state.u[:] = -0.9 * (scene.model.rest - scene.model.rest.mean(axis=0))    # held crushed
+            scene.advance_to(t0 + k * 1e-3)
+    assert ("turn warping on" in str(err.value)) != warping
