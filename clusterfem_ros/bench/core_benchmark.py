@@ -16,14 +16,15 @@ History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions 
 - The row kernel (one cluster row at a time, the nine products of a block in 4-wide FMAs, w[j] gathered
   per block) was 5.7-6.0 us on the sphere, 2.7-2.9x the stream, however it was arranged: 4 or 8
   accumulator sets, 8-wide FMAs, pre-shuffled w, pre-multiplied indices, padded or aligned blocks each
-  moved it 10 % or less. With w hoisted (no gather) it ran 1.2 instead of 1.45 ns per block, and with
-  all blocks in one row 0.66 ns (the stream's speed): the gather and the per-row reduction were the cost.
+  moved it 10 % or less. With w hoisted (no gather) it ran 1.2 instead of 1.45 ns per block; with all
+  blocks in one row, 1.22 ns with the gather and 0.66 ns without (the stream's speed): the gather and the
+  per-row reduction were the cost.
 - Slices of C rows (cluster_slices.py, SELL-C; C = 8 here) remove the per-row reduction and turn the
-  per-block gather into C row loads and one transpose per position: the sweep is 2.9-3.1 us on the sphere,
-  1.4-1.5x the stream. A C prototype of the same layout (gcc -O3 -march=native, intrinsics) ran 2.9-3.2 us,
-  so the IR kernel is at what this layout gives.
+  per-block gather into C row loads and one transpose per position: the sweep is 2.9-3.3 us on the sphere,
+  1.45-1.53x the stream on the paper's shapes. A C prototype of the same layout (gcc -O3 -march=native,
+  intrinsics) ran 2.9-3.2 us, so the IR kernel is at what this layout gives.
 - What is left between the sweep and the whole force is per vertex: the w pass (~0.4 us) and the finish
-  (~0.6 us: -xi m_i v_i, and reading each vertex's -K w from its slot), which keep the whole force at
+  (~0.6 us: -xi m_i v_i, and reading each vertex's K w from its slot), which keep the whole force at
   ~2.0x the stream on the paper's shapes. Once the clusters leave L2 the ratio falls (the second table).
 """
 from __future__ import annotations
@@ -155,13 +156,14 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--sizes {args.sizes!r}: expected comma-separated numbers such as 1,2,4")
     print(f"material E={MATERIAL.E:g} Pa nu={MATERIAL.nu} rho={MATERIAL.rho:g} xi={MATERIAL.xi} "
           f"zeta={MATERIAL.zeta:g}; h = {args.step:g} s; numba threads off (serial kernels)", flush=True)
-    rows, ok = [], True
+    rows, rows_raw, ok = [], [], True
     print("  warming up (one untimed pass: the first shape timed in a fresh process ran ~1.8x slow)",
           file=sys.stderr, flush=True)
     bench_shape(PAPER_SHAPES[0], args.step, args.scale)
     for name in PAPER_SHAPES:
         print(f"  timing {name} ...", file=sys.stderr, flush=True)
         r = bench_shape(name, args.step, args.scale)
+        rows_raw.append(r)
         c = r["clustered"]
         ms = lambda s: f"{s * 1e3:.3f}"  # noqa: E731
         rows.append([name, r["vertices"], r["tets"], ms(c), f"{r['substeps']}", f"{r['margin']:.2f}",
@@ -182,6 +184,12 @@ def main(argv: list[str] | None = None) -> int:
           "clusters' blocks and indices, 64-byte aligned (the floor); sweep/stream: the pass over the blocks "
           "alone; 'over slices': the bare read of the kernel's padded slices.")
     print(f"sphere targets (>= 2x standard explicit, >= 20x implicit direct): {'met' if ok else 'NOT met'}")
+    worst = max(rows_raw, key=lambda r: r["sweep"] / r["stream"])
+    worst_force = max(rows_raw, key=lambda r: r["kernel"] / r["stream"])
+    print(f"within 1.5x of the stream: the sweep over the blocks {'yes' if worst['sweep'] / worst['stream'] <= 1.5 else 'NO'} "
+          f"(worst {worst['sweep'] / worst['stream']:.2f}, {worst['mesh']}); the whole force "
+          f"{'yes' if worst_force['kernel'] / worst_force['stream'] <= 1.5 else 'NO'} "
+          f"(worst {worst_force['kernel'] / worst_force['stream']:.2f}, {worst_force['mesh']})")
     if sizes:
         print("  timing kernel and stream by size ...", file=sys.stderr, flush=True)
         print("\nkernel/stream as the sphere's cluster data grows (same kernel, same aligned stream):")
