@@ -40,7 +40,11 @@ PARAMS: tuple[Param, ...] = (
     Param("material.poisson_ratio", 0.3, "Poisson ratio nu [-]", 0.0, 0.499),
     Param("material.density", 1000.0, "density [kg/m^3]", 1.0, 1.0e5),
     Param("material.mass_damping", 2.0, "Rayleigh xi [1/s]: D = xi M + zeta K", 0.0, 1.0e3),
-    Param("material.stiffness_damping", 1.0e-5, "Rayleigh zeta [s]", 0.0, 1.0),
+    # 1e-4 s, not 1e-5: a joint-state stall of ~80 ms and the burst after it made the warped jelly man's
+    # one- and two-tet flaps (free vertices on the shins) flutter and diverge within a second at 1e-5; in
+    # live demo runs 10-27 % of 6 s runs reset once. 1e-4 damps the mesh's highest modes (damping ratio
+    # ~0.04 at ~800 rad/s) and leaves the body's own (< 0.003 below 50 rad/s). tests/test_scene.py.
+    Param("material.stiffness_damping", 1.0e-4, "Rayleigh zeta [s]", 0.0, 1.0),
     Param("method", "clustered", "integrator", choices=METHODS),
     Param("budget.max_error_mm", 0.0, "if > 0: method, physics.step, warping and modal.k become the cheapest measured point whose max vertex error is within this budget [mm] (0 = off)", 0.0, 1000.0),
     Param("budget.measured_points", "", "CSV of measured (method, step, error, cost) points for the budget choice; '' = the shipped reports/speed_error/speed_error.csv"),
