@@ -36,6 +36,7 @@ import numba
 import numpy as np
 
 from ..fem.cluster_force_kernel import cluster_args, force_kernel_serial, scratch, stiffness_slices_serial
+from ..fem.cluster_slices import aligned_zeros
 from ..fem.integrators import make_integrator
 from ..fem.material import Material
 from ..fem.model import Control, State, build_model
@@ -77,9 +78,7 @@ def _sweep_loop(a0, a1, a2, a3, a4, w, kw, reps):
 
 def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
     """A copy of ``a`` whose data starts on an ``alignment``-byte boundary."""
-    buf = np.empty(a.nbytes + alignment, dtype=np.uint8)
-    start = (-buf.ctypes.data) % alignment
-    out = buf[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    out = aligned_zeros(a.shape, a.dtype, alignment)
     out[...] = a
     return out
 

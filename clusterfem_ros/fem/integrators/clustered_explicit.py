@@ -45,10 +45,15 @@ def _update(n, h, zeta, inv_mass3, f, f_const, rest, u, v, w, warped, limit, ref
         uf[k] = uc
         ok &= abs(uc) <= limit
     if refresh:
-        for i in range(n):
-            for c in range(3):
-                w[i, c] = (rest[i, c] + u[i, c] if warped else u[i, c]) + zeta * v[i, c]
+        _kernel_input(n, zeta, rest, u, v, w, warped)
     return ok
+
+
+def _kernel_input(n, zeta, rest, u, v, w, warped):
+    """w <- the force kernel's input: u + zeta v (linear), x0 + u + zeta v (warped)."""
+    for i in range(n):
+        for c in range(3):
+            w[i, c] = (rest[i, c] + u[i, c] if warped else u[i, c]) + zeta * v[i, c]
 
 
 def _prepare(n, zeta, fixed, rest, u, v, w, warped):
@@ -58,18 +63,7 @@ def _prepare(n, zeta, fixed, rest, u, v, w, warped):
         for c in range(3):
             u[i, c] = 0.0
             v[i, c] = 0.0
-    for i in range(n):
-        for c in range(3):
-            w[i, c] = (rest[i, c] + u[i, c] if warped else u[i, c]) + zeta * v[i, c]
-
-
-def _probe(u, v, limit):
-    """_update's flag for a state no sub-step touched: every |u| <= limit and every v finite."""
-    ok = True
-    for i in range(u.shape[0]):
-        for c in range(3):
-            ok &= (abs(u[i, c]) <= limit) & (abs(v[i, c]) < np.inf)
-    return ok
+    _kernel_input(n, zeta, rest, u, v, w, warped)
 
 
 def _attach(tau, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f):
@@ -83,9 +77,9 @@ def _attach(tau, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f):
             f[i, c] += m * (att_a[a, c] + att_kp[a] * (tu - u[i, c]) + att_kd[a] * (tv - v[i, c]))
 
 
+_kernel_input = numba.njit(**SERIAL)(_kernel_input)
 _update = numba.njit(**SERIAL)(_update)
 _prepare = numba.njit(**SERIAL)(_prepare)
-_probe = numba.njit(**SERIAL)(_probe)
 _attach = numba.njit(**SERIAL)(_attach)
 
 
@@ -110,7 +104,7 @@ def _make_symplectic_euler(stiffness, finish):
                          att_idx, att_u, att_v, att_a, att_kp, att_kd):
         n = u.shape[0]
         _prepare(n, zeta, fixed, u, u, v, w, False)
-        ok = _probe(u, v, limit) if nsub == 0 else True
+        ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
         for s in range(nsub):
             stiffness(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, w, kw)
             finish(slot, sh_cols.shape[1], kw, v, mass, xi, f)
@@ -139,7 +133,7 @@ def _make_warped_symplectic_euler(force):
                                 att_idx, att_u, att_v, att_a, att_kp, att_kd):
         n = u.shape[0]
         _prepare(n, zeta, fixed, rest, u, v, w, True)
-        ok = _probe(u, v, limit) if nsub == 0 else True
+        ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
         for s in range(nsub):
             force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
                   rest, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, f)
@@ -309,5 +303,5 @@ class ClusteredExplicit:
                            common.limit, self._w, self._f)
         if choice is not None:
             choice.record(parallel, time.perf_counter() - t0)
-        common.finish(state, h, self.name, umax=0.0 if ok else float("nan"))
+        common.finish(state, h, self.name, checked=ok)
         return self._info
