@@ -93,3 +93,23 @@ def test_equal_ranges_of_slices_carry_similar_work_for_the_threaded_sweep():
     half = (len(ptr) - 1) // 2
     first, second = ptr[half] - ptr[0], ptr[-1] - ptr[half]
     assert 0.8 < first / second < 1.25, f"positions in the two halves: {first} vs {second}"
+
+
+@pytest.mark.parametrize("lanes", [2, 4, 8])
+def test_the_benchmarks_held_w_control_is_the_sweep_of_a_uniform_w(lanes):
+    """bench/core_benchmark's control (the sweep without the gather) computes K applied to w's row 0 in every
+    vertex, bit for bit as the real sweep does, and a uniform w is a rigid translation: K w = 0."""
+    from clusterfem_ros.bench.core_benchmark import _held_w_loop
+    from clusterfem_ros.fem.cluster_force_kernel import stiffness_slices_serial
+    mesh = paper_mesh("sphere")
+    cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
+    sl = slice_clusters(cl, lanes)
+    w, held = scratch(sl)
+    w[:, :3] = np.random.default_rng(3).normal(size=(mesh.n_vertices, 3))
+    _held_w_loop(*cluster_args(sl), w, held, 1)
+    uniform, swept = scratch(sl)
+    uniform[:] = w[0]
+    stiffness_slices_serial(*cluster_args(sl), uniform, swept)
+    np.testing.assert_array_equal(held, swept)
+    scale = np.abs(sl.shared_blocks).max() * np.abs(w[0]).max()
+    assert np.abs(held).max() <= 1e-10 * scale

@@ -6,26 +6,38 @@ Every method runs the same scene (the object's bottom fixed, gravity, same mater
 is timed after warm-up (JIT compilation excluded). 'stream' is a bare pass that reads every block
 and column index of the clusters once, vectorized: the memory-bound floor for the force kernel.
 
-The floor is the stream over 64-byte-aligned copies of the clusters' block and index arrays (numpy
-gives them 16-byte alignment, over which the stream ran up to 1.7x slower on this host). 'kernel' is the
-whole force the integrator needs, f = -K (u + zeta v) - xi M v: the w pass, the sweep over the blocks and
-the finish in vertex order (cluster_force_kernel.force_kernel_serial). 'sweep' is the pass over the block
-data alone (stiffness_slices_serial).
+The floor is the faster of two bare reads of 64-byte-aligned copies of the clusters' block and index arrays:
+numba's own loop, which LLVM vectorizes 4 wide on this host (it prefers 256-bit vectors on AVX-512 parts), and
+an IR loop as wide as the kernel's vectors (8 doubles). While the blocks sit in L2 (the paper's sizes) the
+8-wide read is 10-12 % faster; from 2 MB of blocks on the two are equal. Until 2026-11-23 evening the floor
+was the 4-wide read alone, which made the sweep look 1.45-1.53x the stream; it is 1.6-1.75x the 8-wide one.
+(numpy gives the arrays 16-byte alignment, over which the stream ran up to 1.7x slower on this host.)
+'kernel' is the whole force the integrator needs, f = -K (u + zeta v) - xi M v: the w pass, the sweep over the
+blocks and the finish in vertex order (cluster_force_kernel.force_kernel_serial). 'sweep' is the pass over
+the block data alone (stiffness_slices_serial). 'w held' is the sweep with w held at one row: the same block
+loads and FMAs without the gather of w (and without reading the indices).
 
 History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions ran on a Zen 1):
 - The row kernel (one cluster row at a time, the nine products of a block in 4-wide FMAs, w[j] gathered
-  per block) was 5.7-6.0 us on the sphere, 2.7-2.9x the stream, however it was arranged: 4 or 8
+  per block) was 5.7-6.0 us on the sphere, 2.7-2.9x the 4-wide stream, however it was arranged: 4 or 8
   accumulator sets, 8-wide FMAs, pre-shuffled w, pre-multiplied indices, padded or aligned blocks each
   moved it 10 % or less. With w hoisted (no gather) it ran 1.2 instead of 1.45 ns per block; with all
   blocks in one row, 1.22 ns with the gather and 0.66 ns without (the stream's speed): the gather and the
   per-row reduction were the cost.
 - Slices of C rows (cluster_slices.py, SELL-C; C = 8 here) remove the per-row reduction and turn the
-  per-block gather into C row loads and one transpose per position: the sweep is 2.9-3.3 us on the sphere,
-  1.45-1.53x the stream on the paper's shapes. A C prototype of the same layout (gcc -O3 -march=native,
-  intrinsics) ran 2.9-3.2 us, so the IR kernel is at what this layout gives.
-- What is left between the sweep and the whole force is per vertex: the w pass (~0.4 us) and the finish
-  (~0.6 us: -xi m_i v_i, and reading each vertex's K w from its slot), which keep the whole force at
-  ~2.0x the stream on the paper's shapes. Once the clusters leave L2 the ratio falls (the second table).
+  per-block gather into C row loads and one transpose per position: the sweep is 2.9-3.3 us on the sphere.
+  A C prototype of the same layout (gcc -O3 -march=native, intrinsics) ran 2.9-3.2 us, so the IR kernel is
+  at what this layout gives.
+- Where the rest goes: the sweep with w held runs at the stream's speed (0.93-0.97x: it reads no indices),
+  so the blocks' loads and the FMAs cost nothing beyond the read, and what the sweep has over the floor
+  (0.6-0.75x the stream on the paper's shapes) is the gather of w: per position C index loads, C dependent
+  row loads and the transpose. In the C prototype the loads without the transpose ran 2.7-2.8 us, with it
+  3.0-3.15; software prefetch of blocks and indices gained 2-4 %, 8-wide hardware gathers (vgatherqpd, from
+  (n, 4) rows or from x, y, z arrays) were no faster (3.2-3.4 us). None was kept.
+- Once the blocks leave L2 the gather hides behind the memory traffic: sweep/stream 1.6 at 0.3 MB of
+  blocks, 1.4 at 2.2 MB, 1.07 at 16 MB (the second table).
+- What is left between the sweep and the whole force is per vertex: the w pass (~0.3 us) and the finish
+  (~0.6 us: -xi m_i v_i, and reading each vertex's K w from its slot).
 """
 from __future__ import annotations
 
@@ -34,9 +46,15 @@ import sys
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core.errors import TypingError
+from numba.extending import intrinsic
 
-from ..fem.cluster_force_kernel import cluster_args, force_kernel_serial, scratch, stiffness_slices_serial
+from ..fem.cluster_force_kernel import (cluster_args, force_kernel_serial, scratch, slice_force_held_w,
+                                        stiffness_slices_serial)
 from ..fem.cluster_slices import aligned_zeros
+from ..fem.numba_config import simd_lanes
 from ..fem.integrators import make_integrator
 from ..fem.material import Material
 from ..fem.model import Control, State, build_model
@@ -45,6 +63,94 @@ from .timing import median_seconds, table
 
 PAPER_MS = {"sphere": (1.60, 0.73, 0.83), "cube": (1.89, 0.92, 1.09), "torus": (2.15, 0.97, 1.12)}
 MATERIAL = Material(E=3.0e4, nu=0.3, rho=1000.0, xi=1.0, zeta=1e-5)
+
+
+@intrinsic(prefer_literal=True)
+def _wide_sum(typingctx, lanes, a, m):
+    """The sum of a[:m] (m a multiple of 4 * lanes) in four accumulators of ``lanes``-wide vectors: LLVM
+    vectorizes numba's loops 4 wide on this host (it prefers 256-bit vectors on AVX-512 parts), while the
+    force kernel loads 8 doubles at a time, so the floor needs a read as wide as the kernel's."""
+    if not isinstance(lanes, types.IntegerLiteral):
+        raise TypingError(f"_wide_sum: lanes must be a literal, got {lanes}")
+    if not (isinstance(a, types.Array) and a.ndim == 1 and a.layout == "C" and a.dtype in (types.float64, types.int64)):
+        raise TypingError(f"_wide_sum: a must be a 1-d C-contiguous float64 or int64 array, got {a}")
+    C = lanes.literal_value
+    dt = a.dtype
+
+    def codegen(context, builder, signature, args):
+        is_float = dt == types.float64
+        vt = ir.VectorType(context.get_value_type(dt), C)
+        add = builder.fadd if is_float else builder.add
+        data = context.make_array(signature.args[1])(context, builder, args[1]).data
+        m = context.cast(builder, args[2], signature.args[2], types.int64)
+        i64 = ir.IntType(64)
+        entry = builder.basic_block
+        loop = builder.function.append_basic_block("sum.loop")
+        done = builder.function.append_basic_block("sum.done")
+        zero = ir.Constant(vt, [0.0 if is_float else 0] * C)
+        builder.cbranch(builder.icmp_signed("<", ir.Constant(i64, 0), m), loop, done)
+        builder.position_at_end(loop)
+        k = builder.phi(i64)
+        k.add_incoming(ir.Constant(i64, 0), entry)
+        acc = [builder.phi(vt) for _ in range(4)]
+        new = []
+        for a_k, j in zip(acc, range(4)):
+            a_k.add_incoming(zero, entry)
+            at = builder.bitcast(builder.gep(data, [builder.add(k, ir.Constant(i64, j * C))]), vt.as_pointer())
+            new.append(add(a_k, builder.load(at, align=8)))
+        k_next = builder.add(k, ir.Constant(i64, 4 * C))
+        end = builder.basic_block
+        k.add_incoming(k_next, end)
+        for a_k, val in zip(acc, new):
+            a_k.add_incoming(val, end)
+        builder.cbranch(builder.icmp_signed("<", k_next, m), loop, done)
+        builder.position_at_end(done)
+        totals = []
+        for val in new:
+            t = builder.phi(vt)
+            t.add_incoming(zero, entry)
+            t.add_incoming(val, end)
+            totals.append(t)
+        v = add(add(totals[0], totals[1]), add(totals[2], totals[3]))
+        out = builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
+        for lane in range(1, C):
+            out = add(out, builder.extract_element(v, ir.Constant(ir.IntType(32), lane)))
+        return out
+
+    return dt(lanes, a, m), codegen
+
+
+@numba.njit(cache=True)
+def _flat_sum8(a):
+    m = a.shape[0] - a.shape[0] % 32
+    s = _wide_sum(8, a, m)
+    for k in range(m, a.shape[0]):
+        s += a[k]
+    return s
+
+
+@numba.njit(cache=True)
+def _flat_sum4(a):
+    m = a.shape[0] - a.shape[0] % 16
+    s = _wide_sum(4, a, m)
+    for k in range(m, a.shape[0]):
+        s += a[k]
+    return s
+
+
+def _make_wide_stream(flat_sum):
+    def wide_stream(sh_cols, sh_blocks, bd_cols, bd_blocks, reps):
+        """The bare read of _stream, 4 accumulators of C-wide vectors (C = the kernel's lanes)."""
+        s = 0.0
+        t = 0
+        for _ in range(reps):
+            s += flat_sum(sh_blocks.reshape(-1)) + flat_sum(bd_blocks.reshape(-1))
+            t += flat_sum(sh_cols.reshape(-1)) + flat_sum(bd_cols.reshape(-1))
+        return s + t
+    return numba.njit(cache=True)(wide_stream)
+
+
+_wide_stream = {8: _make_wide_stream(_flat_sum8), 4: _make_wide_stream(_flat_sum4)}
 
 
 @numba.njit(cache=True, fastmath={"reassoc", "contract", "nsz", "arcp"})
@@ -76,6 +182,26 @@ def _sweep_loop(a0, a1, a2, a3, a4, w, kw, reps):
         stiffness_slices_serial(a0, a1, a2, a3, a4, w, kw)
 
 
+@numba.njit(cache=True)
+def _held_w_loop(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, w, kw, reps):
+    """The serial sweep's loop (cluster_force_kernel._stiffness_slices_kernel) with w held at row 0: the same
+    block loads and FMAs without the gather of w."""
+    ns = sh_ptr.shape[0] - 1
+    lanes = sh_cols.shape[1]
+    for _ in range(reps):
+        for s in range(ns + bd_cols.shape[0] // 4):
+            if s < ns:
+                p0, p1, cols, blocks = sh_ptr[s], sh_ptr[s + 1], sh_cols, sh_blocks
+            else:
+                p0, p1, cols, blocks = 4 * (s - ns), 4 * (s - ns) + 4, bd_cols, bd_blocks
+            if lanes == 8:
+                slice_force_held_w(8, s, p0, p1, cols, blocks, w, kw)
+            elif lanes == 4:
+                slice_force_held_w(4, s, p0, p1, cols, blocks, w, kw)
+            else:
+                slice_force_held_w(2, s, p0, p1, cols, blocks, w, kw)
+
+
 def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
     """A copy of ``a`` whose data starts on an ``alignment``-byte boundary."""
     out = aligned_zeros(a.shape, a.dtype, alignment)
@@ -83,12 +209,14 @@ def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
     return out
 
 
-def kernel_vs_stream(model, reps: int = 200) -> tuple[float, float, float, float]:
-    """(force kernel s, sweep s, stream over the clusters' blocks s, stream over the slices s) per call, timed
-    inside numba so dispatch is excluded. The kernel is the whole force: w = u + zeta v, the slice sweep and
-    the finish (-xi M v, vertex order). The floor is the stream over 64-byte-aligned copies of the clusters'
-    own blocks and indices (numpy gives them 16-byte alignment, over which the stream ran up to 1.7x slower
-    on this host); the slices the kernel reads are the same blocks plus 0.5-2.5 % zero padding."""
+def kernel_vs_stream(model, reps: int = 200) -> dict[str, float]:
+    """Seconds per call, timed inside numba so dispatch is excluded:
+    - kernel: the whole force, w = u + zeta v, the slice sweep and the finish (-xi M v, vertex order);
+    - sweep: the pass over the slices alone; held: the same pass with w held (no gather of w);
+    - stream: the floor, the faster of two bare reads of 64-byte-aligned copies of the clusters' own blocks and
+      indices (numba's loop, which LLVM vectorizes 4 wide here, and an IR loop as wide as the kernel's
+      vectors; numpy gives the arrays 16-byte alignment, over which the stream ran up to 1.7x slower on this
+      host); stream_slices: the bare read of the kernel's slices (the same blocks plus 0.5-2.5 % padding)."""
     cl = model.clusters
     sl = cl.slices
     n = model.n_vertices
@@ -97,13 +225,17 @@ def kernel_vs_stream(model, reps: int = 200) -> tuple[float, float, float, float
     w, kw = scratch(sl)
     f = np.empty((n, 3))
     args = cluster_args(sl)
-    kern = median_seconds(lambda: _force_loop(*args, sl.slot, u, v, model.mass, 1e-3, 1.0, w, kw, f, reps)) / reps
-    sweep = median_seconds(lambda: _sweep_loop(*args, w, kw, reps)) / reps
+    wide = _wide_stream[8 if sl.lanes == 8 else 4]
     aligned = tuple(aligned_copy(a) for a in (cl.shared_cols, cl.shared_blocks, cl.boundary_cols, cl.boundary_blocks))
-    stream = median_seconds(lambda: _stream(*aligned, reps)) / reps
     sliced = (sl.shared_cols.reshape(-1), sl.shared_blocks, sl.boundary_cols.reshape(-1), sl.boundary_blocks)
-    stream_slices = median_seconds(lambda: _stream(*sliced, reps)) / reps
-    return kern, sweep, stream, stream_slices
+    per_call = lambda fn: median_seconds(fn) / reps  # noqa: E731
+    return {
+        "kernel": per_call(lambda: _force_loop(*args, sl.slot, u, v, model.mass, 1e-3, 1.0, w, kw, f, reps)),
+        "sweep": per_call(lambda: _sweep_loop(*args, w, kw, reps)),
+        "held": per_call(lambda: _held_w_loop(*args, w, kw, reps)),
+        "stream": min(per_call(lambda: _stream(*aligned, reps)), per_call(lambda: wide(*aligned, reps))),
+        "stream_slices": min(per_call(lambda: _stream(*sliced, reps)), per_call(lambda: wide(*sliced, reps))),
+    }
 
 
 def stream_by_size(scales: list[float]) -> list[list[object]]:
@@ -113,10 +245,11 @@ def stream_by_size(scales: list[float]) -> list[list[object]]:
         mesh = paper_mesh("sphere", scale)
         model = build_model(mesh, MATERIAL)
         cl = model.clusters
-        kern, sweep, stream, _ = kernel_vs_stream(model, reps=max(5, 800_000 // cl.n_blocks))
+        t = kernel_vs_stream(model, reps=max(5, 800_000 // cl.n_blocks))
+        us = lambda key: f"{t[key] * 1e6:.1f}"  # noqa: E731
         rows.append([f"{scale:g}", mesh.n_vertices, mesh.n_tets, cl.n_blocks, f"{cl.nbytes / 1e6:.2f}",
-                     f"{kern * 1e6:.1f}", f"{sweep * 1e6:.1f}", f"{stream * 1e6:.1f}", f"{kern / stream:.2f}",
-                     f"{sweep / stream:.2f}"])
+                     us("kernel"), us("sweep"), us("held"), us("stream"), f"{t['kernel'] / t['stream']:.2f}",
+                     f"{t['sweep'] / t['stream']:.2f}", f"{t['held'] / t['stream']:.2f}"])
     return rows
 
 
@@ -138,7 +271,7 @@ def bench_shape(name: str, h: float, scale: float) -> dict:
         if method == "clustered":
             out["substeps"] = info.substeps
             out["margin"] = info.margin
-    out["kernel"], out["sweep"], out["stream"], out["stream_slices"] = kernel_vs_stream(model)
+    out.update(kernel_vs_stream(model))
     return out
 
 
@@ -171,17 +304,20 @@ def main(argv: list[str] | None = None) -> int:
                      f"{ms(r['implicit_cg'])} ({r['implicit_cg'] / c:.1f}x)",
                      f"{r['kernel'] * 1e6:.1f} / {r['stream'] * 1e6:.1f} = {r['kernel'] / r['stream']:.2f}",
                      f"{r['sweep'] * 1e6:.1f} / {r['stream'] * 1e6:.1f} = {r['sweep'] / r['stream']:.2f}",
+                     f"{r['held'] * 1e6:.1f} ({r['held'] / r['stream']:.2f})",
                      f"{r['stream_slices'] * 1e6:.1f}",
                      "{:.2f} / {:.2f} / {:.2f}".format(*PAPER_MS[name])])
         if name == "sphere":
             ok &= r["standard_explicit"] / c >= 2 and r["implicit_direct"] / c >= 20
     print(table(["mesh", "verts", "tets", "clustered ms/step", "sub-steps", "margin", "standard explicit",
-                 "implicit direct", "implicit CG", "kernel/stream us", "sweep/stream us", "stream over slices us", "paper std/clust/modal ms"],
+                 "implicit direct", "implicit CG", "kernel/stream us", "sweep/stream us", "sweep, w held us", "stream over slices us", "paper std/clust/modal ms"],
                 rows))
     print("ratios in brackets: method time / clustered time (higher = clustered faster). "
           "kernel/stream: the whole clustered force (w, slice sweep, finish) against a bare read of the "
-          "clusters' blocks and indices, 64-byte aligned (the floor); sweep/stream: the pass over the blocks "
-          "alone; 'over slices': the bare read of the kernel's padded slices.")
+          "clusters' blocks and indices, 64-byte aligned, the faster of a 4- and an 8-wide read (the floor); "
+          "sweep/stream: the pass over the blocks alone; 'w held': the sweep without gathering w (same loads of "
+          "blocks, same FMAs), its ratio to the stream in brackets; 'over slices': the bare read of the "
+          "kernel's padded slices.")
     print(f"sphere targets (>= 2x standard explicit, >= 20x implicit direct): {'met' if ok else 'NOT met'}")
     worst = max(rows_raw, key=lambda r: r["sweep"] / r["stream"])
     worst_force = max(rows_raw, key=lambda r: r["kernel"] / r["stream"])
@@ -192,8 +328,8 @@ def main(argv: list[str] | None = None) -> int:
     if sizes:
         print("  timing kernel and stream by size ...", file=sys.stderr, flush=True)
         print("\nkernel/stream as the sphere's cluster data grows (same kernel, same aligned stream):")
-        print(table(["scale", "verts", "tets", "blocks", "cluster MB", "kernel us", "sweep us", "stream us",
-                     "kernel/stream", "sweep/stream"], stream_by_size(sizes)))
+        print(table(["scale", "verts", "tets", "blocks", "cluster MB", "kernel us", "sweep us", "w held us",
+                     "stream us", "kernel/stream", "sweep/stream", "held/stream"], stream_by_size(sizes)))
     return 0
 
 

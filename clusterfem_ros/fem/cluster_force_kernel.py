@@ -66,17 +66,26 @@ def _check_array(name, a, ndim, dtype):
         raise TypingError(f"_slice_force: {name} must be a C-contiguous {ndim}-d {dtype} array, got {a}")
 
 
-@intrinsic(prefer_literal=True)
-def _slice_force(typingctx, lanes, s, p0, p1, cols, blocks, w, out):
-    """out[3C s : 3C (s+1)] <- (x's, y's, z's of) sum_p blocks[p] w[cols[p]] over positions p0..p1 of one slice.
+def _slice_force_intrinsic(gather: bool):
+    """The slice kernel below; ``gather=False`` builds the benchmark's control, which reads the same blocks and
+    does the same FMAs but holds w at row 0 instead of gathering each position's C rows (its time against the
+    full kernel's is the gather's cost: bench/core_benchmark.py)."""
+    @intrinsic(prefer_literal=True)
+    def _slice_force(typingctx, lanes, s, p0, p1, cols, blocks, w, out):
+        """out[3C s : 3C (s+1)] <- (x's, y's, z's of) sum_p blocks[p] w[cols[p]] over positions p0..p1 of one slice.
 
-    ``lanes`` (C, a literal) rows at once, lane l for row l: per position, C column indices and C rows of w
-    (32-byte loads: w rows are padded to 4) transposed into three C-wide vectors, then nine C-wide loads of
-    block entries and nine FMAs into three accumulators (x, y, z), one rounding each, in position order, so
-    serial and threaded builds give the same bits. Written in LLVM IR because numba's pipeline runs no SLP
-    vectorizer. cols (P, C) int64, blocks (P, 9, C), w (n, 4), out (S * 3 * C,) float64, C-contiguous
-    (checked at typing); callers check w.shape[1] == 4.
-    """
+        ``lanes`` (C, a literal) rows at once, lane l for row l: per position, C column indices and C rows of
+        w (32-byte loads: w rows are padded to 4) transposed into three C-wide vectors, then nine C-wide loads
+        of block entries and nine FMAs into three accumulators (x, y, z), one rounding each, in position order,
+        so serial and threaded builds give the same bits. Written in LLVM IR because numba's pipeline runs no
+        SLP vectorizer. cols (P, C) int64, blocks (P, 9, C), w (n, 4), out (S * 3 * C,) float64, C-contiguous
+        (checked at typing); callers check w.shape[1] == 4.
+        """
+        return _slice_force_typing(gather, lanes, s, p0, p1, cols, blocks, w, out)
+    return _slice_force
+
+
+def _slice_force_typing(gather, lanes, s, p0, p1, cols, blocks, w, out):
     if not isinstance(lanes, types.IntegerLiteral) or lanes.literal_value not in (2, 4, 8):
         raise TypingError(f"_slice_force: lanes must be the literal 2, 4 or 8, got {lanes}")
     for name, a in (("s", s), ("p0", p0), ("p1", p1)):
@@ -107,6 +116,8 @@ def _slice_force(typingctx, lanes, s, p0, p1, cols, blocks, w, out):
         loop = fn.append_basic_block("slice.loop")
         done = fn.append_basic_block("slice.done")
         zero = ir.Constant(VC, [0.0] * C)
+        if not gather:                          # row 0 of w in every lane, loaded once
+            held = _transpose(builder, [builder.load(_vector_at(builder, wp, _k(0), _V4), align=8)] * C)
         builder.cbranch(builder.icmp_signed("<", p0v, p1v), loop, done)
         builder.position_at_end(loop)
         p = builder.phi(_I64)
@@ -114,12 +125,15 @@ def _slice_force(typingctx, lanes, s, p0, p1, cols, blocks, w, out):
         acc = [builder.phi(VC) for _ in range(3)]
         for a in acc:
             a.add_incoming(zero, entry)
-        first_col = builder.mul(p, _k(C))
-        rows = []
-        for lane in range(C):
-            j = builder.load(builder.gep(colp, [builder.add(first_col, _k(lane))]), align=8)
-            rows.append(builder.load(_vector_at(builder, wp, builder.mul(j, wstride), _V4), align=8))
-        wxyz = _transpose(builder, rows)
+        if gather:
+            first_col = builder.mul(p, _k(C))
+            rows = []
+            for lane in range(C):
+                j = builder.load(builder.gep(colp, [builder.add(first_col, _k(lane))]), align=8)
+                rows.append(builder.load(_vector_at(builder, wp, builder.mul(j, wstride), _V4), align=8))
+            wxyz = _transpose(builder, rows)
+        else:
+            wxyz = held
         first_entry = builder.mul(p, _k(9 * C))
         new = []
         for r in range(3):                      # row r of the C blocks: entries (r, 0..2)
@@ -145,6 +159,10 @@ def _slice_force(typingctx, lanes, s, p0, p1, cols, blocks, w, out):
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+_slice_force = _slice_force_intrinsic(gather=True)
+slice_force_held_w = _slice_force_intrinsic(gather=False)
 
 
 def _stiffness_slices_kernel(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, w, kw):

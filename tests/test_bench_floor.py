@@ -1,0 +1,22 @@
+"""The core benchmark's floor: the bare reads it times read every number of the clusters once."""
+import numpy as np
+import pytest
+
+from clusterfem_ros.bench.core_benchmark import _stream, _wide_stream
+
+
+@pytest.mark.parametrize("lanes", [4, 8])
+@pytest.mark.parametrize("n_positions", [1, 7, 64, 129])
+def test_the_wide_read_sums_every_block_entry_and_index_once(lanes, n_positions):
+    """Lengths that are and are not multiples of the unrolled width: the tail must be read too."""
+    rng = np.random.default_rng(n_positions)
+    sh_cols = rng.integers(0, 1000, size=n_positions * lanes)
+    sh_blocks = rng.normal(size=(n_positions, 9, lanes))
+    bd_cols = rng.integers(0, 1000, size=4 * lanes)
+    bd_blocks = rng.normal(size=(4, 9, lanes))
+    exact = sh_blocks.sum() + bd_blocks.sum() + float(sh_cols.sum() + bd_cols.sum())
+    for reps in (1, 3):
+        wide = _wide_stream[lanes](sh_cols, sh_blocks, bd_cols, bd_blocks, reps)
+        loop = _stream(sh_cols, sh_blocks, bd_cols, bd_blocks, reps)
+        assert wide == pytest.approx(reps * exact, rel=1e-12)
+        assert loop == pytest.approx(reps * exact, rel=1e-12)
