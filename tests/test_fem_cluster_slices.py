@@ -113,3 +113,12 @@ def test_the_benchmarks_held_w_control_is_the_sweep_of_a_uniform_w(lanes):
     np.testing.assert_array_equal(held, swept)
     scale = np.abs(sl.shared_blocks).max() * np.abs(w[0]).max()
     assert np.abs(held).max() <= 1e-10 * scale
+
+
+def test_the_slices_are_built_on_first_use_and_their_size_is_reported_only_then():
+    """A model that never runs the linear kernel (warping has its own) holds no second copy of the blocks."""
+    mesh = paper_mesh("sphere")
+    cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
+    assert cl.slices_nbytes == 0
+    sl = cl.slices
+    assert cl.slices_nbytes == sl.nbytes >= sl.shared_blocks.nbytes + sl.boundary_blocks.nbytes

@@ -87,11 +87,10 @@ def measure_one(n: int, label: str) -> dict:
     setup = time.perf_counter() - t0 + (lam_s if method == "clustered" else 0.0)
     sec = median_seconds(lambda: integ.step(state, control, h), min_time=1.0, repeats=5, warmup=2)
     peak = _status_kb("VmHWM")
-    slices = model.clusters.__dict__.get("slices")        # built only if the linear slice kernel ran
     return {"n": n, "method": label, "tets": mesh.n_tets, "vertices": mesh.n_vertices, "h": h,
             "ms": sec * 1e3, "setup_s": setup, "model_mb": (rss_model - rss0) / 1024,
             "method_mb": max(peak - rss_model, 0) / 1024, "peak_exact": exact,
-            "clusters_mb": model.clusters.nbytes / 1e6, "slices_mb": slices.nbytes / 1e6 if slices else 0.0}
+            "clusters_mb": model.clusters.nbytes / 1e6, "slices_mb": model.clusters.slices_nbytes / 1e6}
 
 
 def _child(n: int, label: str, timeout: float) -> dict:

@@ -47,6 +47,12 @@ class Clusters:
         from .numba_config import simd_lanes
         return slice_clusters(self, simd_lanes())
 
+    @property
+    def slices_nbytes(self) -> int:
+        """Bytes the slices hold, 0 while they have not been built (reading ``slices`` would build them)."""
+        built = self.__dict__.get("slices")         # where cached_property keeps its value
+        return built.nbytes if built is not None else 0
+
     def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
         """CSR (ptr (n+1,), cols) of every vertex's cluster neighbours (itself included), in vertex order."""
         rows = np.concatenate([np.repeat(self.shared_rows, np.diff(self.shared_ptr)),
