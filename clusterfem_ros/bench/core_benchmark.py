@@ -35,7 +35,7 @@ History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions 
   3.0-3.15; software prefetch of blocks and indices gained 2-4 %, 8-wide hardware gathers (vgatherqpd, from
   (n, 4) rows or from x, y, z arrays) were no faster (3.2-3.4 us). None was kept.
 - Once the blocks leave L2 the gather hides behind the memory traffic: sweep/stream 1.6 at 0.3 MB of
-  blocks, 1.4 at 2.2 MB, 1.07 at 16 MB (the second table).
+  blocks, 1.2 at 2.2 MB, 1.08 at 16 MB (the second table).
 - What is left between the sweep and the whole force is per vertex: the w pass (~0.3 us) and the finish
   (~0.6 us: -xi m_i v_i, and reading each vertex's K w from its slot).
 """
