@@ -25,17 +25,18 @@ History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions 
   blocks in one row, 1.22 ns with the gather and 0.66 ns without (the stream's speed): the gather and the
   per-row reduction were the cost.
 - Slices of C rows (cluster_slices.py, SELL-C; C = 8 here) remove the per-row reduction and turn the
-  per-block gather into C row loads and one transpose per position: the sweep is 2.9-3.3 us on the sphere.
-  A C prototype of the same layout (gcc -O3 -march=native, intrinsics) ran 2.9-3.2 us, so the IR kernel is
-  at what this layout gives.
-- Where the rest goes: the sweep with w held runs at the stream's speed (0.93-0.97x: it reads no indices),
+  per-block gather into C row loads and one transpose per position: the sweep was 3.1-3.3 us on the sphere.
+  A C prototype of the same layout (gcc -O3 -march=native, intrinsics) ran 2.9-3.2 us. Storing each
+  neighbour as the start of its row of w (4 j) instead of j took the multiply out of the address chain:
+  2.8-2.9 us (the prototype: -8 %; 32-bit offsets gave another ~4 % there, not kept: the kernel would read
+  fewer index bytes than the floor).
+- Where the rest goes: the sweep with w held runs at the stream's speed (0.86-1.01x: it reads no indices),
   so the blocks' loads and the FMAs cost nothing beyond the read, and what the sweep has over the floor
-  (0.6-0.75x the stream on the paper's shapes) is the gather of w: per position C index loads, C dependent
-  row loads and the transpose. In the C prototype the loads without the transpose ran 2.7-2.8 us, with it
-  3.0-3.15; software prefetch of blocks and indices gained 2-4 %, 8-wide hardware gathers (vgatherqpd, from
-  (n, 4) rows or from x, y, z arrays) were no faster (3.2-3.4 us). None was kept.
-- Once the blocks leave L2 the gather hides behind the memory traffic: sweep/stream 1.6 at 0.3 MB of
-  blocks, 1.2 at 2.2 MB, 1.08 at 16 MB (the second table).
+  (0.4-0.6x the stream on the paper's shapes) is the gather of w: per position C index loads, C dependent
+  row loads and the transpose. In the C prototype software prefetch of blocks and indices gained 2-4 %, and
+  8-wide hardware gathers (vgatherqpd, from (n, 4) rows or from x, y, z arrays) were slower. Not kept.
+- Once the blocks leave L2 the gather hides behind the memory traffic: sweep/stream 1.5-1.6 at 0.3 MB of
+  blocks, 1.35 at 2.2 MB, 1.07 at 16 MB (the second table).
 - What is left between the sweep and the whole force is per vertex: the w pass (~0.3 us) and the finish
   (~0.6 us: -xi m_i v_i, and reading each vertex's K w from its slot).
 """
@@ -183,23 +184,23 @@ def _sweep_loop(a0, a1, a2, a3, a4, w, kw, reps):
 
 
 @numba.njit(cache=True)
-def _held_w_loop(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, w, kw, reps):
+def _held_w_loop(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, w, kw, reps):
     """The serial sweep's loop (cluster_force_kernel._stiffness_slices_kernel) with w held at row 0: the same
     block loads and FMAs without the gather of w."""
     ns = sh_ptr.shape[0] - 1
-    lanes = sh_cols.shape[1]
+    lanes = sh_w_at.shape[1]
     for _ in range(reps):
-        for s in range(ns + bd_cols.shape[0] // 4):
+        for s in range(ns + bd_w_at.shape[0] // 4):
             if s < ns:
-                p0, p1, cols, blocks = sh_ptr[s], sh_ptr[s + 1], sh_cols, sh_blocks
+                p0, p1, w_at, blocks = sh_ptr[s], sh_ptr[s + 1], sh_w_at, sh_blocks
             else:
-                p0, p1, cols, blocks = 4 * (s - ns), 4 * (s - ns) + 4, bd_cols, bd_blocks
+                p0, p1, w_at, blocks = 4 * (s - ns), 4 * (s - ns) + 4, bd_w_at, bd_blocks
             if lanes == 8:
-                slice_force_held_w(8, s, p0, p1, cols, blocks, w, kw)
+                slice_force_held_w(8, s, p0, p1, w_at, blocks, w, kw)
             elif lanes == 4:
-                slice_force_held_w(4, s, p0, p1, cols, blocks, w, kw)
+                slice_force_held_w(4, s, p0, p1, w_at, blocks, w, kw)
             else:
-                slice_force_held_w(2, s, p0, p1, cols, blocks, w, kw)
+                slice_force_held_w(2, s, p0, p1, w_at, blocks, w, kw)
 
 
 def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
@@ -227,7 +228,7 @@ def kernel_vs_stream(model, reps: int = 200) -> dict[str, float]:
     args = cluster_args(sl)
     wide = _wide_stream[8 if sl.lanes == 8 else 4]
     aligned = tuple(aligned_copy(a) for a in (cl.shared_cols, cl.shared_blocks, cl.boundary_cols, cl.boundary_blocks))
-    sliced = (sl.shared_cols.reshape(-1), sl.shared_blocks, sl.boundary_cols.reshape(-1), sl.boundary_blocks)
+    sliced = (sl.shared_w_at.reshape(-1), sl.shared_blocks, sl.boundary_w_at.reshape(-1), sl.boundary_blocks)
     per_call = lambda fn: median_seconds(fn) / reps  # noqa: E731
     return {
         "kernel": per_call(lambda: _force_loop(*args, sl.slot, u, v, model.mass, 1e-3, 1.0, w, kw, f, reps)),

@@ -19,7 +19,7 @@ from numba.core import cgutils
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from .cluster_slices import ClusterSlices, aligned_zeros
+from .cluster_slices import W_ROW, ClusterSlices, aligned_zeros
 from .clusters import Clusters
 from .numba_config import PARALLEL, PARALLEL_MIN_VERTICES, SERIAL, serial_and_parallel
 
@@ -71,33 +71,33 @@ def _slice_force_intrinsic(gather: bool):
     does the same FMAs but holds w at row 0 instead of gathering each position's C rows (its time against the
     full kernel's is the gather's cost: bench/core_benchmark.py)."""
     @intrinsic(prefer_literal=True)
-    def _slice_force(typingctx, lanes, s, p0, p1, cols, blocks, w, out):
-        """out[3C s : 3C (s+1)] <- (x's, y's, z's of) sum_p blocks[p] w[cols[p]] over positions p0..p1 of one slice.
+    def _slice_force(typingctx, lanes, s, p0, p1, w_at, blocks, w, out):
+        """out[3C s : 3C (s+1)] <- (x's, y's, z's of) sum_p blocks[p] w[j_p] over positions p0..p1 of one slice.
 
-        ``lanes`` (C, a literal) rows at once, lane l for row l: per position, C column indices and C rows of
-        w (32-byte loads: w rows are padded to 4) transposed into three C-wide vectors, then nine C-wide loads
-        of block entries and nine FMAs into three accumulators (x, y, z), one rounding each, in position order,
-        so serial and threaded builds give the same bits. Written in LLVM IR because numba's pipeline runs no
-        SLP vectorizer. cols (P, C) int64, blocks (P, 9, C), w (n, 4), out (S * 3 * C,) float64, C-contiguous
-        (checked at typing); callers check w.shape[1] == 4.
+        ``lanes`` (C, a literal) rows at once, lane l for row l: per position, C rows of w (32-byte loads at
+        the offsets w_at = 4 j: w rows are padded to 4) transposed into three C-wide vectors, then nine C-wide
+        loads of block entries and nine FMAs into three accumulators (x, y, z), one rounding each, in position
+        order, so serial and threaded builds give the same bits. Written in LLVM IR because numba's pipeline
+        runs no SLP vectorizer. w_at (P, C) int64, blocks (P, 9, C), w (n, 4), out (S * 3 * C,) float64,
+        C-contiguous (checked at typing); callers check w.shape[1] == 4.
         """
-        return _slice_force_typing(gather, lanes, s, p0, p1, cols, blocks, w, out)
+        return _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, out)
     return _slice_force
 
 
-def _slice_force_typing(gather, lanes, s, p0, p1, cols, blocks, w, out):
+def _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, out):
     if not isinstance(lanes, types.IntegerLiteral) or lanes.literal_value not in (2, 4, 8):
         raise TypingError(f"_slice_force: lanes must be the literal 2, 4 or 8, got {lanes}")
     for name, a in (("s", s), ("p0", p0), ("p1", p1)):
         if not isinstance(a, types.Integer):
             raise TypingError(f"_slice_force: {name} must be an integer, got {a}")
-    _check_array("cols", cols, 2, types.int64)
+    _check_array("w_at", w_at, 2, types.int64)
     _check_array("blocks", blocks, 3, types.float64)
     _check_array("w", w, 2, types.float64)
     _check_array("out", out, 1, types.float64)
     C = lanes.literal_value
     VC = ir.VectorType(_F64, C)
-    sig = types.void(lanes, s, p0, p1, cols, blocks, w, out)
+    sig = types.void(lanes, s, p0, p1, w_at, blocks, w, out)
 
     def codegen(context, builder, signature, args):
         sv, p0v, p1v = [context.cast(builder, a, t, types.int64) for a, t in zip(args[1:4], signature.args[1:4])]
@@ -105,11 +105,9 @@ def _slice_force_typing(gather, lanes, s, p0, p1, cols, blocks, w, out):
         def data(n):
             return context.make_array(signature.args[n])(context, builder, args[n])
 
-        colp = data(4).data
+        atp = data(4).data
         blkp = builder.bitcast(data(5).data, _F64.as_pointer())
-        warr = data(6)
-        wp = builder.bitcast(warr.data, _F64.as_pointer())
-        wstride = builder.lshr(cgutils.unpack_tuple(builder, warr.strides)[0], _k(3))
+        wp = builder.bitcast(data(6).data, _F64.as_pointer())
         outp = builder.bitcast(data(7).data, _F64.as_pointer())
         fn = builder.function
         entry = builder.basic_block
@@ -126,11 +124,11 @@ def _slice_force_typing(gather, lanes, s, p0, p1, cols, blocks, w, out):
         for a in acc:
             a.add_incoming(zero, entry)
         if gather:
-            first_col = builder.mul(p, _k(C))
+            first = builder.mul(p, _k(C))
             rows = []
             for lane in range(C):
-                j = builder.load(builder.gep(colp, [builder.add(first_col, _k(lane))]), align=8)
-                rows.append(builder.load(_vector_at(builder, wp, builder.mul(j, wstride), _V4), align=8))
+                at = builder.load(builder.gep(atp, [builder.add(first, _k(lane))]), align=8)
+                rows.append(builder.load(_vector_at(builder, wp, at, _V4), align=8))
             wxyz = _transpose(builder, rows)
         else:
             wxyz = held
@@ -165,24 +163,24 @@ _slice_force = _slice_force_intrinsic(gather=True)
 slice_force_held_w = _slice_force_intrinsic(gather=False)
 
 
-def _stiffness_slices_kernel(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, w, kw):
+def _stiffness_slices_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, w, kw):
     """kw <- K w per slice ((3, C) numbers each, cluster_slices.ClusterSlices.slot says where vertex i is):
     shared slices, then boundary slices of four positions, in one loop (one parallel region when threaded)."""
-    if w.shape[1] != 4:
+    if w.shape[1] != W_ROW:
         raise ValueError("the cluster force kernel needs w with 4 columns (x, y, z, padding)")
-    lanes = sh_cols.shape[1]
+    lanes = sh_w_at.shape[1]
     ns = sh_ptr.shape[0] - 1
-    for s in prange(ns + bd_cols.shape[0] // 4):
+    for s in prange(ns + bd_w_at.shape[0] // 4):
         if s < ns:
-            p0, p1, cols, blocks = sh_ptr[s], sh_ptr[s + 1], sh_cols, sh_blocks
+            p0, p1, w_at, blocks = sh_ptr[s], sh_ptr[s + 1], sh_w_at, sh_blocks
         else:
-            p0, p1, cols, blocks = 4 * (s - ns), 4 * (s - ns) + 4, bd_cols, bd_blocks
+            p0, p1, w_at, blocks = 4 * (s - ns), 4 * (s - ns) + 4, bd_w_at, bd_blocks
         if lanes == 8:
-            _slice_force(8, s, p0, p1, cols, blocks, w, kw)
+            _slice_force(8, s, p0, p1, w_at, blocks, w, kw)
         elif lanes == 4:
-            _slice_force(4, s, p0, p1, cols, blocks, w, kw)
+            _slice_force(4, s, p0, p1, w_at, blocks, w, kw)
         else:
-            _slice_force(2, s, p0, p1, cols, blocks, w, kw)
+            _slice_force(2, s, p0, p1, w_at, blocks, w, kw)
 
 
 stiffness_slices_serial, stiffness_slices_parallel = serial_and_parallel(_stiffness_slices_kernel)
@@ -201,15 +199,15 @@ finish_serial, finish_parallel = serial_and_parallel(_finish_kernel)
 
 
 def _make_force_kernel(stiffness, finish):
-    def force_kernel(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, slot, u, v, mass, zeta, xi, w, kw, out):
+    def force_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, slot, u, v, mass, zeta, xi, w, kw, out):
         """w[:, :3] <- u + zeta v (w: (n, 4)), the slice sweep, then the finish: f = -K w - xi M v (the
         clustered integrator runs the same sweep and finish inside its step; the core benchmark times this)."""
         n = u.shape[0]
         for i in prange(n):
             for c in range(3):
                 w[i, c] = u[i, c] + zeta * v[i, c]
-        stiffness(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, w, kw)
-        finish(slot, sh_cols.shape[1], kw, v, mass, xi, out)
+        stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, w, kw)
+        finish(slot, sh_w_at.shape[1], kw, v, mass, xi, out)
     return force_kernel
 
 
@@ -218,13 +216,13 @@ force_kernel_parallel = numba.njit(**PARALLEL)(_make_force_kernel(stiffness_slic
 
 
 def cluster_args(sl: ClusterSlices) -> tuple:
-    """The slice arrays in kernel argument order (sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks)."""
-    return (sl.shared_ptr, sl.shared_cols, sl.shared_blocks, sl.boundary_cols, sl.boundary_blocks)
+    """The slice arrays in kernel argument order (sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks)."""
+    return (sl.shared_ptr, sl.shared_w_at, sl.shared_blocks, sl.boundary_w_at, sl.boundary_blocks)
 
 
 def scratch(sl: ClusterSlices) -> tuple[np.ndarray, np.ndarray]:
     """(w, kw): the (n, 4) input rows and the slices' (n_slices * 3 * C,) output, 64-byte aligned."""
-    return aligned_zeros((sl.n_vertices, 4)), aligned_zeros((sl.n_slices * 3 * sl.lanes,))
+    return aligned_zeros((sl.n_vertices, W_ROW)), aligned_zeros((sl.n_slices * 3 * sl.lanes,))
 
 
 def pick_kernel(n_vertices: int, threads: bool | None = None):

@@ -99,24 +99,24 @@ def _make_symplectic_euler(stiffness, finish):
     on the paper's sphere.
     """
 
-    def symplectic_euler(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, slot, kw,
+    def symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, slot, kw,
                          mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
                          att_idx, att_u, att_v, att_a, att_kp, att_kd):
         n = u.shape[0]
         _prepare(n, zeta, fixed, u, u, v, w, False)
         ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
         for s in range(nsub):
-            stiffness(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, w, kw)
-            finish(slot, sh_cols.shape[1], kw, v, mass, xi, f)
+            stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, w, kw)
+            finish(slot, sh_w_at.shape[1], kw, v, mass, xi, f)
             _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f)
             ok = _update(n, h, zeta, inv_mass3, f, f_const, u, u, v, w, False, limit, s + 1 < nsub)
         return ok
 
     step = numba.njit(**SERIAL)(symplectic_euler)
 
-    def free_symplectic_euler(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, slot, kw,
+    def free_symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, slot, kw,
                               mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f):
-        return step(sh_ptr, sh_cols, sh_blocks, bd_cols, bd_blocks, slot, kw,
+        return step(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, slot, kw,
                     mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
                     _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
 
