@@ -17,12 +17,10 @@ MESHES = {"sphere": lambda: paper_mesh("sphere"), "torus": lambda: paper_mesh("t
 
 
 def _lanes_of(sl):
-    """(vertex of every lane slot of the shared part, of the boundary part): -1 where a lane is padding."""
+    """(vertex of every lane of the shared part, of the boundary part): -1 where a lane is padding."""
     C = sl.lanes
     n_sh_slices = len(sl.shared_ptr) - 1
-    lane_index = (sl.slot // (3 * C)) * C + sl.slot % C
-    owner = -np.ones(sl.n_slices * C, np.int64)
-    owner[lane_index] = np.arange(sl.n_vertices)
+    owner = np.where(sl.owner < sl.n_vertices, sl.owner, -1)
     return owner[:n_sh_slices * C].reshape(-1, C), owner[n_sh_slices * C:].reshape(-1, C)
 
 
@@ -71,9 +69,22 @@ def test_every_lane_width_gives_the_assembled_force_to_round_off(lanes, threads)
     w, kw = scratch(sl)
     f = np.empty_like(u)
     kernel = force_kernel_parallel if threads else force_kernel_serial
-    kernel(*cluster_args(sl), sl.slot, u, v, m, MAT.zeta, MAT.xi, w, kw, f)
+    kernel(*cluster_args(sl), u, v, np.repeat(m, 3), MAT.zeta, MAT.xi, w, kw, f)
     rel = np.abs(f - ref).max() / np.abs(ref).max()
     assert rel <= 1e-12, f"{lanes} lanes: relative difference {rel:.3g}"
+    assert not kw[mesh.n_vertices:].any(), "a padding lane's row holds a non-zero sum"
+
+
+@pytest.mark.parametrize("lanes", [2, 4, 8])
+def test_every_lane_writes_a_row_of_its_own_the_vertices_first(lanes):
+    """The sweep stores each lane's sums in row owner[lane]: vertex i in row i, each padding lane in a row past
+    the n vertices' that no other lane writes (threads never share a row)."""
+    mesh = paper_mesh("sphere")
+    sl = slice_clusters(build_clusters(mesh, element_stiffness_blocks(mesh, MAT)), lanes)
+    assert sorted(sl.owner) == list(range(len(sl.owner)))
+    assert len(sl.owner) == sl.n_slices * lanes
+    sh_owner, bd_owner = _lanes_of(sl)
+    assert sorted(np.r_[sh_owner.ravel(), bd_owner.ravel()])[-mesh.n_vertices:] == list(range(mesh.n_vertices))
 
 
 def test_a_lane_count_the_kernel_has_no_build_for_is_refused():

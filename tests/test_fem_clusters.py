@@ -77,6 +77,10 @@ def test_bad_state_shape_is_named():
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
     with pytest.raises(ValueError, match=r"u has shape \(3, 3\), expected \(343, 3\)"):
         clustered_force(cl, np.zeros((3, 3)), np.zeros((343, 3)), np.ones(343), 0.0, 0.0)
+    with pytest.raises(ValueError, match=r"mass has shape \(342,\), expected \(343,\)"):
+        clustered_force(cl, np.zeros((343, 3)), np.zeros((343, 3)), np.ones(342), 0.0, 0.0)
+    with pytest.raises(ValueError, match=r"out must be a C-contiguous \(343, 3\) float64 array"):
+        clustered_force(cl, np.zeros((343, 3)), np.zeros((343, 3)), np.ones(343), 0.0, 0.0, out=np.empty((3, 343)).T)
 
 
 
@@ -87,6 +91,15 @@ def test_slice_kernel_refuses_a_workspace_without_the_padding_column():
     _, kw = scratch(cl.slices)
     with pytest.raises(ValueError, match="4 columns"):
         stiffness_slices_serial(*cluster_args(cl.slices), np.zeros((mesh.n_vertices, 3)), kw)
+
+
+def test_slice_kernel_refuses_an_output_without_a_row_per_lane():
+    """The sweep writes lane l's sums to row owner[l]: an (n, 3) output would miss the padding lanes' rows."""
+    mesh = paper_mesh("cube")
+    cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
+    w, _ = scratch(cl.slices)
+    with pytest.raises(ValueError, match="a row of 3 per lane"):
+        stiffness_slices_serial(*cluster_args(cl.slices), w, np.zeros((mesh.n_vertices, 3)))
 
 
 def _thread_ids(out):

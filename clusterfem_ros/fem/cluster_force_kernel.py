@@ -4,10 +4,10 @@
 
 so one sweep over the K clusters serves both matrices: f_i = f_s + f_b, the shared clusters'
 contribution plus the boundary clusters'. The sweep runs over the clusters packed C rows at a time
-(cluster_slices.py): each slice leaves K w of its C rows in a (3, C) block of a scratch array, and a
-pass over the vertices finishes f_i = -(K w)_i - xi m_i v_i in vertex order (the clustered integrator
-runs the same two passes inside its fused step). ``clustered_force`` is the checked public entry; the
-``_`` kernels take arrays and scalars only. tests/naive.py holds the plain numpy twin.
+(cluster_slices.py) and writes (K w)_i to row i of a scratch array, in vertex order; a flat pass finishes
+f_i = -(K w)_i - xi m_i v_i (the clustered integrator folds that pass into its velocity update).
+``clustered_force`` is the checked public entry; the ``_`` kernels take arrays and scalars only.
+tests/naive.py holds the plain numpy twin.
 """
 from __future__ import annotations
 
@@ -71,21 +71,22 @@ def _slice_force_intrinsic(gather: bool):
     does the same FMAs but holds w at row 0 instead of gathering each position's C rows (its time against the
     full kernel's is the gather's cost: bench/core_benchmark.py)."""
     @intrinsic(prefer_literal=True)
-    def _slice_force(typingctx, lanes, s, p0, p1, w_at, blocks, w, out):
-        """out[3C s : 3C (s+1)] <- (x's, y's, z's of) sum_p blocks[p] w[j_p] over positions p0..p1 of one slice.
+    def _slice_force(typingctx, lanes, s, p0, p1, w_at, blocks, w, owner, out):
+        """out[owner[C s + l]] <- sum_p blocks[p, :, l] w[j_p,l] over positions p0..p1 of slice s, each lane l.
 
         ``lanes`` (C, a literal) rows at once, lane l for row l: per position, C rows of w (32-byte loads at
         the offsets w_at = 4 j: w rows are padded to 4) transposed into three C-wide vectors, then nine C-wide
         loads of block entries and nine FMAs into three accumulators (x, y, z), one rounding each, in position
         order, so serial and threaded builds give the same bits. Written in LLVM IR because numba's pipeline
-        runs no SLP vectorizer. w_at (P, C) int64, blocks (P, 9, C), w (n, 4), out (S * 3 * C,) float64,
-        C-contiguous (checked at typing); callers check w.shape[1] == 4.
+        runs no SLP vectorizer. The C sums are stored as rows of out, in vertex order. w_at (P, C) int64,
+        blocks (P, 9, C), w (n, 4), owner (S C,) int64, out (S C, 3) float64, C-contiguous (checked at
+        typing); callers check w.shape[1] == 4 and out.shape == (S C, 3).
         """
-        return _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, out)
+        return _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, owner, out)
     return _slice_force
 
 
-def _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, out):
+def _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, owner, out):
     if not isinstance(lanes, types.IntegerLiteral) or lanes.literal_value not in (2, 4, 8):
         raise TypingError(f"_slice_force: lanes must be the literal 2, 4 or 8, got {lanes}")
     for name, a in (("s", s), ("p0", p0), ("p1", p1)):
@@ -94,10 +95,11 @@ def _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, out):
     _check_array("w_at", w_at, 2, types.int64)
     _check_array("blocks", blocks, 3, types.float64)
     _check_array("w", w, 2, types.float64)
-    _check_array("out", out, 1, types.float64)
+    _check_array("owner", owner, 1, types.int64)
+    _check_array("out", out, 2, types.float64)
     C = lanes.literal_value
     VC = ir.VectorType(_F64, C)
-    sig = types.void(lanes, s, p0, p1, w_at, blocks, w, out)
+    sig = types.void(lanes, s, p0, p1, w_at, blocks, w, owner, out)
 
     def codegen(context, builder, signature, args):
         sv, p0v, p1v = [context.cast(builder, a, t, types.int64) for a, t in zip(args[1:4], signature.args[1:4])]
@@ -108,7 +110,8 @@ def _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, out):
         atp = data(4).data
         blkp = builder.bitcast(data(5).data, _F64.as_pointer())
         wp = builder.bitcast(data(6).data, _F64.as_pointer())
-        outp = builder.bitcast(data(7).data, _F64.as_pointer())
+        ownp = data(7).data
+        outp = builder.bitcast(data(8).data, _F64.as_pointer())
         fn = builder.function
         entry = builder.basic_block
         loop = fn.append_basic_block("slice.loop")
@@ -151,9 +154,12 @@ def _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, out):
         for total, val in zip(totals, new):
             total.add_incoming(zero, entry)
             total.add_incoming(val, loop_end)
-        base = builder.mul(sv, _k(3 * C))
-        for r, total in enumerate(totals):
-            builder.store(total, _vector_at(builder, outp, builder.add(base, _k(r * C)), VC), align=8)
+        first_lane = builder.mul(sv, _k(C))       # lane l's sums go to row owner[C s + l], x, y, z
+        for lane in range(C):
+            row = builder.mul(builder.load(builder.gep(ownp, [builder.add(first_lane, _k(lane))]), align=8), _k(3))
+            for c, total in enumerate(totals):
+                builder.store(builder.extract_element(total, ir.Constant(_I32, lane)),
+                              builder.gep(outp, [builder.add(row, _k(c))]), align=8)
         return context.get_dummy_value()
 
     return sig, codegen
@@ -163,11 +169,13 @@ _slice_force = _slice_force_intrinsic(gather=True)
 slice_force_held_w = _slice_force_intrinsic(gather=False)
 
 
-def _stiffness_slices_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, w, kw):
-    """kw <- K w per slice ((3, C) numbers each, cluster_slices.ClusterSlices.slot says where vertex i is):
-    shared slices, then boundary slices of four positions, in one loop (one parallel region when threaded)."""
+def _stiffness_slices_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
+    """kw[i] <- (K w)_i for every vertex i (rows past n: the padding lanes', zero): shared slices, then boundary
+    slices of four positions, in one loop (one parallel region when threaded)."""
     if w.shape[1] != W_ROW:
         raise ValueError("the cluster force kernel needs w with 4 columns (x, y, z, padding)")
+    if kw.shape[0] != owner.shape[0] or kw.shape[1] != 3:
+        raise ValueError("the cluster force kernel needs kw with a row of 3 per lane of the slices (scratch())")
     lanes = sh_w_at.shape[1]
     ns = sh_ptr.shape[0] - 1
     for s in prange(ns + bd_w_at.shape[0] // 4):
@@ -176,38 +184,38 @@ def _stiffness_slices_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, w, 
         else:
             p0, p1, w_at, blocks = 4 * (s - ns), 4 * (s - ns) + 4, bd_w_at, bd_blocks
         if lanes == 8:
-            _slice_force(8, s, p0, p1, w_at, blocks, w, kw)
+            _slice_force(8, s, p0, p1, w_at, blocks, w, owner, kw)
         elif lanes == 4:
-            _slice_force(4, s, p0, p1, w_at, blocks, w, kw)
+            _slice_force(4, s, p0, p1, w_at, blocks, w, owner, kw)
         else:
-            _slice_force(2, s, p0, p1, w_at, blocks, w, kw)
+            _slice_force(2, s, p0, p1, w_at, blocks, w, owner, kw)
 
 
 stiffness_slices_serial, stiffness_slices_parallel = serial_and_parallel(_stiffness_slices_kernel)
 
 
-def _finish_kernel(slot, lanes, kw, v, mass, xi, out):
-    """out <- -K w - xi M v in vertex order, K w read from the slices' scratch."""
-    for i in prange(out.shape[0]):
-        q = slot[i]
-        d = xi * mass[i]
-        for c in range(3):
-            out[i, c] = -kw[q + c * lanes] - d * v[i, c]
+def _finish_kernel(kw, v, mass3, xi, out):
+    """out <- -K w - xi M v over flat arrays (mass3: the lumped mass per coordinate, 3n), K w read from the
+    sweep's first n rows (vertex order)."""
+    kf, vf, of = kw.reshape(-1), v.reshape(-1), out.reshape(-1)
+    for k in prange(of.shape[0]):
+        of[k] = -kf[k] - (xi * mass3[k]) * vf[k]
 
 
 finish_serial, finish_parallel = serial_and_parallel(_finish_kernel)
 
 
 def _make_force_kernel(stiffness, finish):
-    def force_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, slot, u, v, mass, zeta, xi, w, kw, out):
-        """w[:, :3] <- u + zeta v (w: (n, 4)), the slice sweep, then the finish: f = -K w - xi M v (the
-        clustered integrator runs the same sweep and finish inside its step; the core benchmark times this)."""
+    def force_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, u, v, mass3, zeta, xi, w, kw, out):
+        """w[:, :3] <- u + zeta v (w: (n, 4)), the slice sweep, then the finish: f = -K w - xi M v (mass3: the
+        lumped mass per coordinate; the clustered integrator runs the same sweep, with the finish inside its
+        update; the core benchmark times this)."""
         n = u.shape[0]
         for i in prange(n):
             for c in range(3):
                 w[i, c] = u[i, c] + zeta * v[i, c]
-        stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, w, kw)
-        finish(slot, sh_w_at.shape[1], kw, v, mass, xi, out)
+        stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw)
+        finish(kw, v, mass3, xi, out)
     return force_kernel
 
 
@@ -216,13 +224,14 @@ force_kernel_parallel = numba.njit(**PARALLEL)(_make_force_kernel(stiffness_slic
 
 
 def cluster_args(sl: ClusterSlices) -> tuple:
-    """The slice arrays in kernel argument order (sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks)."""
-    return (sl.shared_ptr, sl.shared_w_at, sl.shared_blocks, sl.boundary_w_at, sl.boundary_blocks)
+    """The slice arrays in kernel argument order (sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner)."""
+    return (sl.shared_ptr, sl.shared_w_at, sl.shared_blocks, sl.boundary_w_at, sl.boundary_blocks, sl.owner)
 
 
 def scratch(sl: ClusterSlices) -> tuple[np.ndarray, np.ndarray]:
-    """(w, kw): the (n, 4) input rows and the slices' (n_slices * 3 * C,) output, 64-byte aligned."""
-    return aligned_zeros((sl.n_vertices, W_ROW)), aligned_zeros((sl.n_slices * 3 * sl.lanes,))
+    """(w, kw): the (n, 4) input rows, 64-byte aligned, and the sweep's (n_slices * C, 3) output rows (vertex i's
+    K w in row i; the padding lanes' rows after the n vertices')."""
+    return aligned_zeros((sl.n_vertices, W_ROW)), np.zeros((len(sl.owner), 3))
 
 
 def pick_kernel(n_vertices: int, threads: bool | None = None):
@@ -233,17 +242,21 @@ def pick_kernel(n_vertices: int, threads: bool | None = None):
 
 def clustered_force(cl: Clusters, u: np.ndarray, v: np.ndarray, mass: np.ndarray, zeta: float, xi: float,
                     out: np.ndarray | None = None, threads: bool | None = None) -> np.ndarray:
-    """f = -K (u + zeta v) - xi M v, (n, 3), from the clusters. Checks shapes and finiteness."""
+    """f = -K (u + zeta v) - xi M v, (n, 3), from the clusters, into ``out`` if given. Checks shapes."""
     n = cl.n_vertices
     u = np.ascontiguousarray(u, dtype=np.float64)
     v = np.ascontiguousarray(v, dtype=np.float64)
     for name, a in (("u", u), ("v", v)):
         if a.shape != (n, 3):
             raise ValueError(f"{name} has shape {a.shape}, expected ({n}, 3) for this mesh")
+    mass = np.asarray(mass, dtype=np.float64)
+    if mass.shape != (n,):
+        raise ValueError(f"mass has shape {mass.shape}, expected ({n},): one lumped mass per vertex")
     if out is None:
         out = np.empty((n, 3))
+    elif out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous ({n}, 3) float64 array, got {out.dtype} {out.shape}")
     sl = cl.slices
     w, kw = scratch(sl)
-    pick_kernel(n, threads)(*cluster_args(sl), sl.slot, u, v, np.ascontiguousarray(mass, dtype=np.float64),
-                            float(zeta), float(xi), w, kw, out)
+    pick_kernel(n, threads)(*cluster_args(sl), u, v, np.repeat(mass, 3), float(zeta), float(xi), w, kw, out)
     return out

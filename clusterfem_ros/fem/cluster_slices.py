@@ -17,8 +17,10 @@ sum and no per-row loop exit.
 - A neighbour j is stored as where its row of w starts, 4 j (w is (n, 4): x, y, z and padding), so the kernel
   loads it without a multiply: 7-10 % off the sweep on the paper's shapes against storing j.
 
-The kernel's output is per slice, (3, C) numbers each: ``slot[i]`` is where vertex i's x lies in it (its y
-and z follow at +C and +2C). Nothing is approximated: every block of the clusters appears once, unchanged.
+The kernel writes each row's K w to the row ``owner[s * C + l]`` of an (n_slices * C, 3) array: vertex i's
+sum lands in row i, in vertex order, so the per-vertex passes after it run over flat arrays; each padding
+lane has a row of its own past the n vertices' (no two lanes share a row, so threads never write the same
+place). Nothing is approximated: every block of the clusters appears once, unchanged.
 """
 from __future__ import annotations
 
@@ -58,7 +60,7 @@ class ClusterSlices:
     shared_blocks: np.ndarray    # (ps, 9, C) block entry (row-major 3x3) per position and lane
     boundary_w_at: np.ndarray    # (4 b, C)
     boundary_blocks: np.ndarray  # (4 b, 9, C)
-    slot: np.ndarray             # (n,) offset of vertex i's x in the (n_slices, 3, C) output
+    owner: np.ndarray            # (n_slices * C,) output row of each lane: its vertex, or n + k for padding
 
     @property
     def shared_cols(self) -> np.ndarray:
@@ -80,7 +82,7 @@ class ClusterSlices:
     @property
     def nbytes(self) -> int:
         return sum(a.nbytes for a in (self.shared_ptr, self.shared_w_at, self.shared_blocks, self.boundary_w_at,
-                                      self.boundary_blocks, self.slot))
+                                      self.boundary_blocks, self.owner))
 
 
 def _fill(rows: np.ndarray, lengths: np.ndarray, first: np.ndarray, cols: np.ndarray, blocks: np.ndarray,
@@ -123,9 +125,12 @@ def slice_clusters(cl: Clusters, lanes: int) -> ClusterSlices:
                                cl.boundary_cols, cl.boundary_blocks, lanes,
                                4 * np.arange(n_bd_slices, dtype=np.int64), 4 * n_bd_slices)
 
-    lane_index = np.empty(cl.n_vertices, np.int64)                  # slice * C + lane of every vertex
-    lane_index[cl.shared_rows[order]] = np.arange(n_sh)
-    lane_index[cl.boundary_rows] = n_sh_slices * lanes + np.arange(n_bd)
-    slot = (lane_index // lanes) * 3 * lanes + lane_index % lanes
+    n_lanes = (n_sh_slices + n_bd_slices) * lanes
+    vertex = np.full(n_lanes, -1, np.int64)                         # vertex of every lane, -1 = padding
+    vertex[:n_sh] = cl.shared_rows[order]
+    vertex[n_sh_slices * lanes:n_sh_slices * lanes + n_bd] = cl.boundary_rows
+    padding = vertex < 0
+    owner = vertex.copy()
+    owner[padding] = cl.n_vertices + np.arange(int(padding.sum()))
     return ClusterSlices(lanes=lanes, n_vertices=cl.n_vertices, shared_ptr=shared_ptr, shared_w_at=W_ROW * sh_cols,
-                         shared_blocks=sh_blocks, boundary_w_at=W_ROW * bd_cols, boundary_blocks=bd_blocks, slot=slot)
+                         shared_blocks=sh_blocks, boundary_w_at=W_ROW * bd_cols, boundary_blocks=bd_blocks, owner=owner)

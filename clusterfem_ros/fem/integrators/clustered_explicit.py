@@ -17,8 +17,7 @@ import time
 import numba
 import numpy as np
 
-from ..cluster_force_kernel import (cluster_args, finish_parallel, finish_serial, scratch, stiffness_slices_parallel,
-                                   stiffness_slices_serial)
+from ..cluster_force_kernel import cluster_args, scratch, stiffness_slices_parallel, stiffness_slices_serial
 from ..model import Control, FemModel, State
 from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
@@ -26,20 +25,23 @@ from ..warping import VertexFrames, warp_cluster_args, warped_rows_parallel, war
 from .base import StepCommon, StepInfo
 
 
-def _update(n, h, zeta, inv_mass3, f, f_const, rest, u, v, w, warped, limit, refresh):
-    """v += h M^-1 (f + f_const), u += h v; if ``refresh``, w <- the next sub-step's force input (the last
-    sub-step skips it: the next step's _prepare computes w anyway). Returns True while every |u| <= limit.
+def _update(n, h, zeta, inv_mass3, sign, force, xi, mass3, f_const, rest, u, v, w, warped, limit, refresh):
+    """f = sign * force - xi M v; v += h M^-1 (f + f_const), u += h v; if ``refresh``, w <- the next sub-step's
+    force input (the last sub-step skips it: the next step's _prepare computes w anyway). Returns True while
+    every |u| <= limit.
 
-    ``inv_mass3`` is M^-1 per coordinate (3n,), 0 at held vertices, so the first loop runs over flat arrays
-    and vectorizes (1.15 -> 0.80 us on the paper's sphere). A non-finite v reaches u in the same loop
-    (u += h v, also at held vertices: 0 * inf is nan), and a nan fails the comparison, so one flag covers
-    divergence and non-finite values; it is an integer chain, where the float max and nan-probe sum it
-    replaced were serial float chains.
+    The linear sweep leaves K w minus the attachment forces in ``force`` (rows in vertex order, sign -1) and
+    the mass damping to this loop; the warped kernel's force is complete (sign +1, xi 0). ``inv_mass3`` and
+    ``mass3`` are per coordinate (3n), inv_mass3 0 at held vertices, so the loop runs over flat arrays and
+    vectorizes. A non-finite v reaches u in the same loop (u += h v, also at held vertices: 0 * inf is nan),
+    and a nan fails the comparison, so one flag covers divergence and non-finite values; it is an integer
+    chain, where the float max and nan-probe sum it replaced were serial float chains.
     """
-    uf, vf, ff, cf = u.reshape(-1), v.reshape(-1), f.reshape(-1), f_const.reshape(-1)
+    uf, vf, ff, cf = u.reshape(-1), v.reshape(-1), force.reshape(-1), f_const.reshape(-1)
     ok = True
     for k in range(3 * n):
-        vc = vf[k] + h * inv_mass3[k] * (ff[k] + cf[k])
+        f = sign * ff[k] - (xi * mass3[k]) * vf[k]
+        vc = vf[k] + h * inv_mass3[k] * (f + cf[k])
         uc = uf[k] + h * vc
         vf[k] = vc
         uf[k] = uc
@@ -66,11 +68,12 @@ def _prepare(n, zeta, fixed, rest, u, v, w, warped):
     _kernel_input(n, zeta, rest, u, v, w, warped)
 
 
-def _attach(tau, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f):
-    """f += m_i (a* + kp (u* - u) + kd (v* - v)) at the attached vertices, targets advanced by tau."""
+def _attach(tau, sign, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f):
+    """f += sign m_i (a* + kp (u* - u) + kd (v* - v)) at the attached vertices, targets advanced by tau (sign -1:
+    f holds K w, which the update subtracts)."""
     for a in range(att_idx.shape[0]):
         i = att_idx[a]
-        m = mass[i]
+        m = sign * mass[i]
         for c in range(3):
             tu = att_u[a, c] + tau * att_v[a, c] + 0.5 * tau * tau * att_a[a, c]
             tv = att_v[a, c] + tau * att_a[a, c]
@@ -88,36 +91,36 @@ _NO_VEC = np.zeros((0, 3))
 _NO_GAIN = np.zeros(0)
 
 
-def _make_symplectic_euler(stiffness, finish):
+def _make_symplectic_euler(stiffness):
     """The fused step around one build of the linear force kernel (closures: numba inlines the calls), and
     the same step for a body with no attachments.
 
-    ``w`` = u + zeta v is the kernel's input; it is refreshed in the update loop, so a sub-step makes the
-    slice sweep and two passes over the vertices (finish: f = -K w - xi M v in vertex order; update).
-    Returns False if any |u| passed ``limit`` or anything is not finite. The attachment-free variant exists
-    because numba's dispatch costs ~75 ns per array argument: six empty arrays were 0.45 us of a 9 us step
-    on the paper's sphere.
+    ``w`` = u + zeta v is the kernel's input; it is refreshed in the update loop. A sub-step makes the slice
+    sweep, which leaves K w in ``kw`` in vertex order, and one flat pass over the vertices, which finishes the
+    force (-K w - xi M v, plus the attachments, subtracted from kw) inside the update. Returns False if any |u|
+    passed ``limit`` or anything is not finite. The attachment-free variant exists because numba's dispatch
+    costs ~75 ns per array argument: six empty arrays were 0.45 us of a 9 us step on the paper's sphere.
     """
 
-    def symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, slot, kw,
-                         mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
+    def symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner,
+                         mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, kw,
                          att_idx, att_u, att_v, att_a, att_kp, att_kd):
         n = u.shape[0]
         _prepare(n, zeta, fixed, u, u, v, w, False)
         ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
         for s in range(nsub):
-            stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, w, kw)
-            finish(slot, sh_w_at.shape[1], kw, v, mass, xi, f)
-            _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f)
-            ok = _update(n, h, zeta, inv_mass3, f, f_const, u, u, v, w, False, limit, s + 1 < nsub)
+            stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw)
+            _attach(s * h, -1.0, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, kw)
+            ok = _update(n, h, zeta, inv_mass3, -1.0, kw, xi, mass3, f_const, u, u, v, w, False, limit,
+                         s + 1 < nsub)
         return ok
 
     step = numba.njit(**SERIAL)(symplectic_euler)
 
-    def free_symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, slot, kw,
-                              mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f):
-        return step(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, slot, kw,
-                    mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
+    def free_symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner,
+                              mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, kw):
+        return step(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner,
+                    mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, kw,
                     _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
 
     return step, numba.njit(**SERIAL)(free_symplectic_euler)
@@ -129,7 +132,7 @@ def _make_warped_symplectic_euler(force):
 
     def warped_symplectic_euler(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
                                 rest, sh_grad, bd_grad, rot, scratch, how, tmp,
-                                mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
+                                mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
                                 att_idx, att_u, att_v, att_a, att_kp, att_kd):
         n = u.shape[0]
         _prepare(n, zeta, fixed, rest, u, v, w, True)
@@ -137,26 +140,27 @@ def _make_warped_symplectic_euler(force):
         for s in range(nsub):
             force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
                   rest, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, f)
-            _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f)
-            ok = _update(n, h, zeta, inv_mass3, f, f_const, rest, u, v, w, True, limit, s + 1 < nsub)
+            _attach(s * h, 1.0, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f)
+            ok = _update(n, h, zeta, inv_mass3, 1.0, f, 0.0, mass3, f_const, rest, u, v, w, True, limit,
+                         s + 1 < nsub)
         return ok
 
     step = numba.njit(**SERIAL)(warped_symplectic_euler)
 
     def free_warped_symplectic_euler(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
                                      rest, sh_grad, bd_grad, rot, scratch, how, tmp,
-                                     mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f):
+                                     mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f):
         return step(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
                     rest, sh_grad, bd_grad, rot, scratch, how, tmp,
-                    mass, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
+                    mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
                     _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
 
     return step, numba.njit(**SERIAL)(free_warped_symplectic_euler)
 
 
 # (attached, attachment-free) builds, serial and threaded kernels
-_step_serial = _make_symplectic_euler(stiffness_slices_serial, finish_serial)
-_step_parallel = _make_symplectic_euler(stiffness_slices_parallel, finish_parallel)
+_step_serial = _make_symplectic_euler(stiffness_slices_serial)
+_step_parallel = _make_symplectic_euler(stiffness_slices_parallel)
 _warped_step_serial = _make_warped_symplectic_euler(warped_rows_serial)
 _warped_step_parallel = _make_warped_symplectic_euler(warped_rows_parallel)
 
@@ -250,13 +254,14 @@ class ClusteredExplicit:
             self._model_args = warp_cluster_args(model, self.frames) + fixed + work
             self._builds = (_warped_step_serial, _warped_step_parallel)
             self._w = np.zeros((n, 4))
+            self._f = np.empty((n, 3))
         else:
             slices = model.clusters.slices
-            self._w, kw = scratch(slices)     # w rows padded to 4: the kernel loads a row as 32 bytes
-            self._model_args = cluster_args(slices) + (slices.slot, kw)
+            self._w, self._f = scratch(slices)  # w rows padded to 4 (one 32-byte load); f: the sweep's K w rows
+            self._model_args = cluster_args(slices)
             self._builds = (_step_serial, _step_parallel)
         self._step = self._builds[self.threads]
-        self._f = np.empty((n, 3))
+        self._mass3 = np.repeat(model.mass, 3)
         self._inv_mass3 = np.repeat(np.where(model.fixed, 0.0, 1.0 / model.mass), 3)
         self._common = StepCommon(model)
         m = model.material
@@ -293,14 +298,14 @@ class ClusteredExplicit:
             t0 = time.perf_counter()
         step_attached, step_free = self._step
         if att.index.size:
-            ok = step_attached(*self._model_args, self.model.mass, inv_mass3, common.fixed_index, state.u, state.v,
-                               common.constant_forces(control), self._zeta, self._xi, plan.h_sub, plan.substeps,
-                               common.limit, self._w, self._f,
+            ok = step_attached(*self._model_args, self.model.mass, self._mass3, inv_mass3, common.fixed_index,
+                               state.u, state.v, common.constant_forces(control), self._zeta, self._xi,
+                               plan.h_sub, plan.substeps, common.limit, self._w, self._f,
                                att.index, att.target_u, att.target_v, att.target_a, att.kp, att.kd)
         else:
-            ok = step_free(*self._model_args, self.model.mass, inv_mass3, common.fixed_index, state.u, state.v,
-                           common.constant_forces(control), self._zeta, self._xi, plan.h_sub, plan.substeps,
-                           common.limit, self._w, self._f)
+            ok = step_free(*self._model_args, self.model.mass, self._mass3, inv_mass3, common.fixed_index,
+                           state.u, state.v, common.constant_forces(control), self._zeta, self._xi,
+                           plan.h_sub, plan.substeps, common.limit, self._w, self._f)
         if choice is not None:
             choice.record(parallel, time.perf_counter() - t0)
         common.finish(state, h, self.name, checked=ok)
