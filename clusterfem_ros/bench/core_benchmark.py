@@ -28,17 +28,19 @@ History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions 
   per-block gather into C row loads and one transpose per position: the sweep was 3.1-3.3 us on the sphere.
   A C prototype of the same layout (gcc -O3 -march=native, intrinsics) ran 2.9-3.2 us. Storing each
   neighbour as the start of its row of w (4 j) instead of j took the multiply out of the address chain:
-  2.8-2.9 us (the prototype: -8 %; 32-bit offsets gave another ~4 % there, not kept: the kernel would read
-  fewer index bytes than the floor).
-- Where the rest goes: the sweep with w held runs at the stream's speed (0.86-1.01x: it reads no indices),
-  so the blocks' loads and the FMAs cost nothing beyond the read, and what the sweep has over the floor
-  (0.4-0.6x the stream on the paper's shapes) is the gather of w: per position C index loads, C dependent
-  row loads and the transpose. In the C prototype software prefetch of blocks and indices gained 2-4 %, and
-  8-wide hardware gathers (vgatherqpd, from (n, 4) rows or from x, y, z arrays) were slower. Not kept.
-- Once the blocks leave L2 the gather hides behind the memory traffic: sweep/stream 1.5-1.6 at 0.3 MB of
-  blocks, 1.35 at 2.2 MB, 1.07 at 16 MB (the second table).
-- What is left between the sweep and the whole force is per vertex: the w pass (~0.3 us) and the finish
-  (~0.6 us: -xi m_i v_i, and reading each vertex's K w from its slot).
+  2.8-2.9 us. Writing each row's K w to its vertex's row (so that the integrator's update runs over flat
+  arrays) costs 3-8 % of that; the step gained 10-15 %.
+- Where the rest goes: the sweep with w held runs at the stream's speed (0.97-1.04x: it reads no indices),
+  so the blocks' loads, the FMAs and the stores cost nothing beyond the read, and what the sweep has over
+  the floor (0.5-0.7x the stream on the paper's shapes) is the gather of w: per position C index loads, C
+  dependent row loads and the transpose. Not kept, in the C prototype: software prefetch of blocks and
+  indices (2-4 %; nothing in the IR kernel), two slices interleaved (nothing), 8-wide hardware gathers
+  (vgatherqpd, from (n, 4) rows or from x, y, z arrays: slower), 32-bit offsets (~4 %, but the kernel would
+  read fewer index bytes than the floor).
+- Once the blocks leave L2 the gather hides behind the memory traffic: sweep/stream 1.5-1.7 at 0.3 MB of
+  blocks, 1.35-1.4 at 2.2 MB, 1.08 at 16 MB (the second table).
+- What is left between the sweep and the whole force is per vertex: the w pass (~0.3 us) and the flat
+  finish (~0.15 us).
 """
 from __future__ import annotations
 
