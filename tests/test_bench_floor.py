@@ -16,7 +16,7 @@ def test_the_wide_read_sums_every_block_entry_and_index_once(lanes, n_positions)
     bd_blocks = rng.normal(size=(4, 9, lanes))
     exact = sh_blocks.sum() + bd_blocks.sum() + float(sh_cols.sum() + bd_cols.sum())
     for reps in (1, 3):
-        wide = _wide_stream[lanes](sh_cols, sh_blocks, bd_cols, bd_blocks, reps)
+        wide = _wide_stream(sh_cols, sh_blocks, bd_cols, bd_blocks, reps, lanes)
         loop = _stream(sh_cols, sh_blocks, bd_cols, bd_blocks, reps)
         assert wide == pytest.approx(reps * exact, rel=1e-12)
         assert loop == pytest.approx(reps * exact, rel=1e-12)

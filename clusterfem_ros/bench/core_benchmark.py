@@ -54,7 +54,7 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from ..fem.cluster_force_kernel import (cluster_args, force_kernel_serial, scratch, slice_force_held_w,
+from ..fem.cluster_force_kernel import (cluster_args, force_kernel_serial, scratch, stiffness_held_w_serial,
                                         stiffness_slices_serial)
 from ..fem.cluster_slices import aligned_zeros
 from ..fem.numba_config import simd_lanes
@@ -124,36 +124,24 @@ def _wide_sum(typingctx, lanes, a, m):
 
 
 @numba.njit(cache=True)
-def _flat_sum8(a):
-    m = a.shape[0] - a.shape[0] % 32
-    s = _wide_sum(8, a, m)
+def _flat_sum(a, lanes):
+    """The sum of a 1-d array, ``lanes`` (8 or 4) wide, the tail past the last 4 * lanes elements one by one."""
+    m = a.shape[0] - a.shape[0] % (4 * lanes)
+    s = _wide_sum(8, a, m) if lanes == 8 else _wide_sum(4, a, m)
     for k in range(m, a.shape[0]):
         s += a[k]
     return s
 
 
 @numba.njit(cache=True)
-def _flat_sum4(a):
-    m = a.shape[0] - a.shape[0] % 16
-    s = _wide_sum(4, a, m)
-    for k in range(m, a.shape[0]):
-        s += a[k]
-    return s
-
-
-def _make_wide_stream(flat_sum):
-    def wide_stream(sh_cols, sh_blocks, bd_cols, bd_blocks, reps):
-        """The bare read of _stream, 4 accumulators of C-wide vectors (C = the kernel's lanes)."""
-        s = 0.0
-        t = 0
-        for _ in range(reps):
-            s += flat_sum(sh_blocks.reshape(-1)) + flat_sum(bd_blocks.reshape(-1))
-            t += flat_sum(sh_cols.reshape(-1)) + flat_sum(bd_cols.reshape(-1))
-        return s + t
-    return numba.njit(cache=True)(wide_stream)
-
-
-_wide_stream = {8: _make_wide_stream(_flat_sum8), 4: _make_wide_stream(_flat_sum4)}
+def _wide_stream(sh_cols, sh_blocks, bd_cols, bd_blocks, reps, lanes):
+    """The bare read of _stream, in four accumulators of ``lanes``-wide vectors (the kernel's lanes)."""
+    s = 0.0
+    t = 0
+    for _ in range(reps):
+        s += _flat_sum(sh_blocks.reshape(-1), lanes) + _flat_sum(bd_blocks.reshape(-1), lanes)
+        t += _flat_sum(sh_cols.reshape(-1), lanes) + _flat_sum(bd_cols.reshape(-1), lanes)
+    return s + t
 
 
 @numba.njit(cache=True, fastmath={"reassoc", "contract", "nsz", "arcp"})
@@ -186,23 +174,10 @@ def _sweep_loop(a0, a1, a2, a3, a4, owner, w, kw, reps):
 
 
 @numba.njit(cache=True)
-def _held_w_loop(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw, reps):
-    """The serial sweep's loop (cluster_force_kernel._stiffness_slices_kernel) with w held at row 0: the same
-    block loads and FMAs without the gather of w."""
-    ns = sh_ptr.shape[0] - 1
-    lanes = sh_w_at.shape[1]
+def _held_w_loop(a0, a1, a2, a3, a4, owner, w, kw, reps):
+    """The serial sweep with w held at row 0: the same block loads, FMAs and stores without the gather of w."""
     for _ in range(reps):
-        for s in range(ns + bd_w_at.shape[0] // 4):
-            if s < ns:
-                p0, p1, w_at, blocks = sh_ptr[s], sh_ptr[s + 1], sh_w_at, sh_blocks
-            else:
-                p0, p1, w_at, blocks = 4 * (s - ns), 4 * (s - ns) + 4, bd_w_at, bd_blocks
-            if lanes == 8:
-                slice_force_held_w(8, s, p0, p1, w_at, blocks, w, owner, kw)
-            elif lanes == 4:
-                slice_force_held_w(4, s, p0, p1, w_at, blocks, w, owner, kw)
-            else:
-                slice_force_held_w(2, s, p0, p1, w_at, blocks, w, owner, kw)
+        stiffness_held_w_serial(a0, a1, a2, a3, a4, owner, w, kw)
 
 
 def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
@@ -229,7 +204,7 @@ def kernel_vs_stream(model, reps: int = 200) -> dict[str, float]:
     f = np.empty((n, 3))
     mass3 = np.repeat(model.mass, 3)
     args = cluster_args(sl)
-    wide = _wide_stream[8 if sl.lanes == 8 else 4]
+    lanes = 8 if sl.lanes == 8 else 4
     aligned = tuple(aligned_copy(a) for a in (cl.shared_cols, cl.shared_blocks, cl.boundary_cols, cl.boundary_blocks))
     sliced = (sl.shared_w_at.reshape(-1), sl.shared_blocks, sl.boundary_w_at.reshape(-1), sl.boundary_blocks)
     per_call = lambda fn: median_seconds(fn) / reps  # noqa: E731
@@ -237,8 +212,8 @@ def kernel_vs_stream(model, reps: int = 200) -> dict[str, float]:
         "kernel": per_call(lambda: _force_loop(*args, u, v, mass3, 1e-3, 1.0, w, kw, f, reps)),
         "sweep": per_call(lambda: _sweep_loop(*args, w, kw, reps)),
         "held": per_call(lambda: _held_w_loop(*args, w, kw, reps)),
-        "stream": min(per_call(lambda: _stream(*aligned, reps)), per_call(lambda: wide(*aligned, reps))),
-        "stream_slices": min(per_call(lambda: _stream(*sliced, reps)), per_call(lambda: wide(*sliced, reps))),
+        "stream": min(per_call(lambda: _stream(*aligned, reps)), per_call(lambda: _wide_stream(*aligned, reps, lanes))),
+        "stream_slices": min(per_call(lambda: _stream(*sliced, reps)), per_call(lambda: _wide_stream(*sliced, reps, lanes))),
     }
 
 

@@ -169,29 +169,43 @@ _slice_force = _slice_force_intrinsic(gather=True)
 slice_force_held_w = _slice_force_intrinsic(gather=False)
 
 
-def _stiffness_slices_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
-    """kw[i] <- (K w)_i for every vertex i (rows past n: the padding lanes', zero): shared slices, then boundary
-    slices of four positions, in one loop (one parallel region when threaded)."""
-    if w.shape[1] != W_ROW:
-        raise ValueError("the cluster force kernel needs w with 4 columns (x, y, z, padding)")
-    if kw.shape[0] != owner.shape[0] or kw.shape[1] != 3:
-        raise ValueError("the cluster force kernel needs kw with a row of 3 per lane of the slices (scratch())")
-    lanes = sh_w_at.shape[1]
-    ns = sh_ptr.shape[0] - 1
-    for s in prange(ns + bd_w_at.shape[0] // 4):
-        if s < ns:
-            p0, p1, w_at, blocks = sh_ptr[s], sh_ptr[s + 1], sh_w_at, sh_blocks
-        else:
-            p0, p1, w_at, blocks = 4 * (s - ns), 4 * (s - ns) + 4, bd_w_at, bd_blocks
-        if lanes == 8:
-            _slice_force(8, s, p0, p1, w_at, blocks, w, owner, kw)
-        elif lanes == 4:
-            _slice_force(4, s, p0, p1, w_at, blocks, w, owner, kw)
-        else:
-            _slice_force(2, s, p0, p1, w_at, blocks, w, owner, kw)
+def _make_stiffness_kernel(slice_force):
+    """The sweep over every slice around one build of the slice kernel (the benchmark's control has its own)."""
+
+    def _stiffness_slices_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
+        """kw[i] <- (K w)_i for every vertex i (rows past n: the padding lanes', zero): shared slices, then
+        boundary slices of four positions, in one loop (one parallel region when threaded)."""
+        if w.shape[1] != W_ROW:
+            raise ValueError("the cluster force kernel needs w with 4 columns (x, y, z, padding)")
+        if kw.shape[0] != owner.shape[0] or kw.shape[1] != 3:
+            raise ValueError("the cluster force kernel needs kw with a row of 3 per lane of the slices (scratch())")
+        lanes = sh_w_at.shape[1]
+        ns = sh_ptr.shape[0] - 1
+        for s in prange(ns + bd_w_at.shape[0] // 4):
+            if s < ns:
+                p0, p1, w_at, blocks = sh_ptr[s], sh_ptr[s + 1], sh_w_at, sh_blocks
+            else:
+                p0, p1, w_at, blocks = 4 * (s - ns), 4 * (s - ns) + 4, bd_w_at, bd_blocks
+            if lanes == 8:
+                slice_force(8, s, p0, p1, w_at, blocks, w, owner, kw)
+            elif lanes == 4:
+                slice_force(4, s, p0, p1, w_at, blocks, w, owner, kw)
+            else:
+                slice_force(2, s, p0, p1, w_at, blocks, w, owner, kw)
+
+    return _stiffness_slices_kernel
 
 
+def _held_w_kernel():
+    """The serial sweep with w held at row 0 (bench/core_benchmark.py's control: no gather of w)."""
+    fn = _make_stiffness_kernel(slice_force_held_w)
+    fn.__qualname__ = "stiffness_held_w"       # numba's cache keys by qualified name: not the real sweep's
+    return numba.njit(**SERIAL)(fn)
+
+
+_stiffness_slices_kernel = _make_stiffness_kernel(_slice_force)
 stiffness_slices_serial, stiffness_slices_parallel = serial_and_parallel(_stiffness_slices_kernel)
+stiffness_held_w_serial = _held_w_kernel()
 
 
 def _finish_kernel(kw, v, mass3, xi, out):
