@@ -252,6 +252,11 @@ def main(args=None) -> None:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # SIGINT/SIGTERM shut the context down from the signal handler; a timer callback already under way
+        # then fails to publish ("publisher's context is invalid"). That is the shutdown, not an error.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.close()
