@@ -10,12 +10,13 @@ The floor is the faster of two bare reads of 64-byte-aligned copies of the clust
 numba's own loop, which LLVM vectorizes 4 wide on this host (it prefers 256-bit vectors on AVX-512 parts), and
 an IR loop as wide as the kernel's vectors (8 doubles). While the blocks sit in L2 (the paper's sizes) the
 8-wide read is 10-12 % faster; from 2 MB of blocks on the two are equal. Until 2026-11-23 evening the floor
-was the 4-wide read alone, which made the sweep look 1.45-1.53x the stream; it is 1.6-1.75x the 8-wide one.
+was the 4-wide read alone, which made the sweep of then look 1.45-1.53x the stream; it was 1.6-1.75x the
+8-wide one.
 (numpy gives the arrays 16-byte alignment, over which the stream ran up to 1.7x slower on this host.)
 'kernel' is the whole force the integrator needs, f = -K (u + zeta v) - xi M v: the w pass, the sweep over the
 blocks and the finish in vertex order (cluster_force_kernel.force_kernel_serial). 'sweep' is the pass over
 the block data alone (stiffness_slices_serial). 'w held' is the sweep with w held at one row: the same block
-loads and FMAs without the gather of w (and without reading the indices).
+loads, FMAs and stores without the gather of w (and without reading the indices).
 
 History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions ran on a Zen 1):
 - The row kernel (one cluster row at a time, the nine products of a block in 4-wide FMAs, w[j] gathered
@@ -30,7 +31,7 @@ History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions 
   neighbour as the start of its row of w (4 j) instead of j took the multiply out of the address chain:
   2.8-2.9 us. Writing each row's K w to its vertex's row (so that the integrator's update runs over flat
   arrays) costs 3-8 % of that; the step gained 10-15 %.
-- Where the rest goes: the sweep with w held runs at the stream's speed (0.97-1.04x: it reads no indices),
+- Where the rest goes: the sweep with w held runs at the stream's speed (0.97-1.09x: it reads no indices),
   so the blocks' loads, the FMAs and the stores cost nothing beyond the read, and what the sweep has over
   the floor (0.5-0.7x the stream on the paper's shapes) is the gather of w: per position C index loads, C
   dependent row loads and the transpose. Not kept, in the C prototype: software prefetch of blocks and
@@ -57,7 +58,6 @@ from numba.extending import intrinsic
 from ..fem.cluster_force_kernel import (cluster_args, force_kernel_serial, scratch, stiffness_held_w_serial,
                                         stiffness_slices_serial)
 from ..fem.cluster_slices import aligned_zeros
-from ..fem.numba_config import simd_lanes
 from ..fem.integrators import make_integrator
 from ..fem.material import Material
 from ..fem.model import Control, State, build_model
@@ -212,8 +212,10 @@ def kernel_vs_stream(model, reps: int = 200) -> dict[str, float]:
         "kernel": per_call(lambda: _force_loop(*args, u, v, mass3, 1e-3, 1.0, w, kw, f, reps)),
         "sweep": per_call(lambda: _sweep_loop(*args, w, kw, reps)),
         "held": per_call(lambda: _held_w_loop(*args, w, kw, reps)),
-        "stream": min(per_call(lambda: _stream(*aligned, reps)), per_call(lambda: _wide_stream(*aligned, reps, lanes))),
-        "stream_slices": min(per_call(lambda: _stream(*sliced, reps)), per_call(lambda: _wide_stream(*sliced, reps, lanes))),
+        "stream": min(per_call(lambda: _stream(*aligned, reps)),
+                      per_call(lambda: _wide_stream(*aligned, reps, lanes))),
+        "stream_slices": min(per_call(lambda: _stream(*sliced, reps)),
+                             per_call(lambda: _wide_stream(*sliced, reps, lanes))),
     }
 
 
@@ -289,13 +291,14 @@ def main(argv: list[str] | None = None) -> int:
         if name == "sphere":
             ok &= r["standard_explicit"] / c >= 2 and r["implicit_direct"] / c >= 20
     print(table(["mesh", "verts", "tets", "clustered ms/step", "sub-steps", "margin", "standard explicit",
-                 "implicit direct", "implicit CG", "kernel/stream us", "sweep/stream us", "sweep, w held us", "stream over slices us", "paper std/clust/modal ms"],
+                 "implicit direct", "implicit CG", "kernel/stream us", "sweep/stream us", "sweep, w held us",
+                 "stream over slices us", "paper std/clust/modal ms"],
                 rows))
     print("ratios in brackets: method time / clustered time (higher = clustered faster). "
           "kernel/stream: the whole clustered force (w, slice sweep, finish) against a bare read of the "
           "clusters' blocks and indices, 64-byte aligned, the faster of a 4- and an 8-wide read (the floor); "
-          "sweep/stream: the pass over the blocks alone; 'w held': the sweep without gathering w (same loads of "
-          "blocks, same FMAs), its ratio to the stream in brackets; 'over slices': the bare read of the "
+          "sweep/stream: the pass over the blocks alone; 'w held': the sweep without gathering w (same block loads, "
+          "FMAs and stores), its ratio to the stream in brackets; 'over slices': the bare read of the "
           "kernel's padded slices.")
     print(f"sphere targets (>= 2x standard explicit, >= 20x implicit direct): {'met' if ok else 'NOT met'}")
     worst = max(rows_raw, key=lambda r: r["sweep"] / r["stream"])

@@ -170,7 +170,8 @@ slice_force_held_w = _slice_force_intrinsic(gather=False)
 
 
 def _make_stiffness_kernel(slice_force):
-    """The sweep over every slice around one build of the slice kernel (the benchmark's control has its own)."""
+    """The sweep over every slice around one build of the slice kernel (the real one, or the benchmark's
+    control that holds w)."""
 
     def _stiffness_slices_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
         """kw[i] <- (K w)_i for every vertex i (rows past n: the padding lanes', zero): shared slices, then
