@@ -51,14 +51,18 @@ def test_signal_finalises_the_recording(tmp_path, sig):
     assert {"/clusterfem/surface", "/diagnostics"} <= topics and n >= 10
 
 
-def test_a_callback_racing_the_shutdown_is_not_an_error_but_a_real_error_is(monkeypatch):
+@pytest.mark.parametrize("module, node_class", [("clusterfem_node", "ClusterFemNode"), ("player_node", "MocapPlayer")])
+def test_a_callback_racing_the_shutdown_is_not_an_error_but_a_real_error_is(monkeypatch, module, node_class):
     """SIGTERM shuts the context down from the signal handler; a timer callback already running then fails to
     publish (seen once in six full test runs on 2026-11-23: exit code 1 and a traceback after 'recording
-    finalised'). main() must treat that as the shutdown it is, close the node, and still raise real errors."""
+    finalised'). Each node's main() must treat that as the shutdown it is, close the node, and still raise
+    real errors."""
+    import importlib
+
     import rclpy
     from rclpy.node import Node
     from std_msgs.msg import String
-    from clusterfem_ros.nodes import clusterfem_node
+    nodes = importlib.import_module(f"clusterfem_ros.nodes.{module}")
 
     made = []
 
@@ -66,25 +70,29 @@ def test_a_callback_racing_the_shutdown_is_not_an_error_but_a_real_error_is(monk
         def __init__(self):
             super().__init__("tiny")
             self.pub = self.create_publisher(String, "late", 1)
-            self.closed = False
+            self.destroyed = False
             made.append(self)
 
         def close(self):
-            self.closed = True
+            pass
+
+        def destroy_node(self):
+            self.destroyed = True
+            return super().destroy_node()
 
     def spin_into_the_shutdown(node):
         rclpy.shutdown()                         # what the SIGTERM handler does
         node.pub.publish(String(data="late"))    # the callback already under way
 
-    monkeypatch.setattr(clusterfem_node, "ClusterFemNode", Tiny)
-    monkeypatch.setattr(clusterfem_node.rclpy, "spin", spin_into_the_shutdown)
-    clusterfem_node.main(args=[])
-    assert made[-1].closed
+    monkeypatch.setattr(nodes, node_class, Tiny)
+    monkeypatch.setattr(rclpy, "spin", spin_into_the_shutdown)
+    nodes.main(args=[])
+    assert made[-1].destroyed
 
     def spin_into_a_bug(node):
         raise RuntimeError("a bug in a callback")
 
-    monkeypatch.setattr(clusterfem_node.rclpy, "spin", spin_into_a_bug)
+    monkeypatch.setattr(rclpy, "spin", spin_into_a_bug)
     with pytest.raises(RuntimeError, match="a bug in a callback"):
-        clusterfem_node.main(args=[])
-    assert made[-1].closed and not rclpy.ok()
+        nodes.main(args=[])
+    assert made[-1].destroyed and not rclpy.ok()

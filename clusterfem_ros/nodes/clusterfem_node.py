@@ -11,7 +11,6 @@ import time
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.serialization import deserialize_message, serialize_message
@@ -28,6 +27,7 @@ from msg_adapters.pointcloud import stress_cloud_cdr
 from ..fem.stability import DivergenceError, StabilityError
 from ..scene import Scene
 from .params import declare_scene_parameters
+from .spinning import spin_until_shutdown
 
 SURFACE_TOPIC, STRESS_TOPIC, DIAG_TOPIC, JOINTS_TOPIC = "clusterfem/surface", "clusterfem/stress", "/diagnostics", "joint_states"
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -249,14 +249,7 @@ def main(args=None) -> None:
     node = None
     try:
         node = ClusterFemNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # SIGINT/SIGTERM shut the context down from the signal handler; a timer callback already under way
-        # then fails to publish ("publisher's context is invalid"). That is the shutdown, not an error.
-        if rclpy.ok():
-            raise
+        spin_until_shutdown(node)
     finally:
         if node is not None:
             node.close()

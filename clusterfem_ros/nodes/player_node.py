@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -13,6 +12,7 @@ from std_msgs.msg import String
 from msg_adapters.joint_state import joint_state_cdr
 
 from ..motion import load_motion
+from .spinning import spin_until_shutdown
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -70,9 +70,7 @@ def main(args=None) -> None:
     node = None
     try:
         node = MocapPlayer()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_until_shutdown(node)
     finally:
         if node is not None:
             node.destroy_node()
