@@ -132,6 +132,28 @@ def test_threaded_and_serial_clustered_steps_are_bit_identical(warp):
     assert np.array_equal(a.u, b.u) and np.array_equal(a.v, b.v)
 
 
+@pytest.mark.parametrize("warp", [False, True])
+def test_the_benchmarks_compiled_step_is_the_step(warp):
+    """bench/core_benchmark times ClusteredExplicit.compiled_step without Python: calling it must advance the
+    state exactly as step() does, and it refuses what it does not cover (attachments)."""
+    mesh = paper_mesh("sphere")
+    model = build_model(mesh, MAT, fixed=mesh.vertices[:, 2] < mesh.vertices[:, 2].min() + 0.02)
+    control = Control()                     # gravity is the model's
+    a, b = State.rest(model), State.rest(model)
+    stepper = make_integrator("clustered", model, threads=False, warp=warp)
+    other = make_integrator("clustered", model, threads=False, warp=warp, lam_max=stepper.lam_max)
+    for _ in range(20):
+        stepper.step(a, control, 2e-3)
+        fn, args = other.compiled_step(b, control, 2e-3)
+        assert fn(*args)
+    assert np.abs(a.u).max() > 1e-5
+    assert np.array_equal(a.u, b.u) and np.array_equal(a.v, b.v)
+    idx = np.array([0])
+    att = Attachments(idx, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3)), np.ones(1), np.ones(1))
+    with pytest.raises(ValueError, match="without attachments"):
+        other.compiled_step(b, Control(attachments=att), 2e-3)
+
+
 def test_thread_choice_keeps_the_faster_build_and_leaves_threads_when_a_core_is_taken():
     from clusterfem_ros.fem.integrators.clustered_explicit import ThreadChoice
     c = ThreadChoice()

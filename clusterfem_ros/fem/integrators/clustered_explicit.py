@@ -283,6 +283,19 @@ class ClusteredExplicit:
             self._plan_key = key
         return self._plan
 
+    def compiled_step(self, state: State, control: Control, h: float) -> tuple:
+        """(function, arguments) of one step's compiled part for a body without attachments or prescribed
+        vertices, serial build: what ``step`` calls after its Python bookkeeping (bench/core_benchmark.py times
+        it inside numba, without the dispatch)."""
+        if control.attachments.index.size or control.prescribed_index.size:
+            raise ValueError("compiled_step covers bodies without attachments or prescribed vertices")
+        plan = self._plan_for(h, control)
+        common = self._common
+        return self._builds[False][1], (*self._model_args, self.model.mass, self._mass3, self._inv_mass3,
+                                        common.fixed_index, state.u, state.v, common.constant_forces(control),
+                                        self._zeta, self._xi, plan.h_sub, plan.substeps, common.limit, self._w,
+                                        self._f)
+
     def step(self, state: State, control: Control, h: float) -> StepInfo:
         plan = self._plan_for(h, control)
         common = self._common
