@@ -57,8 +57,8 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from ..fem.cluster_force_kernel import (cluster_args, force_kernel_serial, scratch, stiffness_held_w_serial,
-                                        stiffness_slices_serial)
+from ..fem.cluster_force_kernel import (accumulating_loop, cluster_args, force_kernel_serial, scratch,
+                                        stiffness_held_w_serial, stiffness_slices_serial)
 from ..fem.cluster_slices import aligned_zeros
 from ..fem.integrators import make_integrator
 from ..fem.material import Material
@@ -89,33 +89,14 @@ def _wide_sum(typingctx, lanes, a, m):
         data = context.make_array(signature.args[1])(context, builder, args[1]).data
         m = context.cast(builder, args[2], signature.args[2], types.int64)
         i64 = ir.IntType(64)
-        entry = builder.basic_block
-        loop = builder.function.append_basic_block("sum.loop")
-        done = builder.function.append_basic_block("sum.done")
         zero = ir.Constant(vt, [0.0 if is_float else 0] * C)
-        builder.cbranch(builder.icmp_signed("<", ir.Constant(i64, 0), m), loop, done)
-        builder.position_at_end(loop)
-        k = builder.phi(i64)
-        k.add_incoming(ir.Constant(i64, 0), entry)
-        acc = [builder.phi(vt) for _ in range(4)]
-        new = []
-        for a_k, j in zip(acc, range(4)):
-            a_k.add_incoming(zero, entry)
-            at = builder.bitcast(builder.gep(data, [builder.add(k, ir.Constant(i64, j * C))]), vt.as_pointer())
-            new.append(add(a_k, builder.load(at, align=8)))
-        k_next = builder.add(k, ir.Constant(i64, 4 * C))
-        end = builder.basic_block
-        k.add_incoming(k_next, end)
-        for a_k, val in zip(acc, new):
-            a_k.add_incoming(val, end)
-        builder.cbranch(builder.icmp_signed("<", k_next, m), loop, done)
-        builder.position_at_end(done)
-        totals = []
-        for val in new:
-            t = builder.phi(vt)
-            t.add_incoming(zero, entry)
-            t.add_incoming(val, end)
-            totals.append(t)
+
+        def four_vectors(k, acc):
+            at = [builder.bitcast(builder.gep(data, [builder.add(k, ir.Constant(i64, j * C))]), vt.as_pointer())
+                  for j in range(4)]
+            return [add(a_k, builder.load(p, align=8)) for a_k, p in zip(acc, at)]
+
+        totals = accumulating_loop(builder, ir.Constant(i64, 0), m, 4 * C, [zero] * 4, four_vectors)
         v = add(add(totals[0], totals[1]), add(totals[2], totals[3]))
         out = builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
         for lane in range(1, C):

@@ -49,6 +49,38 @@ def _vector_at(builder, p, offset, vtype):
     return builder.bitcast(builder.gep(p, [offset]), vtype.as_pointer())
 
 
+def accumulating_loop(builder, start, stop, step, zeros, body):
+    """LLVM IR for ``accs = zeros; for i in range(start, stop, step): accs = body(i, accs)``; returns the final
+    accumulators (the zeros when the range is empty). start, stop: i64 values; step: a Python int; body gets
+    the i64 index and the accumulators' current values and returns their next values. Shared by the slice
+    kernel and the benchmark's wide read (bench/core_benchmark.py)."""
+    entry = builder.basic_block
+    loop = builder.function.append_basic_block("acc.loop")
+    done = builder.function.append_basic_block("acc.done")
+    builder.cbranch(builder.icmp_signed("<", start, stop), loop, done)
+    builder.position_at_end(loop)
+    i = builder.phi(_I64)
+    i.add_incoming(start, entry)
+    accs = [builder.phi(z.type) for z in zeros]
+    for a, z in zip(accs, zeros):
+        a.add_incoming(z, entry)
+    new = body(i, accs)
+    i_next = builder.add(i, _k(step))
+    loop_end = builder.basic_block
+    i.add_incoming(i_next, loop_end)
+    for a, val in zip(accs, new):
+        a.add_incoming(val, loop_end)
+    builder.cbranch(builder.icmp_signed("<", i_next, stop), loop, done)
+    builder.position_at_end(done)
+    totals = []
+    for z, val in zip(zeros, new):
+        total = builder.phi(z.type)
+        total.add_incoming(z, entry)
+        total.add_incoming(val, loop_end)
+        totals.append(total)
+    return totals
+
+
 def _transpose(builder, rows):
     """C rows (x, y, z, pad) of <4 x double> -> the C x's, y's and z's as three <C x double>."""
     level = rows
@@ -112,48 +144,31 @@ def _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, owner, out):
         wp = builder.bitcast(data(6).data, _F64.as_pointer())
         ownp = data(7).data
         outp = builder.bitcast(data(8).data, _F64.as_pointer())
-        fn = builder.function
-        entry = builder.basic_block
-        loop = fn.append_basic_block("slice.loop")
-        done = fn.append_basic_block("slice.done")
         zero = ir.Constant(VC, [0.0] * C)
         if not gather:                          # row 0 of w in every lane, loaded once
             held = _transpose(builder, [builder.load(_vector_at(builder, wp, _k(0), _V4), align=8)] * C)
-        builder.cbranch(builder.icmp_signed("<", p0v, p1v), loop, done)
-        builder.position_at_end(loop)
-        p = builder.phi(_I64)
-        p.add_incoming(p0v, entry)
-        acc = [builder.phi(VC) for _ in range(3)]
-        for a in acc:
-            a.add_incoming(zero, entry)
-        if gather:
-            first = builder.mul(p, _k(C))
-            rows = []
-            for lane in range(C):
-                at = builder.load(builder.gep(atp, [builder.add(first, _k(lane))]), align=8)
-                rows.append(builder.load(_vector_at(builder, wp, at, _V4), align=8))
-            wxyz = _transpose(builder, rows)
-        else:
-            wxyz = held
-        first_entry = builder.mul(p, _k(9 * C))
-        new = []
-        for r in range(3):                      # row r of the C blocks: entries (r, 0..2)
-            a = acc[r]
-            for c in range(3):
-                e = builder.load(_vector_at(builder, blkp, builder.add(first_entry, _k((3 * r + c) * C)), VC), align=8)
-                a = _fma(builder, e, wxyz[c], a)
-            new.append(a)
-        p_next = builder.add(p, _k(1))
-        loop_end = builder.basic_block
-        p.add_incoming(p_next, loop_end)
-        for a, val in zip(acc, new):
-            a.add_incoming(val, loop_end)
-        builder.cbranch(builder.icmp_signed("<", p_next, p1v), loop, done)
-        builder.position_at_end(done)
-        totals = [builder.phi(VC) for _ in range(3)]
-        for total, val in zip(totals, new):
-            total.add_incoming(zero, entry)
-            total.add_incoming(val, loop_end)
+
+        def position(p, acc):
+            if gather:
+                first = builder.mul(p, _k(C))
+                rows = []
+                for lane in range(C):
+                    at = builder.load(builder.gep(atp, [builder.add(first, _k(lane))]), align=8)
+                    rows.append(builder.load(_vector_at(builder, wp, at, _V4), align=8))
+                wxyz = _transpose(builder, rows)
+            else:
+                wxyz = held
+            first_entry = builder.mul(p, _k(9 * C))
+            new = []
+            for r in range(3):                  # row r of the C blocks: entries (r, 0..2)
+                a = acc[r]
+                for c in range(3):
+                    at = builder.add(first_entry, _k((3 * r + c) * C))
+                    a = _fma(builder, builder.load(_vector_at(builder, blkp, at, VC), align=8), wxyz[c], a)
+                new.append(a)
+            return new
+
+        totals = accumulating_loop(builder, p0v, p1v, 1, [zero] * 3, position)
         first_lane = builder.mul(sv, _k(C))       # lane l's sums go to row owner[C s + l], x, y, z
         for lane in range(C):
             row = builder.mul(builder.load(builder.gep(ownp, [builder.add(first_lane, _k(lane))]), align=8), _k(3))
