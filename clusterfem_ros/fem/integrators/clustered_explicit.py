@@ -283,18 +283,20 @@ class ClusteredExplicit:
             self._plan_key = key
         return self._plan
 
+    def _step_args(self, state: State, control: Control, plan, inv_mass3: np.ndarray) -> tuple:
+        """The compiled step's arguments up to the attachments (its attachment-free build takes just these)."""
+        common = self._common
+        return (*self._model_args, self.model.mass, self._mass3, inv_mass3, common.fixed_index, state.u, state.v,
+                common.constant_forces(control), self._zeta, self._xi, plan.h_sub, plan.substeps, common.limit,
+                self._w, self._f)
+
     def compiled_step(self, state: State, control: Control, h: float) -> tuple:
         """(function, arguments) of one step's compiled part for a body without attachments or prescribed
         vertices, serial build: what ``step`` calls after its Python bookkeeping (bench/core_benchmark.py times
         it inside numba, without the dispatch)."""
         if control.attachments.index.size or control.prescribed_index.size:
             raise ValueError("compiled_step covers bodies without attachments or prescribed vertices")
-        plan = self._plan_for(h, control)
-        common = self._common
-        return self._builds[False][1], (*self._model_args, self.model.mass, self._mass3, self._inv_mass3,
-                                        common.fixed_index, state.u, state.v, common.constant_forces(control),
-                                        self._zeta, self._xi, plan.h_sub, plan.substeps, common.limit, self._w,
-                                        self._f)
+        return self._builds[False][1], self._step_args(state, control, self._plan_for(h, control), self._inv_mass3)
 
     def step(self, state: State, control: Control, h: float) -> StepInfo:
         plan = self._plan_for(h, control)
@@ -310,15 +312,11 @@ class ClusteredExplicit:
             self._step = self._builds[parallel]
             t0 = time.perf_counter()
         step_attached, step_free = self._step
+        args = self._step_args(state, control, plan, inv_mass3)
         if att.index.size:
-            ok = step_attached(*self._model_args, self.model.mass, self._mass3, inv_mass3, common.fixed_index,
-                               state.u, state.v, common.constant_forces(control), self._zeta, self._xi,
-                               plan.h_sub, plan.substeps, common.limit, self._w, self._f,
-                               att.index, att.target_u, att.target_v, att.target_a, att.kp, att.kd)
+            ok = step_attached(*args, att.index, att.target_u, att.target_v, att.target_a, att.kp, att.kd)
         else:
-            ok = step_free(*self._model_args, self.model.mass, self._mass3, inv_mass3, common.fixed_index,
-                           state.u, state.v, common.constant_forces(control), self._zeta, self._xi,
-                           plan.h_sub, plan.substeps, common.limit, self._w, self._f)
+            ok = step_free(*args)
         if choice is not None:
             choice.record(parallel, time.perf_counter() - t0)
         common.finish(state, h, self.name, checked=ok)
