@@ -88,7 +88,8 @@ class ClusterSlices:
 def _fill(rows: np.ndarray, lengths: np.ndarray, first: np.ndarray, cols: np.ndarray, blocks: np.ndarray,
           lanes: int, slice_start: np.ndarray, n_positions: int) -> tuple[np.ndarray, np.ndarray]:
     """Scatter rows (vertex ``rows[r]``, blocks first[r]..first[r]+lengths[r]) into lanes r % C of slices r // C,
-    slice s starting at position slice_start[s]. Unused entries: zero block, the lane's own vertex."""
+    slice s starting at position slice_start[s]. Unused entries: zero block, the lane's own vertex (vertex 0 in
+    the lanes past the last row)."""
     n_rows = len(rows)
     own = np.zeros(-(-n_rows // lanes) * lanes, np.int64)
     own[:n_rows] = rows
@@ -126,11 +127,10 @@ def slice_clusters(cl: Clusters, lanes: int) -> ClusterSlices:
                                4 * np.arange(n_bd_slices, dtype=np.int64), 4 * n_bd_slices)
 
     n_lanes = (n_sh_slices + n_bd_slices) * lanes
-    vertex = np.full(n_lanes, -1, np.int64)                         # vertex of every lane, -1 = padding
-    vertex[:n_sh] = cl.shared_rows[order]
-    vertex[n_sh_slices * lanes:n_sh_slices * lanes + n_bd] = cl.boundary_rows
-    padding = vertex < 0
-    owner = vertex.copy()
+    owner = np.full(n_lanes, -1, np.int64)                          # vertex of every lane, then the padding's
+    owner[:n_sh] = cl.shared_rows[order]
+    owner[n_sh_slices * lanes:n_sh_slices * lanes + n_bd] = cl.boundary_rows
+    padding = owner < 0
     owner[padding] = cl.n_vertices + np.arange(int(padding.sum()))
     return ClusterSlices(lanes=lanes, n_vertices=cl.n_vertices, shared_ptr=shared_ptr, shared_w_at=W_ROW * sh_cols,
                          shared_blocks=sh_blocks, boundary_w_at=W_ROW * bd_cols, boundary_blocks=bd_blocks, owner=owner)
