@@ -48,6 +48,7 @@ History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions 
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 
 import numba
@@ -144,23 +145,15 @@ def _stream(sh_cols, sh_blocks, bd_cols, bd_blocks, reps):
     return s
 
 
-@numba.njit(cache=True)
-def _force_loop(a0, a1, a2, a3, a4, owner, u, v, m, zeta, xi, w, kw, f, reps):
-    for _ in range(reps):
-        force_kernel_serial(a0, a1, a2, a3, a4, owner, u, v, m, zeta, xi, w, kw, f)
-
-
-@numba.njit(cache=True)
-def _sweep_loop(a0, a1, a2, a3, a4, owner, w, kw, reps):
-    for _ in range(reps):
-        stiffness_slices_serial(a0, a1, a2, a3, a4, owner, w, kw)
-
-
-@numba.njit(cache=True)
-def _held_w_loop(a0, a1, a2, a3, a4, owner, w, kw, reps):
-    """The serial sweep with w held at row 0: the same block loads, FMAs and stores without the gather of w."""
-    for _ in range(reps):
-        stiffness_held_w_serial(a0, a1, a2, a3, a4, owner, w, kw)
+@functools.lru_cache(maxsize=None)
+def _inside_numba(fn):
+    """A compiled loop that calls ``fn(*args)`` reps times: its time per call has no Python dispatch in it.
+    One loop per function (numba compiles it once per argument types)."""
+    @numba.njit
+    def loop(args, reps):
+        for _ in range(reps):
+            fn(*args)
+    return loop
 
 
 def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
@@ -191,10 +184,15 @@ def kernel_vs_stream(model, reps: int = 200) -> dict[str, float]:
     aligned = tuple(aligned_copy(a) for a in (cl.shared_cols, cl.shared_blocks, cl.boundary_cols, cl.boundary_blocks))
     sliced = (sl.shared_w_at.reshape(-1), sl.shared_blocks, sl.boundary_w_at.reshape(-1), sl.boundary_blocks)
     per_call = lambda fn: median_seconds(fn) / reps  # noqa: E731
+
+    def compiled(fn, *fn_args):
+        loop = _inside_numba(fn)
+        return per_call(lambda: loop(fn_args, reps))
+
     return {
-        "kernel": per_call(lambda: _force_loop(*args, u, v, mass3, 1e-3, 1.0, w, kw, f, reps)),
-        "sweep": per_call(lambda: _sweep_loop(*args, w, kw, reps)),
-        "held": per_call(lambda: _held_w_loop(*args, w, kw, reps)),
+        "kernel": compiled(force_kernel_serial, *args, u, v, mass3, 1e-3, 1.0, w, kw, f),
+        "sweep": compiled(stiffness_slices_serial, *args, w, kw),
+        "held": compiled(stiffness_held_w_serial, *args, w, kw),
         "stream": min(per_call(lambda: _stream(*aligned, reps)),
                       per_call(lambda: _wide_stream(*aligned, reps, lanes))),
         "stream_slices": min(per_call(lambda: _stream(*sliced, reps)),
@@ -217,20 +215,12 @@ def stream_by_size(scales: list[float]) -> list[list[object]]:
     return rows
 
 
-def _inside_numba(fn):
-    """A compiled loop that calls ``fn(*args)`` reps times: its time per call has no Python dispatch in it."""
-    @numba.njit
-    def loop(args, reps):
-        for _ in range(reps):
-            fn(*args)
-    return loop
 
 
 def compiled_step_seconds(integ, state, control, h: float, reps: int = 200) -> float:
     """Seconds per clustered step spent in its compiled part (the sweep, the vertex passes), timed in numba."""
     fn, args = integ.compiled_step(state, control, h)
     loop = _inside_numba(fn)
-    loop(args, 1)
     return median_seconds(lambda: loop(args, reps)) / reps
 
 
