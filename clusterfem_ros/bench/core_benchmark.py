@@ -3,7 +3,10 @@
     python -m clusterfem_ros.bench.core_benchmark [--step 1e-3] [--scale 1.0] [--sizes 1,2,4]
 
 Every method runs the same scene (the object's bottom fixed, gravity, same material and step) and
-is timed after warm-up (JIT compilation excluded). 'stream' is a bare pass that reads every block
+is timed after warm-up (JIT compilation excluded). All methods and kernel pieces of a shape are timed in
+interleaved rounds (bench/timing.interleaved_seconds): times are medians over the rounds, ratios the medians
+of each round's own ratio, so a slow spell of the host cannot flip a target (timed one after the other, one
+run read the sphere's implicit-direct ratio as 17x; interleaved, 21-27x on the same host). 'stream' is a bare pass that reads every block
 and column index of the clusters once, vectorized: the memory-bound floor for the force kernel.
 
 The floor is the faster of two bare reads of 64-byte-aligned copies of the clusters' block and index arrays:
@@ -49,6 +52,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import statistics
 import sys
 
 import numba
@@ -65,7 +69,7 @@ from ..fem.integrators import make_integrator
 from ..fem.material import Material
 from ..fem.model import Control, State, build_model
 from ..fem.voxel_mesh import PAPER_SHAPES, paper_mesh
-from .timing import median_seconds, table
+from .timing import interleaved_seconds, paired_ratio, table
 
 PAPER_MS = {"sphere": (1.60, 0.73, 0.83), "cube": (1.89, 0.92, 1.09), "torus": (2.15, 0.97, 1.12)}
 MATERIAL = Material(E=3.0e4, nu=0.3, rho=1000.0, xi=1.0, zeta=1e-5)
@@ -163,14 +167,15 @@ def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
     return out
 
 
-def kernel_vs_stream(model, reps: int = 200) -> dict[str, float]:
-    """Seconds per call, timed inside numba so dispatch is excluded:
+def kernel_calls(model, reps: int = 200) -> dict[str, object]:
+    """Zero-argument callables that each run one piece ``reps`` times inside numba (no dispatch per call):
     - kernel: the whole force, w = u + zeta v, the slice sweep and the finish (-xi M v, vertex order);
     - sweep: the pass over the slices alone; held: the same pass with w held (no gather of w);
-    - stream: the floor, the faster of two bare reads of 64-byte-aligned copies of the clusters' own blocks and
-      indices (numba's loop, which LLVM vectorizes 4 wide here, and an IR loop as wide as the kernel's
-      vectors; numpy gives the arrays 16-byte alignment, over which the stream ran up to 1.7x slower on this
-      host); stream_slices: the bare read of the kernel's slices (the same blocks plus 0.5-2.5 % padding)."""
+    - stream4, stream8: the bare reads of 64-byte-aligned copies of the clusters' own blocks and indices (numba's
+      loop, which LLVM vectorizes 4 wide here, and an IR loop as wide as the kernel's vectors; numpy gives the
+      arrays 16-byte alignment, over which the stream ran up to 1.7x slower on one host); the floor is the
+      faster of the two in each round (per_call);
+    - slices4, slices8: the same bare reads of the kernel's slices (the same blocks plus 0.5-2.5 % padding)."""
     cl = model.clusters
     sl = cl.slices
     n = model.n_vertices
@@ -183,21 +188,37 @@ def kernel_vs_stream(model, reps: int = 200) -> dict[str, float]:
     lanes = 8 if sl.lanes == 8 else 4
     aligned = tuple(aligned_copy(a) for a in (cl.shared_cols, cl.shared_blocks, cl.boundary_cols, cl.boundary_blocks))
     sliced = (sl.shared_w_at.reshape(-1), sl.shared_blocks, sl.boundary_w_at.reshape(-1), sl.boundary_blocks)
-    per_call = lambda fn: median_seconds(fn) / reps  # noqa: E731
 
     def compiled(fn, *fn_args):
         loop = _inside_numba(fn)
-        return per_call(lambda: loop(fn_args, reps))
+        return lambda: loop(fn_args, reps)
 
     return {
         "kernel": compiled(force_kernel_serial, *args, u, v, mass3, 1e-3, 1.0, w, kw, f),
         "sweep": compiled(stiffness_slices_serial, *args, w, kw),
         "held": compiled(stiffness_held_w_serial, *args, w, kw),
-        "stream": min(per_call(lambda: _stream(*aligned, reps)),
-                      per_call(lambda: _wide_stream(*aligned, reps, lanes))),
-        "stream_slices": min(per_call(lambda: _stream(*sliced, reps)),
-                             per_call(lambda: _wide_stream(*sliced, reps, lanes))),
+        "stream4": lambda: _stream(*aligned, reps),
+        "stream8": lambda: _wide_stream(*aligned, reps, lanes),
+        "slices4": lambda: _stream(*sliced, reps),
+        "slices8": lambda: _wide_stream(*sliced, reps, lanes),
     }
+
+
+def per_call(samples: dict[str, list[float]], reps: dict[str, int]) -> dict[str, list[float]]:
+    """Interleaved samples per call (batches of ``reps[name]`` calls, 1 if absent), with the floor ``stream``
+    (and ``stream_slices``) the faster of the 4- and 8-wide reads in each round."""
+    out = {name: [t / reps.get(name, 1) for t in ts] for name, ts in samples.items()}
+    for floor, pair in (("stream", ("stream4", "stream8")), ("stream_slices", ("slices4", "slices8"))):
+        if all(p in out for p in pair):
+            out[floor] = [min(a, b) for a, b in zip(out[pair[0]], out[pair[1]])]
+    return out
+
+
+def summarize(samples: dict[str, list[float]], base: str, keys) -> dict:
+    """Median seconds per call of every entry, and (key, base) -> the paired ratio of key to base."""
+    out = {name: statistics.median(ts) for name, ts in samples.items()}
+    out.update({(key, base): paired_ratio(samples[key], samples[base]) for key in keys})
+    return out
 
 
 def stream_by_size(scales: list[float]) -> list[list[object]]:
@@ -207,30 +228,29 @@ def stream_by_size(scales: list[float]) -> list[list[object]]:
         mesh = paper_mesh("sphere", scale)
         model = build_model(mesh, MATERIAL)
         cl = model.clusters
-        t = kernel_vs_stream(model, reps=max(5, 800_000 // cl.n_blocks))
+        reps = max(5, 800_000 // cl.n_blocks)
+        calls = kernel_calls(model, reps)
+        t = summarize(per_call(interleaved_seconds(calls), dict.fromkeys(calls, reps)), "stream",
+                      ("kernel", "sweep", "held"))
         us = lambda key: f"{t[key] * 1e6:.1f}"  # noqa: E731
         rows.append([f"{scale:g}", mesh.n_vertices, mesh.n_tets, cl.n_blocks, f"{cl.nbytes / 1e6:.2f}",
-                     us("kernel"), us("sweep"), us("held"), us("stream"), f"{t['kernel'] / t['stream']:.2f}",
-                     f"{t['sweep'] / t['stream']:.2f}", f"{t['held'] / t['stream']:.2f}"])
+                     us("kernel"), us("sweep"), us("held"), us("stream"), f"{t['kernel', 'stream']:.2f}",
+                     f"{t['sweep', 'stream']:.2f}", f"{t['held', 'stream']:.2f}"])
     return rows
 
 
+METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg")
 
 
-def compiled_step_seconds(integ, state, control, h: float, reps: int = 200) -> float:
-    """Seconds per clustered step spent in its compiled part (the sweep, the vertex passes), timed in numba."""
-    fn, args = integ.compiled_step(state, control, h)
-    loop = _inside_numba(fn)
-    return median_seconds(lambda: loop(args, reps)) / reps
-
-
-def bench_shape(name: str, h: float, scale: float) -> dict:
+def bench_shape(name: str, h: float, scale: float, reps: int = 200) -> dict:
+    """Every method's step and the kernel pieces on one shape, timed interleaved (timing.interleaved_seconds):
+    median seconds per call by name, paired ratios under (name, 'clustered') and (name, 'stream')."""
     mesh = paper_mesh(name, scale)
     zmin = mesh.vertices[:, 2].min()
     model = build_model(mesh, MATERIAL, fixed=mesh.vertices[:, 2] < zmin + 1e-9 + 0.2 * np.ptp(mesh.vertices[:, 2]))
     out = {"mesh": name, "vertices": mesh.n_vertices, "tets": mesh.n_tets, "blocks": model.clusters.n_blocks}
-    lam = None
-    for method in ("clustered", "standard_explicit", "implicit_direct", "implicit_cg"):
+    calls, lam = {}, None
+    for method in METHODS:
         opts = {} if method.startswith("implicit") else ({"lam_max": lam} if lam else {})
         integ = make_integrator(method, model, **opts)
         lam = getattr(integ, "lam_max", lam)
@@ -238,12 +258,18 @@ def bench_shape(name: str, h: float, scale: float) -> dict:
         info = integ.step(state, control, h)
         for _ in range(200):            # past JIT, cache loads and the first-touch of every array
             integ.step(state, control, h)
-        out[method] = median_seconds(lambda: integ.step(state, control, h))
+        calls[method] = functools.partial(integ.step, state, control, h)
         if method == "clustered":
             out["substeps"] = info.substeps
             out["margin"] = info.margin
-            out["step_numba"] = compiled_step_seconds(integ, state, control, h)
-    out.update(kernel_vs_stream(model))
+            fn, args = integ.compiled_step(state, control, h)
+            loop = _inside_numba(fn)
+            calls["step_numba"] = functools.partial(loop, args, reps)
+    pieces = kernel_calls(model, reps)
+    calls.update(pieces)
+    samples = per_call(interleaved_seconds(calls), dict.fromkeys([*pieces, "step_numba"], reps))
+    out.update(summarize(samples, "clustered", METHODS[1:]))
+    out.update(summarize(samples, "stream", ("step_numba", "kernel", "sweep", "held")))
     return out
 
 
@@ -271,24 +297,24 @@ def main(argv: list[str] | None = None) -> int:
         c = r["clustered"]
         ms = lambda s: f"{s * 1e3:.3g}"  # noqa: E731  (3 significant digits: the clustered step is ~0.007 ms)
         rows.append([name, r["vertices"], r["tets"], ms(c), f"{r['substeps']}", f"{r['margin']:.2f}",
-                     f"{ms(r['standard_explicit'])} ({r['standard_explicit'] / c:.1f}x)",
-                     f"{ms(r['implicit_direct'])} ({r['implicit_direct'] / c:.1f}x)",
-                     f"{ms(r['implicit_cg'])} ({r['implicit_cg'] / c:.1f}x)",
-                     f"{r['step_numba'] * 1e6:.1f} ({c * 1e6:.1f}) / {r['stream'] * 1e6:.1f} = "
-                     f"{r['step_numba'] / r['stream']:.2f}",
-                     f"{r['kernel'] * 1e6:.1f} / {r['stream'] * 1e6:.1f} = {r['kernel'] / r['stream']:.2f}",
-                     f"{r['sweep'] * 1e6:.1f} / {r['stream'] * 1e6:.1f} = {r['sweep'] / r['stream']:.2f}",
-                     f"{r['held'] * 1e6:.1f} ({r['held'] / r['stream']:.2f})",
+                     *(f"{ms(r[m])} ({r[m, 'clustered']:.1f}x)" for m in METHODS[1:]),
+                     f"{r['step_numba'] * 1e6:.1f} ({c * 1e6:.1f}) / {r['stream'] * 1e6:.1f}: "
+                     f"{r['step_numba', 'stream']:.2f}",
+                     f"{r['kernel'] * 1e6:.1f} / {r['stream'] * 1e6:.1f}: {r['kernel', 'stream']:.2f}",
+                     f"{r['sweep'] * 1e6:.1f} / {r['stream'] * 1e6:.1f}: {r['sweep', 'stream']:.2f}",
+                     f"{r['held'] * 1e6:.1f} ({r['held', 'stream']:.2f})",
                      f"{r['stream_slices'] * 1e6:.1f}",
                      "{:.2f} / {:.2f} / {:.2f}".format(*PAPER_MS[name])])
         if name == "sphere":
-            ok &= r["standard_explicit"] / c >= 2 and r["implicit_direct"] / c >= 20
+            ok &= r["standard_explicit", "clustered"] >= 2 and r["implicit_direct", "clustered"] >= 20
     print(table(["mesh", "verts", "tets", "clustered ms/step", "sub-steps", "margin", "standard explicit",
                  "implicit direct", "implicit CG", "step/stream us", "kernel/stream us", "sweep/stream us",
                  "sweep, w held us",
                  "stream over slices us", "paper std/clust/modal ms"],
                 rows))
-    print("ratios in brackets: method time / clustered time (higher = clustered faster). "
+    print("times: medians over rounds that time every method and kernel piece in turn; ratios: medians of the "
+          "rounds' own ratios (a slow spell of the host falls on both sides of each). "
+          "ratios in brackets: method time / clustered time (higher = clustered faster). "
           "step/stream: the clustered step's compiled part, timed inside numba (in brackets the whole step, "
           "Python and dispatch included), against the floor; "
           "kernel/stream: the whole clustered force (w, slice sweep, finish) against a bare read of the "
@@ -300,8 +326,8 @@ def main(argv: list[str] | None = None) -> int:
     verdicts = []
     for key, what in (("step_numba", "the step's compiled part"), ("kernel", "the whole force"),
                       ("sweep", "the sweep over the blocks")):
-        worst = max(rows_raw, key=lambda r: r[key] / r["stream"])
-        ratio = worst[key] / worst["stream"]
+        worst = max(rows_raw, key=lambda r: r[key, "stream"])
+        ratio = worst[key, "stream"]
         verdicts.append(f"{what} {'yes' if ratio <= 1.5 else 'NO'} (worst {ratio:.2f}, {worst['mesh']})")
     print("within 1.5x of the stream: " + "; ".join(verdicts))
     if sizes:
