@@ -134,3 +134,27 @@ def slice_clusters(cl: Clusters, lanes: int) -> ClusterSlices:
     owner[padding] = cl.n_vertices + np.arange(int(padding.sum()))
     return ClusterSlices(lanes=lanes, n_vertices=cl.n_vertices, shared_ptr=shared_ptr, shared_w_at=W_ROW * sh_cols,
                          shared_blocks=sh_blocks, boundary_w_at=W_ROW * bd_cols, boundary_blocks=bd_blocks, owner=owner)
+
+
+def lane_vertices(sl: ClusterSlices) -> np.ndarray:
+    """(n_slices * C,) the vertex of every lane, 0 for the padding lanes (whose blocks are zero and whose
+    columns are vertex 0): where a kernel reads a lane's own row of a per-vertex array (owner says where its
+    result goes)."""
+    return np.where(sl.owner < sl.n_vertices, sl.owner, 0)
+
+
+def rest_offsets(sl: ClusterSlices, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(shared, boundary) d_ij = x0_j - x0_i per position and lane, (P, 3, C) beside the (P, 9, C) blocks,
+    64-byte aligned; zero in every padding entry (its column is the lane's own vertex, or vertex 0 in a
+    padding lane). The warped force kernel reads them (warped_force_kernel.py)."""
+    C = sl.lanes
+    own = lane_vertices(sl).reshape(-1, C)
+    ns = len(sl.shared_ptr) - 1
+    sh_own = np.repeat(own[:ns], np.diff(sl.shared_ptr), axis=0)
+    bd_own = np.repeat(own[ns:], 4, axis=0)
+    out = []
+    for cols, owner_rows in ((sl.shared_cols, sh_own), (sl.boundary_cols, bd_own)):
+        d = aligned_zeros((len(cols), 3, C))
+        d[...] = np.swapaxes(rest[cols] - rest[owner_rows], 1, 2)
+        out.append(d)
+    return out[0], out[1]

@@ -35,9 +35,10 @@ the tolerance and the accuracy it trades). When the neighbourhood is inverted or
 (2016)'s iteration R <- exp(w) R, w = sum_c r_c x f_c / |sum_c r_c . f_c|, warm-started from the vertex's
 previous rotation, gives the nearest proper rotation instead.
 
-The kernel makes two passes: all rotations (a row's force reads its neighbours'), then the forces,
-per block y = R_i^T (w_j - w_i) - d_ij (so the bracket is R_i y): the R_i half is R_i sum_j K_ij y, the
-row's rotation applied once after the loop; the R_j half is sum_j R_j (K_ij (R_j^T (R_i y))).
+The kernel makes two passes: all rotations (a row's force reads its neighbours'), then the forces, over the
+linear kernel's slices (warped_force_kernel.py): per block y = R_i^T (w_j - w_i) - d_ij (so the bracket is
+R_i y); the R_i half is R_i sum_j K_ij y, the row's rotation applied once after the loop; the R_j half is
+sum_j R_j (K_ij (R_j^T (R_i y))).
 
 ``warped_force`` and ``vertex_rotations`` are the checked public entries; tests/naive_warping.py holds
 the numpy twin. ``_rotation_of`` (scalar, one matrix) is also used by fem/stress.py.
@@ -51,8 +52,12 @@ import numpy as np
 import scipy.sparse as sp
 from numba import prange
 
+from .cluster_force_kernel import finish_parallel, finish_serial
+from .cluster_slices import aligned_zeros, lane_vertices, rest_offsets
 from .model import FemModel
-from .numba_config import PARALLEL_MIN_VERTICES, SERIAL, serial_and_parallel
+from .numba_config import PARALLEL, PARALLEL_MIN_VERTICES, SERIAL, serial_and_parallel
+from .warped_force_kernel import (ROT_ROW, rotation_rows_parallel, rotation_rows_serial, warped_sweep_parallel,
+                                  warped_sweep_serial)
 
 NEWTON_MAXIT = 40
 MUELLER_MAXIT = 200
@@ -147,11 +152,11 @@ def _rotation_of(F, X, R):
     _rotation_mueller(F, R)
 
 
-# One chunk of LANES cluster rows is the unit of work: its deformation gradients are gathered into lanes
-# (structure of arrays, (3, 9, LANES) doubles = 27 KiB, L1-resident), the polar iteration then runs on all
-# lanes at once (no data-dependent exit inside a lane loop, so it is vectorised and the long latency chain
-# of one 3x3 polar step overlaps across vertices), and the force pass reads each lane's rotation. Chunks are
-# independent, so the threaded build runs them in parallel with one parallel region per force evaluation.
+# One chunk of LANES cluster rows is the rotations' unit of work: its deformation gradients are gathered
+# into lanes (structure of arrays, (3, 9, LANES) doubles = 27 KiB, L1-resident), then the polar iteration runs
+# on all lanes at once (no data-dependent exit inside a lane loop, so it is vectorised and the long latency
+# chain of one 3x3 polar step overlaps across vertices). Chunks are independent, so the threaded build runs
+# them in parallel. The force pass then walks the cluster slices (warped_force_kernel.py).
 LANES = 128
 # A lane has converged when the squared Frobenius change of its last polar step is below POLAR_TOL. Both
 # iterations used converge quadratically: near the polar factor a step that changes X by delta leaves an
@@ -377,140 +382,61 @@ def _chunk_rotations(r0, nl, rows, F, P, converged, how, tmp, rot):
             _rotation_of(tmp[0], tmp[1], rot[i])
 
 
-# FMA contraction (fused multiply-adds, no reassociation): the 54 products per block are the cost, and
-# fusing them measured 274 -> 221 us per force pass on the jelly man (12 ns per block). One rounding per
-# fused pair instead of two; the order of operations is the source's, so every build gives the same bits.
-@numba.njit(**dict(SERIAL, fastmath={"contract"}))
-def _chunk_forces(r0, nl, rows, ptr, cols, blocks, rest, v, w, mass, xi, rot, out):
-    """out[i] (i = rows[r0 + l]) <- the warped force (module docstring) with w = x + zeta v:
-
-        f_i = -1/2 sum_j (R_i K_ij R_i^T + R_j K_ij R_j^T) (w_j - w_i - R_i d_ij) - xi m_i v_i,  d_ij = x0_j - x0_i,
-
-    evaluated as y = R_i^T (w_j - w_i) - d_ij (so w_j - w_i - R_i d_ij = R_i y): the R_i half is
-    R_i sum_j K_ij y, rotated once per row. Every rotation must be current: this reads the neighbours'."""
-    for l in range(nl):
-        r = r0 + l
-        i = rows[r]
-        r00, r01, r02 = rot[i, 0, 0], rot[i, 0, 1], rot[i, 0, 2]
-        r10, r11, r12 = rot[i, 1, 0], rot[i, 1, 1], rot[i, 1, 2]
-        r20, r21, r22 = rot[i, 2, 0], rot[i, 2, 1], rot[i, 2, 2]
-        wi0 = w[i, 0]
-        wi1 = w[i, 1]
-        wi2 = w[i, 2]
-        pi0 = rest[i, 0]
-        pi1 = rest[i, 1]
-        pi2 = rest[i, 2]
-        fx = 0.0            # sum_j K_ij y_j: the row's own rotation's half, rotated after the loop
-        fy = 0.0
-        fz = 0.0
-        gx = 0.0            # sum_j R_j K_ij R_j^T R_i y_j: the neighbours' rotations' half
-        gy = 0.0
-        gz = 0.0
-        for k in range(ptr[r], ptr[r + 1]):
-            j = cols[k]
-            z0 = w[j, 0] - wi0
-            z1 = w[j, 1] - wi1
-            z2 = w[j, 2] - wi2
-            d0 = rest[j, 0] - pi0
-            d1 = rest[j, 1] - pi1
-            d2 = rest[j, 2] - pi2
-            y0 = (r00 * z0 + r10 * z1 + r20 * z2) - d0
-            y1 = (r01 * z0 + r11 * z1 + r21 * z2) - d1
-            y2 = (r02 * z0 + r12 * z1 + r22 * z2) - d2
-            t0 = z0 - (r00 * d0 + r01 * d1 + r02 * d2)      # = R_i y, without waiting for y
-            t1 = z1 - (r10 * d0 + r11 * d1 + r12 * d2)
-            t2 = z2 - (r20 * d0 + r21 * d1 + r22 * d2)
-            k00, k01, k02 = blocks[k, 0, 0], blocks[k, 0, 1], blocks[k, 0, 2]
-            k10, k11, k12 = blocks[k, 1, 0], blocks[k, 1, 1], blocks[k, 1, 2]
-            k20, k21, k22 = blocks[k, 2, 0], blocks[k, 2, 1], blocks[k, 2, 2]
-            fx += k00 * y0 + k01 * y1 + k02 * y2
-            fy += k10 * y0 + k11 * y1 + k12 * y2
-            fz += k20 * y0 + k21 * y1 + k22 * y2
-            s00, s01, s02 = rot[j, 0, 0], rot[j, 0, 1], rot[j, 0, 2]
-            s10, s11, s12 = rot[j, 1, 0], rot[j, 1, 1], rot[j, 1, 2]
-            s20, s21, s22 = rot[j, 2, 0], rot[j, 2, 1], rot[j, 2, 2]
-            q0 = s00 * t0 + s10 * t1 + s20 * t2
-            q1 = s01 * t0 + s11 * t1 + s21 * t2
-            q2 = s02 * t0 + s12 * t1 + s22 * t2
-            p0 = k00 * q0 + k01 * q1 + k02 * q2
-            p1 = k10 * q0 + k11 * q1 + k12 * q2
-            p2 = k20 * q0 + k21 * q1 + k22 * q2
-            gx += s00 * p0 + s01 * p1 + s02 * p2
-            gy += s10 * p0 + s11 * p1 + s12 * p2
-            gz += s20 * p0 + s21 * p1 + s22 * p2
-        d = xi * mass[i]
-        out[i, 0] = -0.5 * ((r00 * fx + r01 * fy + r02 * fz) + gx) - d * v[i, 0]
-        out[i, 1] = -0.5 * ((r10 * fx + r11 * fy + r12 * fz) + gy) - d * v[i, 1]
-        out[i, 2] = -0.5 * ((r20 * fx + r21 * fy + r22 * fz) + gz) - d * v[i, 2]
-
-
 @numba.njit(**SERIAL)
-def _chunk_rows(c, sh_rows, sh_ptr, sh_cols, sh_blocks, sh_grad, bd_rows, bd_ptr, bd_cols, bd_blocks, bd_grad):
-    """Chunk c's cluster arrays (shared-cluster chunks first, then boundary ones) and its first row, rows."""
+def _rotate_chunk(c, sh_rows, sh_ptr, sh_cols, sh_grad, bd_rows, bd_ptr, bd_cols, bd_grad, u, rot, scratch, how,
+                  tmp):
+    """Chunk c's vertex rotations (shared-cluster chunks first, then boundary ones): gradients gathered into
+    lanes, polar iteration on all lanes, stored."""
     nsh = (sh_rows.shape[0] + LANES - 1) // LANES
     if c < nsh:
-        rows, ptr, cols, blocks, grad, r0 = sh_rows, sh_ptr, sh_cols, sh_blocks, sh_grad, c * LANES
+        rows, ptr, cols, grad, r0 = sh_rows, sh_ptr, sh_cols, sh_grad, c * LANES
     else:
-        rows, ptr, cols, blocks, grad, r0 = bd_rows, bd_ptr, bd_cols, bd_blocks, bd_grad, (c - nsh) * LANES
-    return rows, ptr, cols, blocks, grad, r0, min(LANES, rows.shape[0] - r0)
-
-
-@numba.njit(**SERIAL)
-def _rotate_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                  sh_grad, bd_grad, u, rot, scratch, how, tmp):
-    """Chunk c's vertex rotations: gradients gathered into lanes, polar iteration on all lanes, stored."""
-    rows, ptr, cols, blocks, grad, r0, nl = _chunk_rows(c, sh_rows, sh_ptr, sh_cols, sh_blocks, sh_grad,
-                                                        bd_rows, bd_ptr, bd_cols, bd_blocks, bd_grad)
+        rows, ptr, cols, grad, r0 = bd_rows, bd_ptr, bd_cols, bd_grad, (c - nsh) * LANES
+    nl = min(LANES, rows.shape[0] - r0)
     buf = scratch[c]
     _chunk_gradients(r0, nl, rows, ptr, cols, grad, u, buf[0], buf[1], how[c])
     P, converged = _polar_lanes(nl, buf[1], buf[2])
     _chunk_rotations(r0, nl, rows, buf[0], P, converged, how[c], tmp[c], rot)
 
 
-@numba.njit(**SERIAL)
-def _force_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                 rest, sh_grad, bd_grad, v, w, mass, xi, rot, out):
-    rows, ptr, cols, blocks, grad, r0, nl = _chunk_rows(c, sh_rows, sh_ptr, sh_cols, sh_blocks, sh_grad,
-                                                        bd_rows, bd_ptr, bd_cols, bd_blocks, bd_grad)
-    _chunk_forces(r0, nl, rows, ptr, cols, blocks, rest, v, w, mass, xi, rot, out)
+def _make_warped_kernels(sweep, rotation_rows, finish, flags):
+    """The warped kernels around one build (serial or threaded) of the slice sweep and its helpers. Argument
+    groups (VertexFrames): ``clusters``, the cluster rows for the rotations; ``slices``, the
+    sweep's (cluster slices with rest offsets); ``work``, (rot, scratch, how, tmp, rot4, e)."""
+
+    def warped_e(clusters, slices, u, w, work):
+        """e <- the elastic-damping part of the warped force of w = x0 + u + zeta v (warped_force_kernel.py),
+        in rows by vertex (the padding lanes' rows after the n vertices'); rot <- the vertex rotations.
+        Every rotation first (a row reads its neighbours'), then their rows of 4, then the sweep."""
+        rot, scratch, how, tmp, rot4, e = work
+        for c in prange(scratch.shape[0]):
+            _rotate_chunk(c, *clusters, u, rot, scratch, how, tmp)
+        rotation_rows(rot, rot4)
+        sweep(*slices, w, rot4, e)
+
+    warped_e = numba.njit(**flags)(warped_e)
+
+    def warped_force(clusters, slices, rest, u, v, w, mass3, zeta, xi, work, out):
+        """out <- the warped force of (u, v), f = -e - xi M v (mass3: the lumped mass per coordinate)."""
+        for i in prange(u.shape[0]):
+            for c in range(3):
+                w[i, c] = rest[i, c] + u[i, c] + zeta * v[i, c]
+        warped_e(clusters, slices, u, w, work)
+        finish(work[5], v, mass3, xi, out)
+
+    return warped_e, numba.njit(**flags)(warped_force)
 
 
-def _warped_rows_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                        rest, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, out):
-    """out <- the warped force of (u, v) given w = x0 + u + zeta v; rot <- the vertex rotations.
-    Two passes: every rotation first (a row's force reads its neighbours'), then the forces."""
+def _rotation_kernel(clusters, u, rot, scratch, how, tmp):
+    """rot <- the vertex rotations of u."""
     for c in prange(scratch.shape[0]):
-        _rotate_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                      sh_grad, bd_grad, u, rot, scratch, how, tmp)
-    for c in prange(scratch.shape[0]):
-        _force_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                     rest, sh_grad, bd_grad, v, w, mass, xi, rot, out)
+        _rotate_chunk(c, *clusters, u, rot, scratch, how, tmp)
 
 
-def _warped_force_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                         rest, sh_grad, bd_grad, u, v, w, mass, zeta, xi, rot, scratch, how, tmp, out):
-    """out <- the warped force of (u, v); rot <- the vertex rotations; w, scratch, how, tmp: workspace."""
-    for i in prange(u.shape[0]):
-        for c in range(3):
-            w[i, c] = rest[i, c] + u[i, c] + zeta * v[i, c]
-    for c in prange(scratch.shape[0]):
-        _rotate_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                      sh_grad, bd_grad, u, rot, scratch, how, tmp)
-    for c in prange(scratch.shape[0]):
-        _force_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                     rest, sh_grad, bd_grad, v, w, mass, xi, rot, out)
-
-
-def _rotation_kernel(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                     rest, sh_grad, bd_grad, u, v, w, mass, zeta, xi, rot, scratch, how, tmp, out):
-    """rot <- the vertex rotations of u (same arguments as the force kernel; v, w, out unused)."""
-    for c in prange(scratch.shape[0]):
-        _rotate_chunk(c, sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                      sh_grad, bd_grad, u, rot, scratch, how, tmp)
-
-
-warped_kernel_serial, warped_kernel_parallel = serial_and_parallel(_warped_force_kernel)
-warped_rows_serial, warped_rows_parallel = serial_and_parallel(_warped_rows_kernel)
+warped_e_serial, warped_kernel_serial = _make_warped_kernels(warped_sweep_serial, rotation_rows_serial,
+                                                             finish_serial, SERIAL)
+warped_e_parallel, warped_kernel_parallel = _make_warped_kernels(warped_sweep_parallel, rotation_rows_parallel,
+                                                                 finish_parallel, PARALLEL)
 rotation_kernel_serial, rotation_kernel_parallel = serial_and_parallel(_rotation_kernel)
 
 
@@ -533,22 +459,26 @@ def rest_gram_inverse(model: FemModel) -> np.ndarray:
 @dataclass
 class VertexFrames:
     """What warping keeps per model: rest positions, S_i^-1, each vertex's last rotation (the fallback's
-    warm start) and the kernels' workspace."""
+    warm start), the kernels' argument groups and workspace."""
     rest: np.ndarray        # (n, 3)
     s0inv: np.ndarray       # (n, 3, 3)
     rot: np.ndarray         # (n, 3, 3), updated by every force / rotation call
-    sh_grad: np.ndarray     # (shared blocks, 3): g = S_i^-1 (x0_j - x0_i) per cluster block
-    bd_grad: np.ndarray     # (boundary blocks, 3)
-    bd_ptr: np.ndarray      # (l+1,): 4 r, the boundary clusters' block ranges
-    w: np.ndarray           # (n, 3) workspace: x + zeta v
+    clusters: tuple         # the rotations' cluster rows: (sh_rows, sh_ptr, sh_cols, sh_grad, bd_rows, bd_ptr,
+                            #   bd_cols, bd_grad), grad g = S_i^-1 (x0_j - x0_i) per block
+    slices: tuple           # the force sweep's: (sh_ptr, sh_w_at, sh_blocks, sh_offsets, bd_w_at, bd_blocks,
+                            #   bd_offsets, lane_vertex, owner) (cluster_slices.py, warped_force_kernel.py)
+    w: np.ndarray           # (n, 4) workspace: x + zeta v, rows padded to 4
     scratch: np.ndarray     # (chunks, 3, 9, LANES) workspace: F, polar iterates
     how: np.ndarray         # (chunks, LANES) workspace: 0 polar, 1 inverted/flat
     tmp: np.ndarray         # (chunks, 2, 3, 3) workspace of the scalar fallback
+    rot4: np.ndarray        # (n, 12) workspace: the rotations' rows padded to 4
+    e: np.ndarray           # (n_slices * C, 3) workspace: the sweep's rows (vertex i's in row i)
 
     @classmethod
     def from_model(cls, model: FemModel) -> "VertexFrames":
         n = model.n_vertices
         cl = model.clusters
+        sl = cl.slices
         chunks = -(-len(cl.shared_rows) // LANES) - (-len(cl.boundary_rows) // LANES)
         rest = np.ascontiguousarray(model.rest, dtype=np.float64)
         bd_ptr = 4 * np.arange(len(cl.boundary_rows) + 1, dtype=np.int64)
@@ -557,15 +487,19 @@ class VertexFrames:
         def grad(rows, ptr, cols):
             i = np.repeat(rows, np.diff(ptr))
             return np.ascontiguousarray(np.einsum("kab,kb->ka", s0inv[i], rest[cols] - rest[i]))
-        return cls(rest, s0inv, np.repeat(np.eye(3)[None], n, axis=0),
-                   grad(cl.shared_rows, cl.shared_ptr, cl.shared_cols), grad(cl.boundary_rows, bd_ptr, cl.boundary_cols),
-                   bd_ptr,
-                   np.zeros((n, 3)), np.zeros((chunks, 3, 9, LANES)), np.zeros((chunks, LANES), dtype=np.int8),
-                   np.zeros((chunks, 2, 3, 3)))
+        clusters = (cl.shared_rows, cl.shared_ptr, cl.shared_cols, grad(cl.shared_rows, cl.shared_ptr, cl.shared_cols),
+                    cl.boundary_rows, bd_ptr, cl.boundary_cols, grad(cl.boundary_rows, bd_ptr, cl.boundary_cols))
+        sh_offsets, bd_offsets = rest_offsets(sl, rest)
+        slices = (sl.shared_ptr, sl.shared_w_at, sl.shared_blocks, sh_offsets, sl.boundary_w_at, sl.boundary_blocks,
+                  bd_offsets, lane_vertices(sl), sl.owner)
+        return cls(rest, s0inv, np.repeat(np.eye(3)[None], n, axis=0), clusters, slices,
+                   aligned_zeros((n, 4)), np.zeros((chunks, 3, 9, LANES)), np.zeros((chunks, LANES), dtype=np.int8),
+                   np.zeros((chunks, 2, 3, 3)), aligned_zeros((n, ROT_ROW)), np.zeros((len(sl.owner), 3)))
 
-    def kernel_args(self) -> tuple:
-        """The frames' arrays in kernel argument order, around (u, v, w, mass, zeta, xi)."""
-        return (self.rest, self.sh_grad, self.bd_grad), (self.rot, self.scratch, self.how, self.tmp)
+    @property
+    def work(self) -> tuple:
+        """The kernels' workspace group: (rot, scratch, how, tmp, rot4, e)."""
+        return self.rot, self.scratch, self.how, self.tmp, self.rot4, self.e
 
 
 class AssembledWarp:
@@ -619,13 +553,6 @@ class AssembledWarp:
         return f - m.xi * self.model.mass[:, None] * v
 
 
-def warp_cluster_args(model: FemModel, frames: VertexFrames) -> tuple:
-    """The cluster arrays in warped-kernel order (the boundary clusters get their 4 r index pointer)."""
-    cl = model.clusters
-    return (cl.shared_rows, cl.shared_ptr, cl.shared_cols, cl.shared_blocks,
-            cl.boundary_rows, frames.bd_ptr, cl.boundary_cols, cl.boundary_blocks)
-
-
 def _pick(n: int, threads: bool | None, serial, parallel):
     use = n >= PARALLEL_MIN_VERTICES if threads is None else threads
     return parallel if use else serial
@@ -643,20 +570,13 @@ def _check(model: FemModel, **arrays) -> list[np.ndarray]:
     return out
 
 
-def _run(kern, model: FemModel, frames: VertexFrames, u, v, out):
-    fixed, work = frames.kernel_args()
-    m = model.material
-    kern(*warp_cluster_args(model, frames), *fixed, u, v, frames.w, model.mass, float(m.zeta), float(m.xi),
-         *work, out)
-
-
 def vertex_rotations(model: FemModel, u: np.ndarray, frames: VertexFrames | None = None,
                      threads: bool | None = None) -> np.ndarray:
     """R_i for every vertex, (n, 3, 3), of the displacement u (n, 3)."""
     (u,) = _check(model, u=u)
     frames = VertexFrames.from_model(model) if frames is None else frames
     kern = _pick(model.n_vertices, threads, rotation_kernel_serial, rotation_kernel_parallel)
-    _run(kern, model, frames, u, u, frames.w)
+    kern(frames.clusters, u, frames.rot, frames.scratch, frames.how, frames.tmp)
     return frames.rot.copy()
 
 
@@ -666,8 +586,13 @@ def warped_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None, fr
     u, = _check(model, u=u)
     v, = _check(model, v=np.zeros_like(u) if v is None else v)
     frames = VertexFrames.from_model(model) if frames is None else frames
+    n = model.n_vertices
     if out is None:
-        out = np.empty((model.n_vertices, 3))
-    kern = _pick(model.n_vertices, threads, warped_kernel_serial, warped_kernel_parallel)
-    _run(kern, model, frames, u, v, out)
+        out = np.empty((n, 3))
+    elif out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous ({n}, 3) float64 array, got {out.dtype} {out.shape}")
+    kern = _pick(n, threads, warped_kernel_serial, warped_kernel_parallel)
+    m = model.material
+    kern(frames.clusters, frames.slices, frames.rest, u, v, frames.w, np.repeat(model.mass, 3), float(m.zeta),
+         float(m.xi), frames.work, out)
     return out

@@ -21,26 +21,26 @@ from ..cluster_force_kernel import cluster_args, scratch, stiffness_slices_paral
 from ..model import Control, FemModel, State
 from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
-from ..warping import VertexFrames, warp_cluster_args, warped_rows_parallel, warped_rows_serial
+from ..warping import VertexFrames, warped_e_parallel, warped_e_serial
 from .base import StepCommon, StepInfo
 
 
-def _update(n, h, zeta, inv_mass3, sign, force, xi, mass3, f_const, rest, u, v, w, warped, limit, refresh):
-    """f = sign * force - xi M v; v += h M^-1 (f + f_const), u += h v; if ``refresh``, w <- the next sub-step's
-    force input (the last sub-step skips it: the next step's _prepare computes w anyway). Returns True while
-    every |u| <= limit.
+def _update(n, h, zeta, inv_mass3, kw, xi, mass3, f_const, rest, u, v, w, warped, limit, refresh):
+    """f = -kw - xi M v; v += h M^-1 (f + f_const), u += h v; if ``refresh``, w <- the next sub-step's force
+    input (the last sub-step skips it: the next step's _prepare computes w anyway). Returns True while every
+    |u| <= limit.
 
-    The linear sweep leaves K w minus the attachment forces in ``force`` (rows in vertex order, sign -1) and
-    the mass damping to this loop; the warped kernel's force is complete (sign +1, xi 0). ``inv_mass3`` and
+    The sweep leaves K w (linear) or e (warped, its counterpart: fem/warped_force_kernel.py) minus the
+    attachment forces in ``kw`` (rows in vertex order) and the mass damping to this loop. ``inv_mass3`` and
     ``mass3`` are per coordinate (3n), inv_mass3 0 at held vertices, so the loop runs over flat arrays and
     vectorizes. A non-finite v reaches u in the same loop (u += h v, also at held vertices: 0 * inf is nan),
     and a nan fails the comparison, so one flag covers divergence and non-finite values; it is an integer
     chain, where the float max and nan-probe sum it replaced were serial float chains.
     """
-    uf, vf, ff, cf = u.reshape(-1), v.reshape(-1), force.reshape(-1), f_const.reshape(-1)
+    uf, vf, ff, cf = u.reshape(-1), v.reshape(-1), kw.reshape(-1), f_const.reshape(-1)
     ok = True
     for k in range(3 * n):
-        f = sign * ff[k] - (xi * mass3[k]) * vf[k]
+        f = -ff[k] - (xi * mass3[k]) * vf[k]
         vc = vf[k] + h * inv_mass3[k] * (f + cf[k])
         uc = uf[k] + h * vc
         vf[k] = vc
@@ -68,16 +68,16 @@ def _prepare(n, zeta, fixed, rest, u, v, w, warped):
     _kernel_input(n, zeta, rest, u, v, w, warped)
 
 
-def _attach(tau, sign, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f):
-    """f += sign m_i (a* + kp (u* - u) + kd (v* - v)) at the attached vertices, targets advanced by tau (sign -1:
-    f holds K w, which the update subtracts)."""
+def _attach(tau, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, kw):
+    """kw -= m_i (a* + kp (u* - u) + kd (v* - v)) at the attached vertices, targets advanced by tau (kw holds
+    K w or e, which the update subtracts)."""
     for a in range(att_idx.shape[0]):
         i = att_idx[a]
-        m = sign * mass[i]
+        m = -mass[i]
         for c in range(3):
             tu = att_u[a, c] + tau * att_v[a, c] + 0.5 * tau * tau * att_a[a, c]
             tv = att_v[a, c] + tau * att_a[a, c]
-            f[i, c] += m * (att_a[a, c] + att_kp[a] * (tu - u[i, c]) + att_kd[a] * (tv - v[i, c]))
+            kw[i, c] += m * (att_a[a, c] + att_kp[a] * (tu - u[i, c]) + att_kd[a] * (tv - v[i, c]))
 
 
 _kernel_input = numba.njit(**SERIAL)(_kernel_input)
@@ -110,8 +110,8 @@ def _make_symplectic_euler(stiffness):
         ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
         for s in range(nsub):
             stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw)
-            _attach(s * h, -1.0, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, kw)
-            ok = _update(n, h, zeta, inv_mass3, -1.0, kw, xi, mass3, f_const, u, u, v, w, False, limit,
+            _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, kw)
+            ok = _update(n, h, zeta, inv_mass3, kw, xi, mass3, f_const, u, u, v, w, False, limit,
                          s + 1 < nsub)
         return ok
 
@@ -126,33 +126,30 @@ def _make_symplectic_euler(stiffness):
     return step, numba.njit(**SERIAL)(free_symplectic_euler)
 
 
-def _make_warped_symplectic_euler(force):
-    """The fused step around one build of the warped force kernel; w = x0 + u + zeta v. With its
-    attachment-free variant, as for the linear step."""
+def _make_warped_symplectic_euler(warped_e):
+    """The fused step around one build of the warped kernel; w = x0 + u + zeta v. The kernel leaves e, the
+    warped counterpart of K w (fem/warped_force_kernel.py), in vertex order, and the update finishes the force
+    as in the linear step. With its attachment-free variant, as for the linear step."""
 
-    def warped_symplectic_euler(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                                rest, sh_grad, bd_grad, rot, scratch, how, tmp,
-                                mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
+    def warped_symplectic_euler(clusters, slices, rest, work,
+                                mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
                                 att_idx, att_u, att_v, att_a, att_kp, att_kd):
         n = u.shape[0]
         _prepare(n, zeta, fixed, rest, u, v, w, True)
         ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
         for s in range(nsub):
-            force(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                  rest, sh_grad, bd_grad, u, v, w, mass, xi, rot, scratch, how, tmp, f)
-            _attach(s * h, 1.0, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, f)
-            ok = _update(n, h, zeta, inv_mass3, 1.0, f, 0.0, mass3, f_const, rest, u, v, w, True, limit,
+            warped_e(clusters, slices, u, w, work)
+            _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, e)
+            ok = _update(n, h, zeta, inv_mass3, e, xi, mass3, f_const, rest, u, v, w, True, limit,
                          s + 1 < nsub)
         return ok
 
     step = numba.njit(**SERIAL)(warped_symplectic_euler)
 
-    def free_warped_symplectic_euler(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                                     rest, sh_grad, bd_grad, rot, scratch, how, tmp,
-                                     mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f):
-        return step(sh_rows, sh_ptr, sh_cols, sh_blocks, bd_rows, bd_ptr, bd_cols, bd_blocks,
-                    rest, sh_grad, bd_grad, rot, scratch, how, tmp,
-                    mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, f,
+    def free_warped_symplectic_euler(clusters, slices, rest, work,
+                                     mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e):
+        return step(clusters, slices, rest, work,
+                    mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
                     _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
 
     return step, numba.njit(**SERIAL)(free_warped_symplectic_euler)
@@ -161,8 +158,8 @@ def _make_warped_symplectic_euler(force):
 # (attached, attachment-free) builds, serial and threaded kernels
 _step_serial = _make_symplectic_euler(stiffness_slices_serial)
 _step_parallel = _make_symplectic_euler(stiffness_slices_parallel)
-_warped_step_serial = _make_warped_symplectic_euler(warped_rows_serial)
-_warped_step_parallel = _make_warped_symplectic_euler(warped_rows_parallel)
+_warped_step_serial = _make_warped_symplectic_euler(warped_e_serial)
+_warped_step_parallel = _make_warped_symplectic_euler(warped_e_parallel)
 
 
 class ThreadChoice:
@@ -249,12 +246,10 @@ class ClusteredExplicit:
         self.threads = bool(threads)
         if self.warp:
             self.name = "clustered_warp"
-            self.frames = VertexFrames.from_model(model)
-            fixed, work = self.frames.kernel_args()
-            self._model_args = warp_cluster_args(model, self.frames) + fixed + work
+            frames = self.frames = VertexFrames.from_model(model)
+            self._model_args = (frames.clusters, frames.slices, frames.rest, frames.work)
             self._builds = (_warped_step_serial, _warped_step_parallel)
-            self._w = np.zeros((n, 4))
-            self._f = np.empty((n, 3))
+            self._w, self._f = frames.w, frames.e     # w rows padded to 4; e: the sweep's rows, as K w's
         else:
             slices = model.clusters.slices
             self._w, self._f = scratch(slices)  # w rows padded to 4 (one 32-byte load); f: the sweep's K w rows

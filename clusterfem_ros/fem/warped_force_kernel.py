@@ -1,0 +1,150 @@
+"""The warped force's pass over the clusters (eq. 10, symmetric blocks; fem/warping.py), C rows at a time.
+
+With w = x0 + u + zeta v and the vertex rotations R held, the elastic-damping part of the warped force is
+
+    e_i = 1/2 sum_j (R_i K_ij R_i^T + R_j K_ij R_j^T) (w_j - w_i - R_i d_ij),   d_ij = x0_j - x0_i,
+
+and f_i = -e_i - xi m_i v_i, the linear kernel's convention with K w replaced by e (cluster_force_kernel.py).
+Per block, with z = w_j - w_i: y = R_i^T z - d_ij, t = z - R_i d_ij (= R_i y); the R_i half is R_i sum_j K_ij y,
+rotated once per row after the loop, the R_j half is sum_j R_j K_ij R_j^T t.
+
+The pass walks the same slices as the linear kernel (cluster_slices.py: C rows per slice, lane l for row l),
+with d_ij stored per block beside K_ij (``rest_offsets``) and the rotations as rows of 4 (x, y, z, padding)
+per matrix row, so that R_j is gathered like w_j: C row loads and one transpose per matrix row. The row kernel
+it replaced did the 54 products of a block one lane at a time (12 ns per block on the jelly man, Zen 4).
+"""
+from __future__ import annotations
+
+import numba
+from llvmlite import ir
+from numba import prange, types
+from numba.core.errors import TypingError
+from numba.extending import intrinsic
+
+from .cluster_force_kernel import _F64, _I32, _V4, _check_array, _fma, _k, _transpose, _vector_at, accumulating_loop
+from .numba_config import serial_and_parallel
+
+# Doubles per vertex in the rotations' kernel copy: three rows of (R_a0, R_a1, R_a2, padding).
+ROT_ROW = 12
+
+
+@intrinsic(prefer_literal=True)
+def _warped_slice(typingctx, lanes, s, p0, p1, w_at, blocks, offsets, w, rot4, lane_vertex, owner, out):
+    """out[owner[C s + l]] <- e of lane l's vertex (module docstring) over positions p0..p1 of slice s.
+
+    ``lanes`` (C, a literal) rows at once. Per slice: the C rows' own w_i and R_i (lane_vertex[C s + l]; for a
+    padding lane any vertex: its blocks and offsets are zero). Per position: w_j and the three rows of R_j
+    gathered (rows of 4 at w_at = 4 j and 3 w_at) and transposed into C-wide vectors, then the block's nine
+    entries and three offsets as C-wide loads; FMAs in a fixed order, so serial and threaded builds agree to
+    the bit. w_at (P, C) int64, blocks (P, 9, C), offsets (P, 3, C), w (n, 4), rot4 (n, 12), lane_vertex and
+    owner (S C,) int64, out (S C, 3), all C-contiguous (checked at typing); the caller checks the shapes.
+    """
+    if not isinstance(lanes, types.IntegerLiteral) or lanes.literal_value not in (2, 4, 8):
+        raise TypingError(f"_warped_slice: lanes must be the literal 2, 4 or 8, got {lanes}")
+    for name, a in (("s", s), ("p0", p0), ("p1", p1)):
+        if not isinstance(a, types.Integer):
+            raise TypingError(f"_warped_slice: {name} must be an integer, got {a}")
+    for name, a, ndim, dtype in (("w_at", w_at, 2, types.int64), ("blocks", blocks, 3, types.float64),
+                                 ("offsets", offsets, 3, types.float64), ("w", w, 2, types.float64),
+                                 ("rot4", rot4, 2, types.float64), ("lane_vertex", lane_vertex, 1, types.int64),
+                                 ("owner", owner, 1, types.int64), ("out", out, 2, types.float64)):
+        _check_array(name, a, ndim, dtype)
+    C = lanes.literal_value
+    VC = ir.VectorType(_F64, C)
+    sig = types.void(lanes, s, p0, p1, w_at, blocks, offsets, w, rot4, lane_vertex, owner, out)
+
+    def codegen(context, builder, signature, args):
+        sv, p0v, p1v = [context.cast(builder, a, t, types.int64) for a, t in zip(args[1:4], signature.args[1:4])]
+
+        def data(n, as_double=True):
+            p = context.make_array(signature.args[n])(context, builder, args[n]).data
+            return builder.bitcast(p, _F64.as_pointer()) if as_double else p
+
+        atp, blkp, offp, wp, rp = data(4, False), data(5), data(6), data(7), data(8)
+        lvp, ownp, outp = data(9, False), data(10, False), data(11)
+        mul, sub, add = builder.fmul, builder.fsub, builder.fadd
+
+        def fma(a, b, c):
+            return _fma(builder, a, b, c)
+
+        def gathered(w_offsets):
+            """w_j (3 vectors) and R_j (3 x 3 vectors, [a][b] = R[a, b]) of the lanes' w offsets 4 j."""
+            wj = _transpose(builder, [builder.load(_vector_at(builder, wp, at, _V4), align=8) for at in w_offsets])
+            r_at = [builder.mul(at, _k(3)) for at in w_offsets]
+            rj = [_transpose(builder, [builder.load(_vector_at(builder, rp, builder.add(at, _k(4 * a)), _V4), align=8)
+                                       for at in r_at]) for a in range(3)]
+            return wj, rj
+
+        first_lane = builder.mul(sv, _k(C))
+        lane_at = [builder.mul(builder.load(builder.gep(lvp, [builder.add(first_lane, _k(lane))]), align=8), _k(4))
+                   for lane in range(C)]
+        wi, ri = gathered(lane_at)
+        zero = ir.Constant(VC, [0.0] * C)
+
+        def position(p, acc):
+            f, g = acc[:3], acc[3:]
+            first = builder.mul(p, _k(C))
+            wj, rj = gathered([builder.load(builder.gep(atp, [builder.add(first, _k(lane))]), align=8)
+                               for lane in range(C)])
+
+            def entries(ptr, count):
+                base = builder.mul(p, _k(count * C))
+                return [builder.load(_vector_at(builder, ptr, builder.add(base, _k(e * C)), VC), align=8)
+                        for e in range(count)]
+
+            K = entries(blkp, 9)
+            d = entries(offp, 3)
+            z = [sub(wj[c], wi[c]) for c in range(3)]
+            y = [sub(fma(ri[2][b], z[2], fma(ri[1][b], z[1], mul(ri[0][b], z[0]))), d[b]) for b in range(3)]
+            t = [sub(z[a], fma(ri[a][2], d[2], fma(ri[a][1], d[1], mul(ri[a][0], d[0])))) for a in range(3)]
+            f = [fma(K[3 * a + 2], y[2], fma(K[3 * a + 1], y[1], fma(K[3 * a], y[0], f[a]))) for a in range(3)]
+            q = [fma(rj[2][b], t[2], fma(rj[1][b], t[1], mul(rj[0][b], t[0]))) for b in range(3)]
+            pk = [fma(K[3 * a + 2], q[2], fma(K[3 * a + 1], q[1], mul(K[3 * a], q[0]))) for a in range(3)]
+            g = [fma(rj[a][2], pk[2], fma(rj[a][1], pk[1], fma(rj[a][0], pk[0], g[a]))) for a in range(3)]
+            return f + g
+
+        acc = accumulating_loop(builder, p0v, p1v, 1, [zero] * 6, position)
+        f, g = acc[:3], acc[3:]
+        half = ir.Constant(VC, [0.5] * C)
+        e = [mul(half, add(fma(ri[a][2], f[2], fma(ri[a][1], f[1], mul(ri[a][0], f[0]))), g[a])) for a in range(3)]
+        for lane in range(C):
+            row = builder.mul(builder.load(builder.gep(ownp, [builder.add(first_lane, _k(lane))]), align=8), _k(3))
+            for c in range(3):
+                builder.store(builder.extract_element(e[c], ir.Constant(_I32, lane)),
+                              builder.gep(outp, [builder.add(row, _k(c))]), align=8)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+def _warped_sweep(sh_ptr, sh_w_at, sh_blocks, sh_offsets, bd_w_at, bd_blocks, bd_offsets, lane_vertex, owner,
+                  w, rot4, out):
+    """out[i] <- e_i for every vertex i (rows past n: the padding lanes', zero): shared slices, then boundary
+    slices of four positions, in one loop (one parallel region when threaded)."""
+    lanes = sh_w_at.shape[1]
+    ns = sh_ptr.shape[0] - 1
+    for s in prange(ns + bd_w_at.shape[0] // 4):
+        if s < ns:
+            p0, p1, w_at, blocks, offsets = sh_ptr[s], sh_ptr[s + 1], sh_w_at, sh_blocks, sh_offsets
+        else:
+            p0, p1, w_at, blocks, offsets = 4 * (s - ns), 4 * (s - ns) + 4, bd_w_at, bd_blocks, bd_offsets
+        if lanes == 8:
+            _warped_slice(8, s, p0, p1, w_at, blocks, offsets, w, rot4, lane_vertex, owner, out)
+        elif lanes == 4:
+            _warped_slice(4, s, p0, p1, w_at, blocks, offsets, w, rot4, lane_vertex, owner, out)
+        else:
+            _warped_slice(2, s, p0, p1, w_at, blocks, offsets, w, rot4, lane_vertex, owner, out)
+
+
+warped_sweep_serial, warped_sweep_parallel = serial_and_parallel(_warped_sweep)
+
+
+def _rotation_rows(rot, rot4):
+    """rot4[i] <- the rows of rot[i] (3, 3), each padded to 4: the sweep loads a row of R_j at once."""
+    for i in prange(rot.shape[0]):
+        for a in range(3):
+            for b in range(3):
+                rot4[i, 4 * a + b] = rot[i, a, b]
+
+
+rotation_rows_serial, rotation_rows_parallel = serial_and_parallel(_rotation_rows)
