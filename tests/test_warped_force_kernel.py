@@ -1,6 +1,6 @@
-"""The warped force's slice sweep (fem/warped_force_kernel.py): with the rotations held, it equals the numpy
-twin's symmetric eq. 10 to round-off at every lane width, serial and threaded give the same bits, and the
-padding lanes write exact zeros."""
+"""The warped force's slice sweeps (fem/warped_force_kernel.py): with the rotations held, the force equals the
+numpy twin's symmetric eq. 10 to round-off at every lane width, serial and threaded give the same bits, and the
+padding lanes write exact zeros; the deformation gradients equal the twin's least-squares F_i."""
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -10,8 +10,9 @@ from clusterfem_ros.fem.cluster_slices import aligned_zeros, lane_vertices, rest
 from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import build_model
 from clusterfem_ros.fem.voxel_mesh import paper_mesh
-from clusterfem_ros.fem.warped_force_kernel import (ROT_ROW, rotation_rows_serial, warped_sweep_parallel,
-                                                    warped_sweep_serial)
+from clusterfem_ros.fem.warped_force_kernel import (ROT_ROW, gradient_sweep_parallel, gradient_sweep_serial,
+                                                    warped_sweep_parallel, warped_sweep_serial)
+from clusterfem_ros.fem.warping import VertexFrames
 from tests import naive_warping as naive
 from tests.meshes import random_delaunay_mesh
 
@@ -28,7 +29,7 @@ def _sweep(model, lanes, R, u, v, sweep=warped_sweep_serial):
     w = aligned_zeros((n, 4))
     w[:, :3] = model.rest + u + MAT.zeta * v
     rot4 = aligned_zeros((n, ROT_ROW))
-    rotation_rows_serial(R, rot4)
+    rot4.reshape(n, 3, 4)[:, :, :3] = R
     e = np.full((len(sl.owner), 3), np.nan)
     sweep(sl.shared_ptr, sl.shared_w_at, sl.shared_blocks, sh_d, sl.boundary_w_at, sl.boundary_blocks, bd_d,
           lane_vertices(sl), sl.owner, w, rot4, e)
@@ -77,3 +78,31 @@ def test_a_rigid_motion_gives_zero_elastic_force():
     e, _ = _sweep(model, 8, np.repeat(Q[None], n, axis=0), u, np.zeros_like(u))
     scale = abs(model.K).max() * np.abs(x0).max()
     assert np.abs(e[:n]).max() <= 1e-12 * scale
+
+
+@pytest.mark.parametrize("lanes", [2, 4, 8])
+@pytest.mark.parametrize("name", ["sphere", "delaunay"])
+def test_the_gradient_sweep_gives_each_vertex_its_least_squares_deformation_gradient(name, lanes):
+    """F_i = [sum_j (x_j - x_i) d_ij^T] S_i^-1 (the twin, from the assembled blocks' pattern), lane k of F holding
+    vertex owner[k]; the padding lanes hold the identity; the threaded sweep gives the same bits."""
+    model = build_model(MESHES[name](), MAT)
+    n = model.n_vertices
+    frames = VertexFrames.from_model(model, slice_clusters(model.clusters, lanes))
+    sh_ptr, sh_w_at, sh_g, bd_w_at, bd_g, lane_vertex, owner = frames.gradients
+    u = 0.1 * np.ptp(model.rest, axis=0).max() * np.random.default_rng(lanes).standard_normal((n, 3))
+    u4 = aligned_zeros((n, 4))
+    u4[:, :3] = u
+    F = np.full((9, len(owner)), np.nan)
+    gradient_sweep_serial(sh_ptr, sh_w_at, sh_g, bd_w_at, bd_g, lane_vertex, u4, F)
+    twin = naive.BlockTwin(model.K, model.rest)
+    x = model.rest + u
+    e = x[twin.j] - x[twin.i]
+    ref = (twin._sum(e[:, :, None] * twin.d[:, None, :]) @ twin.S_inv).reshape(n, 9)
+    real = owner < n
+    got = np.empty((n, 9))
+    got[owner[real]] = F[:, real].T
+    assert np.abs(got - ref).max() <= 1e-12 * np.abs(ref).max()
+    assert np.all(F[:, ~real] == np.eye(3).reshape(9, 1))
+    F_threaded = np.full_like(F, np.nan)
+    gradient_sweep_parallel(sh_ptr, sh_w_at, sh_g, bd_w_at, bd_g, lane_vertex, u4, F_threaded)
+    assert np.array_equal(F, F_threaded)

@@ -143,18 +143,20 @@ def lane_vertices(sl: ClusterSlices) -> np.ndarray:
     return np.where(sl.owner < sl.n_vertices, sl.owner, 0)
 
 
+def position_lanes(sl: ClusterSlices) -> tuple[np.ndarray, np.ndarray]:
+    """(shared (ps, C), boundary (4 b, C)): the vertex of the lane each block entry belongs to (lane_vertices)."""
+    own = lane_vertices(sl).reshape(-1, sl.lanes)
+    ns = len(sl.shared_ptr) - 1
+    return np.repeat(own[:ns], np.diff(sl.shared_ptr), axis=0), np.repeat(own[ns:], 4, axis=0)
+
+
 def rest_offsets(sl: ClusterSlices, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(shared, boundary) d_ij = x0_j - x0_i per position and lane, (P, 3, C) beside the (P, 9, C) blocks,
     64-byte aligned; zero in every padding entry (its column is the lane's own vertex, or vertex 0 in a
     padding lane). The warped force kernel reads them (warped_force_kernel.py)."""
-    C = sl.lanes
-    own = lane_vertices(sl).reshape(-1, C)
-    ns = len(sl.shared_ptr) - 1
-    sh_own = np.repeat(own[:ns], np.diff(sl.shared_ptr), axis=0)
-    bd_own = np.repeat(own[ns:], 4, axis=0)
     out = []
-    for cols, owner_rows in ((sl.shared_cols, sh_own), (sl.boundary_cols, bd_own)):
-        d = aligned_zeros((len(cols), 3, C))
-        d[...] = np.swapaxes(rest[cols] - rest[owner_rows], 1, 2)
+    for cols, own in zip((sl.shared_cols, sl.boundary_cols), position_lanes(sl)):
+        d = aligned_zeros((len(cols), 3, sl.lanes))
+        d[...] = np.swapaxes(rest[cols] - rest[own], 1, 2)
         out.append(d)
     return out[0], out[1]

@@ -26,7 +26,8 @@ Rotations are held fixed within the force: no dR/dx terms.
 Rotation of vertex i: the least-squares deformation gradient of its cluster neighbourhood
     F_i = [sum_j (x_j - x_i)(x0_j - x0_i)^T] S_i^-1,   S_i = sum_j (x0_j - x0_i)(x0_j - x0_i)^T,
 and R_i = polar(F_i) (rigid motion gives F_i = R exactly, at any angle up to 180 deg). The kernel evaluates
-F_i = I + sum_j (u_j - u_i) g_j^T with the constant g_j = S_i^-1 (x0_j - x0_i) stored per cluster block.
+F_i = I + sum_j (u_j - u_i) g_j^T with the constant g_j = S_i^-1 (x0_j - x0_i) stored per block of the
+cluster slices (warped_force_kernel.py).
 The polar factor is found by iteration from F itself, so it needs no warm start and is exact at 180 deg:
 scaled Newton X <- (g X + X^-T / g) / 2 (Higham) while any vertex is far from it, then the division-free
 Newton-Schulz X <- X (3 I - X^T X) / 2; both run on LANES vertices at once (see the constants below for
@@ -53,11 +54,11 @@ import scipy.sparse as sp
 from numba import prange
 
 from .cluster_force_kernel import finish_parallel, finish_serial
-from .cluster_slices import aligned_zeros, lane_vertices, rest_offsets
+from .cluster_slices import ClusterSlices, aligned_zeros, lane_vertices, position_lanes, rest_offsets
 from .model import FemModel
-from .numba_config import PARALLEL, PARALLEL_MIN_VERTICES, SERIAL, serial_and_parallel
-from .warped_force_kernel import (ROT_ROW, rotation_rows_parallel, rotation_rows_serial, warped_sweep_parallel,
-                                  warped_sweep_serial)
+from .numba_config import PARALLEL, PARALLEL_MIN_VERTICES, SERIAL
+from .warped_force_kernel import (ROT_ROW, gradient_sweep_parallel, gradient_sweep_serial, rows_of_4_parallel,
+                                  rows_of_4_serial, warped_sweep_parallel, warped_sweep_serial)
 
 NEWTON_MAXIT = 40
 MUELLER_MAXIT = 200
@@ -178,48 +179,13 @@ POLAR_MAXPASS = 40
 
 
 @numba.njit(**SERIAL)
-def _chunk_gradients(r0, nl, rows, ptr, cols, grad, u, F, X, how):
-    """Lane l <- vertex i = rows[r0 + l]: F[:, l] = F_i (row-major), X[:, l] = the polar iteration's start:
-    F_i, or I when the neighbourhood is inverted or nearly flat (how[l] = 1: the Mueller fallback's).
-
-    F_i = [sum_j (d_j + u_j - u_i) d_j^T] S_i^-1 = I + sum_j (u_j - u_i) g_j^T with the constant g_j = S_i^-1 d_j
-    (d_j = x0_j - x0_i, stored per cluster block): exact at rest, 9 multiply-adds per block, no S^-1 product."""
+def _chunk_start(nl, F, X, how):
+    """X[:, l] <- the polar iteration's start for lane l of the chunk's deformation gradients F (9, nl): F
+    itself, or I when the neighbourhood is inverted or nearly flat (how[l] = 1: the Mueller fallback's)."""
     for l in range(nl):
-        r = r0 + l
-        i = rows[r]
-        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
-        ui0 = u[i, 0]
-        ui1 = u[i, 1]
-        ui2 = u[i, 2]
-        for k in range(ptr[r], ptr[r + 1]):
-            j = cols[k]
-            e0 = u[j, 0] - ui0
-            e1 = u[j, 1] - ui1
-            e2 = u[j, 2] - ui2
-            g0 = grad[k, 0]
-            g1 = grad[k, 1]
-            g2 = grad[k, 2]
-            a00 += e0 * g0
-            a01 += e0 * g1
-            a02 += e0 * g2
-            a10 += e1 * g0
-            a11 += e1 * g1
-            a12 += e1 * g2
-            a20 += e2 * g0
-            a21 += e2 * g1
-            a22 += e2 * g2
-        f00 = 1.0 + a00
-        f11 = 1.0 + a11
-        f22 = 1.0 + a22
-        F[0, l] = f00
-        F[1, l] = a01
-        F[2, l] = a02
-        F[3, l] = a10
-        F[4, l] = f11
-        F[5, l] = a12
-        F[6, l] = a20
-        F[7, l] = a21
-        F[8, l] = f22
+        f00, a01, a02 = F[0, l], F[1, l], F[2, l]
+        a10, f11, a12 = F[3, l], F[4, l], F[5, l]
+        a20, a21, f22 = F[6, l], F[7, l], F[8, l]
         det = (f00 * (f11 * f22 - a12 * a21) - a01 * (a10 * f22 - a12 * a20) + a02 * (a10 * a21 - f11 * a20))
         nf = (((f00 * f00 + a01 * a01) + (a02 * a02 + a10 * a10)) + ((f11 * f11 + a12 * a12) + (a20 * a20 + a21 * a21))
               + f22 * f22) / 3.0
@@ -362,12 +328,15 @@ def _orthogonal(r00, r01, r02, r10, r11, r12, r20, r21, r22):
 
 
 @numba.njit(**SERIAL)
-def _chunk_rotations(r0, nl, rows, F, P, converged, how, tmp, rot):
-    """rot[i] (i = rows[r0 + l]) <- lane l's polar factor P[:, l] if every lane converged or this one is
-    orthogonal, else the scalar _rotation_of of F[:, l] (inverted/flat: Mueller from the previous rotation;
-    or no convergence)."""
+def _chunk_rotations(k0, nl, owner, F, P, converged, how, tmp, rot, rot4):
+    """rot[i] and rot4[i] (i = owner[k0 + l], skipped past the n vertices: padding lanes) <- lane l's polar
+    factor P[:, l] if every lane converged or this one is orthogonal, else the scalar _rotation_of of F[:, l]
+    (inverted/flat: Mueller from the previous rotation; or no convergence)."""
+    n = rot.shape[0]
     for l in range(nl):
-        i = rows[r0 + l]
+        i = owner[k0 + l]
+        if i >= n:
+            continue
         r00, r01, r02 = P[0, l], P[1, l], P[2, l]
         r10, r11, r12 = P[3, l], P[4, l], P[5, l]
         r20, r21, r22 = P[6, l], P[7, l], P[8, l]
@@ -380,64 +349,69 @@ def _chunk_rotations(r0, nl, rows, F, P, converged, how, tmp, rot):
                 for b in range(3):
                     tmp[0, a, b] = F[3 * a + b, l]
             _rotation_of(tmp[0], tmp[1], rot[i])
+        for a in range(3):
+            for b in range(3):
+                rot4[i, 4 * a + b] = rot[i, a, b]
 
 
 @numba.njit(**SERIAL)
-def _rotate_chunk(c, sh_rows, sh_ptr, sh_cols, sh_grad, bd_rows, bd_ptr, bd_cols, bd_grad, u, rot, scratch, how,
-                  tmp):
-    """Chunk c's vertex rotations (shared-cluster chunks first, then boundary ones): gradients gathered into
-    lanes, polar iteration on all lanes, stored."""
-    nsh = (sh_rows.shape[0] + LANES - 1) // LANES
-    if c < nsh:
-        rows, ptr, cols, grad, r0 = sh_rows, sh_ptr, sh_cols, sh_grad, c * LANES
-    else:
-        rows, ptr, cols, grad, r0 = bd_rows, bd_ptr, bd_cols, bd_grad, (c - nsh) * LANES
-    nl = min(LANES, rows.shape[0] - r0)
+def _rotate_chunk(c, owner, F, rot, rot4, scratch, how, tmp):
+    """Chunk c's vertex rotations: lanes c LANES.. of F (slice order), polar iteration on all lanes, stored."""
+    k0 = c * LANES
+    nl = min(LANES, F.shape[1] - k0)
+    Fc = F[:, k0:k0 + nl]
     buf = scratch[c]
-    _chunk_gradients(r0, nl, rows, ptr, cols, grad, u, buf[0], buf[1], how[c])
-    P, converged = _polar_lanes(nl, buf[1], buf[2])
-    _chunk_rotations(r0, nl, rows, buf[0], P, converged, how[c], tmp[c], rot)
+    _chunk_start(nl, Fc, buf[0], how[c])
+    P, converged = _polar_lanes(nl, buf[0], buf[1])
+    _chunk_rotations(k0, nl, owner, Fc, P, converged, how[c], tmp[c], rot, rot4)
 
 
-def _make_warped_kernels(sweep, rotation_rows, finish, flags):
-    """The warped kernels around one build (serial or threaded) of the slice sweep and its helpers. Argument
-    groups (VertexFrames): ``clusters``, the cluster rows for the rotations; ``slices``, the
-    sweep's (cluster slices with rest offsets); ``work``, (rot, scratch, how, tmp, rot4, e)."""
+def _make_rotation_kernel(gradient_sweep, rows_of_4, flags):
+    """The rotations around one build (serial or threaded) of the gradient sweep."""
 
-    def warped_e(clusters, slices, u, w, work):
-        """e <- the elastic-damping part of the warped force of w = x0 + u + zeta v (warped_force_kernel.py),
-        in rows by vertex (the padding lanes' rows after the n vertices'); rot <- the vertex rotations.
-        Every rotation first (a row reads its neighbours'), then their rows of 4, then the sweep."""
-        rot, scratch, how, tmp, rot4, e = work
+    def rotations(gradients, u, work):
+        """rot, rot4 <- the vertex rotations of u. ``gradients``: (sh_ptr, sh_w_at, sh_grads, bd_w_at, bd_grads,
+        lane_vertex, owner) (VertexFrames); ``work``: (rot, rot4, u4, F, scratch, how, tmp, e)."""
+        rot, rot4, u4, F, scratch, how, tmp, _ = work
+        rows_of_4(u, u4)
+        gradient_sweep(*gradients[:6], u4, F)
         for c in prange(scratch.shape[0]):
-            _rotate_chunk(c, *clusters, u, rot, scratch, how, tmp)
-        rotation_rows(rot, rot4)
-        sweep(*slices, w, rot4, e)
+            _rotate_chunk(c, gradients[6], F, rot, rot4, scratch, how, tmp)
 
-    warped_e = numba.njit(**flags)(warped_e)
+    return numba.njit(**flags)(rotations)
 
-    def warped_force(clusters, slices, rest, u, v, w, mass3, zeta, xi, work, out):
+
+def _make_warped_kernels(rotations, sweep, finish, flags):
+    """The warped kernels around one build (serial or threaded) of the rotations, the force sweep and the finish.
+    Argument groups (VertexFrames): ``gradients`` and ``slices``, the two sweeps' slice arrays; ``work``, the
+    workspace (rot, rot4, u4, F, scratch, how, tmp, e)."""
+
+    def warped_e(gradients, slices, u, w, work):
+        """e <- the elastic-damping part of the warped force of w = x0 + u + zeta v (warped_force_kernel.py),
+        in rows by vertex (the padding lanes' rows after the n vertices'); rot <- the vertex rotations of u.
+        Every rotation first (a row reads its neighbours'), then the sweep."""
+        rotations(gradients, u, work)
+        sweep(*slices, w, work[1], work[7])
+
+    warped_e = numba.njit(**SERIAL)(warped_e)     # no loop of its own: its callees carry the threads
+
+    def warped_force(gradients, slices, rest, u, v, w, mass3, zeta, xi, work, out):
         """out <- the warped force of (u, v), f = -e - xi M v (mass3: the lumped mass per coordinate)."""
         for i in prange(u.shape[0]):
             for c in range(3):
                 w[i, c] = rest[i, c] + u[i, c] + zeta * v[i, c]
-        warped_e(clusters, slices, u, w, work)
-        finish(work[5], v, mass3, xi, out)
+        warped_e(gradients, slices, u, w, work)
+        finish(work[7], v, mass3, xi, out)
 
     return warped_e, numba.njit(**flags)(warped_force)
 
 
-def _rotation_kernel(clusters, u, rot, scratch, how, tmp):
-    """rot <- the vertex rotations of u."""
-    for c in prange(scratch.shape[0]):
-        _rotate_chunk(c, *clusters, u, rot, scratch, how, tmp)
-
-
-warped_e_serial, warped_kernel_serial = _make_warped_kernels(warped_sweep_serial, rotation_rows_serial,
+rotation_kernel_serial = _make_rotation_kernel(gradient_sweep_serial, rows_of_4_serial, SERIAL)
+rotation_kernel_parallel = _make_rotation_kernel(gradient_sweep_parallel, rows_of_4_parallel, PARALLEL)
+warped_e_serial, warped_kernel_serial = _make_warped_kernels(rotation_kernel_serial, warped_sweep_serial,
                                                              finish_serial, SERIAL)
-warped_e_parallel, warped_kernel_parallel = _make_warped_kernels(warped_sweep_parallel, rotation_rows_parallel,
+warped_e_parallel, warped_kernel_parallel = _make_warped_kernels(rotation_kernel_parallel, warped_sweep_parallel,
                                                                  finish_parallel, PARALLEL)
-rotation_kernel_serial, rotation_kernel_parallel = serial_and_parallel(_rotation_kernel)
 
 
 def rest_gram_inverse(model: FemModel) -> np.ndarray:
@@ -459,47 +433,51 @@ def rest_gram_inverse(model: FemModel) -> np.ndarray:
 @dataclass
 class VertexFrames:
     """What warping keeps per model: rest positions, S_i^-1, each vertex's last rotation (the fallback's
-    warm start), the kernels' argument groups and workspace."""
+    warm start), the kernels' argument groups over the cluster slices (cluster_slices.py) and workspace."""
     rest: np.ndarray        # (n, 3)
     s0inv: np.ndarray       # (n, 3, 3)
     rot: np.ndarray         # (n, 3, 3), updated by every force / rotation call
-    clusters: tuple         # the rotations' cluster rows: (sh_rows, sh_ptr, sh_cols, sh_grad, bd_rows, bd_ptr,
-                            #   bd_cols, bd_grad), grad g = S_i^-1 (x0_j - x0_i) per block
+    gradients: tuple        # the gradient sweep's: (sh_ptr, sh_w_at, sh_grads, bd_w_at, bd_grads, lane_vertex,
+                            #   owner); g = S_i^-1 (x0_j - x0_i) per block, (P, 3, C)
     slices: tuple           # the force sweep's: (sh_ptr, sh_w_at, sh_blocks, sh_offsets, bd_w_at, bd_blocks,
-                            #   bd_offsets, lane_vertex, owner) (cluster_slices.py, warped_force_kernel.py)
+                            #   bd_offsets, lane_vertex, owner); offsets d = x0_j - x0_i per block, (P, 3, C)
     w: np.ndarray           # (n, 4) workspace: x + zeta v, rows padded to 4
-    scratch: np.ndarray     # (chunks, 3, 9, LANES) workspace: F, polar iterates
+    rot4: np.ndarray        # (n, 12) workspace: the rotations' rows padded to 4
+    u4: np.ndarray          # (n, 4) workspace: u, rows padded to 4
+    F: np.ndarray           # (9, n_slices * C) workspace: deformation gradient per lane, slice order
+    scratch: np.ndarray     # (chunks, 2, 9, LANES) workspace: polar iterates
     how: np.ndarray         # (chunks, LANES) workspace: 0 polar, 1 inverted/flat
     tmp: np.ndarray         # (chunks, 2, 3, 3) workspace of the scalar fallback
-    rot4: np.ndarray        # (n, 12) workspace: the rotations' rows padded to 4
-    e: np.ndarray           # (n_slices * C, 3) workspace: the sweep's rows (vertex i's in row i)
+    e: np.ndarray           # (n_slices * C, 3) workspace: the force sweep's rows (vertex i's in row i)
 
     @classmethod
-    def from_model(cls, model: FemModel) -> "VertexFrames":
+    def from_model(cls, model: FemModel, slices: ClusterSlices | None = None) -> "VertexFrames":
+        """``slices``: the cluster slices to walk (default the model's, as wide as this host's vectors)."""
         n = model.n_vertices
-        cl = model.clusters
-        sl = cl.slices
-        chunks = -(-len(cl.shared_rows) // LANES) - (-len(cl.boundary_rows) // LANES)
+        sl = model.clusters.slices if slices is None else slices
+        lanes = len(sl.owner)
+        chunks = -(-lanes // LANES)
         rest = np.ascontiguousarray(model.rest, dtype=np.float64)
-        bd_ptr = 4 * np.arange(len(cl.boundary_rows) + 1, dtype=np.int64)
         s0inv = rest_gram_inverse(model)
-
-        def grad(rows, ptr, cols):
-            i = np.repeat(rows, np.diff(ptr))
-            return np.ascontiguousarray(np.einsum("kab,kb->ka", s0inv[i], rest[cols] - rest[i]))
-        clusters = (cl.shared_rows, cl.shared_ptr, cl.shared_cols, grad(cl.shared_rows, cl.shared_ptr, cl.shared_cols),
-                    cl.boundary_rows, bd_ptr, cl.boundary_cols, grad(cl.boundary_rows, bd_ptr, cl.boundary_cols))
-        sh_offsets, bd_offsets = rest_offsets(sl, rest)
-        slices = (sl.shared_ptr, sl.shared_w_at, sl.shared_blocks, sh_offsets, sl.boundary_w_at, sl.boundary_blocks,
-                  bd_offsets, lane_vertices(sl), sl.owner)
-        return cls(rest, s0inv, np.repeat(np.eye(3)[None], n, axis=0), clusters, slices,
-                   aligned_zeros((n, 4)), np.zeros((chunks, 3, 9, LANES)), np.zeros((chunks, LANES), dtype=np.int8),
-                   np.zeros((chunks, 2, 3, 3)), aligned_zeros((n, ROT_ROW)), np.zeros((len(sl.owner), 3)))
+        lane_vertex = lane_vertices(sl)
+        offsets = rest_offsets(sl, rest)
+        grads = []
+        for d, own in zip(offsets, position_lanes(sl)):       # g = S_i^-1 d per entry; zero where d is
+            g = aligned_zeros(d.shape)
+            g[...] = np.einsum("pcab,pbc->pac", s0inv[own], d)
+            grads.append(g)
+        gradients = (sl.shared_ptr, sl.shared_w_at, grads[0], sl.boundary_w_at, grads[1], lane_vertex, sl.owner)
+        slices = (sl.shared_ptr, sl.shared_w_at, sl.shared_blocks, offsets[0], sl.boundary_w_at, sl.boundary_blocks,
+                  offsets[1], lane_vertex, sl.owner)
+        return cls(rest, s0inv, np.repeat(np.eye(3)[None], n, axis=0), gradients, slices,
+                   aligned_zeros((n, 4)), aligned_zeros((n, ROT_ROW)), aligned_zeros((n, 4)), aligned_zeros((9, lanes)),
+                   np.zeros((chunks, 2, 9, LANES)), np.zeros((chunks, LANES), dtype=np.int8),
+                   np.zeros((chunks, 2, 3, 3)), np.zeros((lanes, 3)))
 
     @property
     def work(self) -> tuple:
-        """The kernels' workspace group: (rot, scratch, how, tmp, rot4, e)."""
-        return self.rot, self.scratch, self.how, self.tmp, self.rot4, self.e
+        """The kernels' workspace group: (rot, rot4, u4, F, scratch, how, tmp, e)."""
+        return self.rot, self.rot4, self.u4, self.F, self.scratch, self.how, self.tmp, self.e
 
 
 class AssembledWarp:
@@ -576,7 +554,7 @@ def vertex_rotations(model: FemModel, u: np.ndarray, frames: VertexFrames | None
     (u,) = _check(model, u=u)
     frames = VertexFrames.from_model(model) if frames is None else frames
     kern = _pick(model.n_vertices, threads, rotation_kernel_serial, rotation_kernel_parallel)
-    kern(frames.clusters, u, frames.rot, frames.scratch, frames.how, frames.tmp)
+    kern(frames.gradients, u, frames.work)
     return frames.rot.copy()
 
 
@@ -593,6 +571,6 @@ def warped_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None, fr
         raise ValueError(f"out must be a C-contiguous ({n}, 3) float64 array, got {out.dtype} {out.shape}")
     kern = _pick(n, threads, warped_kernel_serial, warped_kernel_parallel)
     m = model.material
-    kern(frames.clusters, frames.slices, frames.rest, u, v, frames.w, np.repeat(model.mass, 3), float(m.zeta),
+    kern(frames.gradients, frames.slices, frames.rest, u, v, frames.w, np.repeat(model.mass, 3), float(m.zeta),
          float(m.xi), frames.work, out)
     return out

@@ -131,14 +131,14 @@ def _make_warped_symplectic_euler(warped_e):
     warped counterpart of K w (fem/warped_force_kernel.py), in vertex order, and the update finishes the force
     as in the linear step. With its attachment-free variant, as for the linear step."""
 
-    def warped_symplectic_euler(clusters, slices, rest, work,
+    def warped_symplectic_euler(gradients, slices, rest, work,
                                 mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
                                 att_idx, att_u, att_v, att_a, att_kp, att_kd):
         n = u.shape[0]
         _prepare(n, zeta, fixed, rest, u, v, w, True)
         ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
         for s in range(nsub):
-            warped_e(clusters, slices, u, w, work)
+            warped_e(gradients, slices, u, w, work)
             _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, e)
             ok = _update(n, h, zeta, inv_mass3, e, xi, mass3, f_const, rest, u, v, w, True, limit,
                          s + 1 < nsub)
@@ -146,9 +146,9 @@ def _make_warped_symplectic_euler(warped_e):
 
     step = numba.njit(**SERIAL)(warped_symplectic_euler)
 
-    def free_warped_symplectic_euler(clusters, slices, rest, work,
+    def free_warped_symplectic_euler(gradients, slices, rest, work,
                                      mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e):
-        return step(clusters, slices, rest, work,
+        return step(gradients, slices, rest, work,
                     mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
                     _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
 
@@ -247,7 +247,7 @@ class ClusteredExplicit:
         if self.warp:
             self.name = "clustered_warp"
             frames = self.frames = VertexFrames.from_model(model)
-            self._model_args = (frames.clusters, frames.slices, frames.rest, frames.work)
+            self._model_args = (frames.gradients, frames.slices, frames.rest, frames.work)
             self._builds = (_warped_step_serial, _warped_step_parallel)
             self._w, self._f = frames.w, frames.e     # w rows padded to 4; e: the sweep's rows, as K w's
         else:
