@@ -31,8 +31,8 @@ def _sweep(model, lanes, R, u, v, sweep=warped_sweep_serial):
     rot4 = aligned_zeros((n, ROT_ROW))
     rot4.reshape(n, 3, 4)[:, :, :3] = R
     e = np.full((len(sl.owner), 3), np.nan)
-    sweep(sl.shared_ptr, sl.shared_w_at, sl.shared_blocks, sh_d, sl.boundary_w_at, sl.boundary_blocks, bd_d,
-          lane_vertices(sl), sl.owner, w, rot4, e)
+    sweep(sl.shared_ptr, (sl.shared_w_at, sl.shared_blocks, sh_d), (sl.boundary_w_at, sl.boundary_blocks, bd_d),
+          (w, rot4, lane_vertices(sl), sl.owner, e))
     f = np.empty((n, 3))
     finish_serial(e, v, np.repeat(model.mass, 3), MAT.xi, f)
     return e, f
@@ -88,12 +88,12 @@ def test_the_gradient_sweep_gives_each_vertex_its_least_squares_deformation_grad
     model = build_model(MESHES[name](), MAT)
     n = model.n_vertices
     frames = VertexFrames.from_model(model, slice_clusters(model.clusters, lanes))
-    sh_ptr, sh_w_at, sh_g, bd_w_at, bd_g, lane_vertex, owner = frames.gradients
+    sh_ptr, shared, boundary, lane_vertex, owner = frames.gradients
     u = 0.1 * np.ptp(model.rest, axis=0).max() * np.random.default_rng(lanes).standard_normal((n, 3))
     u4 = aligned_zeros((n, 4))
     u4[:, :3] = u
     F = np.full((9, len(owner)), np.nan)
-    gradient_sweep_serial(sh_ptr, sh_w_at, sh_g, bd_w_at, bd_g, lane_vertex, u4, F)
+    gradient_sweep_serial(sh_ptr, shared, boundary, (u4, lane_vertex, F))
     twin = naive.BlockTwin(model.K, model.rest)
     x = model.rest + u
     e = x[twin.j] - x[twin.i]
@@ -104,5 +104,5 @@ def test_the_gradient_sweep_gives_each_vertex_its_least_squares_deformation_grad
     assert np.abs(got - ref).max() <= 1e-12 * np.abs(ref).max()
     assert np.all(F[:, ~real] == np.eye(3).reshape(9, 1))
     F_threaded = np.full_like(F, np.nan)
-    gradient_sweep_parallel(sh_ptr, sh_w_at, sh_g, bd_w_at, bd_g, lane_vertex, u4, F_threaded)
+    gradient_sweep_parallel(sh_ptr, shared, boundary, (u4, lane_vertex, F_threaded))
     assert np.array_equal(F, F_threaded)

@@ -93,9 +93,45 @@ def _transpose(builder, rows):
             for c in range(3)]
 
 
-def _check_array(name, a, ndim, dtype):
-    if not (isinstance(a, types.Array) and a.ndim == ndim and a.dtype == dtype and a.layout == "C"):
-        raise TypingError(f"_slice_force: {name} must be a C-contiguous {ndim}-d {dtype} array, got {a}")
+def slice_kernel_typing(kernel, lanes, s, p0, p1, per_position, common, specs):
+    """The typing checks every slice kernel makes; returns C. A slice kernel is called as
+    ``kernel(lanes, s, p0, p1, per_position, common)`` (slice_sweep): ``lanes`` (C) a literal 2, 4 or 8,
+    slice s, positions p0..p1, and two tuples of C-contiguous arrays, per position (w_at first) and common;
+    specs: (name, ndim, dtype) of every array of the two, in order."""
+    if not isinstance(lanes, types.IntegerLiteral) or lanes.literal_value not in (2, 4, 8):
+        raise TypingError(f"{kernel}: lanes must be the literal 2, 4 or 8, got {lanes}")
+    for name, a in (("s", s), ("p0", p0), ("p1", p1)):
+        if not isinstance(a, types.Integer):
+            raise TypingError(f"{kernel}: {name} must be an integer, got {a}")
+    for name, group in (("per_position", per_position), ("common", common)):
+        if not isinstance(group, types.BaseTuple):
+            raise TypingError(f"{kernel}: {name} must be a tuple of arrays, got {group}")
+    arrays = [*per_position.types, *common.types]
+    if len(arrays) != len(specs):
+        raise TypingError(f"{kernel}: expected the arrays {[sp[0] for sp in specs]}, got {len(arrays)} arrays")
+    for (name, ndim, dtype), a in zip(specs, arrays):
+        if not (isinstance(a, types.Array) and a.ndim == ndim and a.dtype == dtype and a.layout == "C"):
+            raise TypingError(f"{kernel}: {name} must be a C-contiguous {ndim}-d {dtype} array, got {a}")
+    return lanes.literal_value
+
+
+def slice_kernel_args(context, builder, signature, args):
+    """(s, p0, p1 as i64 values, the arrays of both tuples in order) inside a slice kernel's codegen."""
+    sv, p0v, p1v = [context.cast(builder, a, t, types.int64) for a, t in zip(args[1:4], signature.args[1:4])]
+    arrays = []
+    for group, value in zip(signature.args[4:6], args[4:6]):
+        for t, v in zip(group.types, cgutils.unpack_tuple(builder, value, len(group.types))):
+            arrays.append(context.make_array(t)(context, builder, v))
+    return sv, p0v, p1v, arrays
+
+
+def double_data(builder, array):
+    """An array struct's data as a double pointer."""
+    return builder.bitcast(array.data, _F64.as_pointer())
+
+
+_LINEAR_SPECS = (("w_at", 2, types.int64), ("blocks", 3, types.float64), ("w", 2, types.float64),
+                 ("owner", 1, types.int64), ("out", 2, types.float64))
 
 
 def _slice_force_intrinsic(gather: bool):
@@ -103,8 +139,9 @@ def _slice_force_intrinsic(gather: bool):
     does the same FMAs but holds w at row 0 instead of gathering each position's C rows (its time against the
     full kernel's is the gather's cost: bench/core_benchmark.py)."""
     @intrinsic(prefer_literal=True)
-    def _slice_force(typingctx, lanes, s, p0, p1, w_at, blocks, w, owner, out):
-        """out[owner[C s + l]] <- sum_p blocks[p, :, l] w[j_p,l] over positions p0..p1 of slice s, each lane l.
+    def _slice_force(typingctx, lanes, s, p0, p1, per_position, common):
+        """out[owner[C s + l]] <- sum_p blocks[p, :, l] w[j_p,l] over positions p0..p1 of slice s, each lane l;
+        per_position = (w_at, blocks), common = (w, owner, out).
 
         ``lanes`` (C, a literal) rows at once, lane l for row l: per position, C rows of w (32-byte loads at
         the offsets w_at = 4 j: w rows are padded to 4) transposed into three C-wide vectors, then nine C-wide
@@ -114,36 +151,19 @@ def _slice_force_intrinsic(gather: bool):
         blocks (P, 9, C), w (n, 4), owner (S C,) int64, out (S C, 3) float64, C-contiguous (checked at
         typing); callers check w.shape[1] == 4 and out.shape == (S C, 3).
         """
-        return _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, owner, out)
+        return _slice_force_typing(gather, lanes, s, p0, p1, per_position, common)
     return _slice_force
 
 
-def _slice_force_typing(gather, lanes, s, p0, p1, w_at, blocks, w, owner, out):
-    if not isinstance(lanes, types.IntegerLiteral) or lanes.literal_value not in (2, 4, 8):
-        raise TypingError(f"_slice_force: lanes must be the literal 2, 4 or 8, got {lanes}")
-    for name, a in (("s", s), ("p0", p0), ("p1", p1)):
-        if not isinstance(a, types.Integer):
-            raise TypingError(f"_slice_force: {name} must be an integer, got {a}")
-    _check_array("w_at", w_at, 2, types.int64)
-    _check_array("blocks", blocks, 3, types.float64)
-    _check_array("w", w, 2, types.float64)
-    _check_array("owner", owner, 1, types.int64)
-    _check_array("out", out, 2, types.float64)
-    C = lanes.literal_value
+def _slice_force_typing(gather, lanes, s, p0, p1, per_position, common):
+    C = slice_kernel_typing("_slice_force", lanes, s, p0, p1, per_position, common, _LINEAR_SPECS)
     VC = ir.VectorType(_F64, C)
-    sig = types.void(lanes, s, p0, p1, w_at, blocks, w, owner, out)
+    sig = types.void(lanes, s, p0, p1, per_position, common)
 
     def codegen(context, builder, signature, args):
-        sv, p0v, p1v = [context.cast(builder, a, t, types.int64) for a, t in zip(args[1:4], signature.args[1:4])]
-
-        def data(n):
-            return context.make_array(signature.args[n])(context, builder, args[n])
-
-        atp = data(4).data
-        blkp = builder.bitcast(data(5).data, _F64.as_pointer())
-        wp = builder.bitcast(data(6).data, _F64.as_pointer())
-        ownp = data(7).data
-        outp = builder.bitcast(data(8).data, _F64.as_pointer())
+        sv, p0v, p1v, arrays = slice_kernel_args(context, builder, signature, args)
+        atp, ownp = arrays[0].data, arrays[3].data
+        blkp, wp, outp = (double_data(builder, arrays[k]) for k in (1, 2, 4))
         zero = ir.Constant(VC, [0.0] * C)
         if not gather:                          # row 0 of w in every lane, loaded once
             held = _transpose(builder, [builder.load(_vector_at(builder, wp, _k(0), _V4), align=8)] * C)
@@ -184,44 +204,50 @@ _slice_force = _slice_force_intrinsic(gather=True)
 slice_force_held_w = _slice_force_intrinsic(gather=False)
 
 
-def _make_stiffness_kernel(slice_force):
-    """The sweep over every slice around one build of the slice kernel (the real one, or the benchmark's
+def slice_sweep(slice_fn):
+    """The loop over every slice around one slice kernel, ``slice_fn(lanes, s, p0, p1, per_position, common)``:
+    shared slices (positions sh_ptr[s]..sh_ptr[s+1]) then boundary slices of four positions, in one loop (one
+    parallel region when threaded), the kernel built for the slices' lane count (8, 4 or 2). ``shared`` and
+    ``boundary``: the per-position arrays of each part, w_at (P, C) first; ``common``: the kernel's other
+    arguments. Used here and by the warped sweeps (warped_force_kernel.py); serial_and_parallel builds it."""
+
+    def sweep(sh_ptr, shared, boundary, common):
+        lanes = shared[0].shape[1]
+        ns = sh_ptr.shape[0] - 1
+        for s in prange(ns + boundary[0].shape[0] // 4):
+            if s < ns:
+                p0, p1, arrays = sh_ptr[s], sh_ptr[s + 1], shared
+            else:
+                p0, p1, arrays = 4 * (s - ns), 4 * (s - ns) + 4, boundary
+            if lanes == 8:
+                slice_fn(8, s, p0, p1, arrays, common)
+            elif lanes == 4:
+                slice_fn(4, s, p0, p1, arrays, common)
+            else:
+                slice_fn(2, s, p0, p1, arrays, common)
+
+    return sweep
+
+
+def _make_stiffness_kernel(sweep):
+    """The checked linear sweep around one build of slice_sweep (the real slice kernel's, or the benchmark's
     control that holds w)."""
 
-    def _stiffness_slices_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
-        """kw[i] <- (K w)_i for every vertex i (rows past n: the padding lanes', zero): shared slices, then
-        boundary slices of four positions, in one loop (one parallel region when threaded)."""
+    def stiffness_slices(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
+        """kw[i] <- (K w)_i for every vertex i (rows past n: the padding lanes', zero)."""
         if w.shape[1] != W_ROW:
             raise ValueError("the cluster force kernel needs w with 4 columns (x, y, z, padding)")
         if kw.shape[0] != owner.shape[0] or kw.shape[1] != 3:
             raise ValueError("the cluster force kernel needs kw with a row of 3 per lane of the slices (scratch())")
-        lanes = sh_w_at.shape[1]
-        ns = sh_ptr.shape[0] - 1
-        for s in prange(ns + bd_w_at.shape[0] // 4):
-            if s < ns:
-                p0, p1, w_at, blocks = sh_ptr[s], sh_ptr[s + 1], sh_w_at, sh_blocks
-            else:
-                p0, p1, w_at, blocks = 4 * (s - ns), 4 * (s - ns) + 4, bd_w_at, bd_blocks
-            if lanes == 8:
-                slice_force(8, s, p0, p1, w_at, blocks, w, owner, kw)
-            elif lanes == 4:
-                slice_force(4, s, p0, p1, w_at, blocks, w, owner, kw)
-            else:
-                slice_force(2, s, p0, p1, w_at, blocks, w, owner, kw)
+        sweep(sh_ptr, (sh_w_at, sh_blocks), (bd_w_at, bd_blocks), (w, owner, kw))
 
-    return _stiffness_slices_kernel
+    return numba.njit(**SERIAL)(stiffness_slices)     # no loop of its own: the sweep carries the threads
 
 
-def _held_w_kernel():
-    """The serial sweep with w held at row 0 (bench/core_benchmark.py's control: no gather of w)."""
-    fn = _make_stiffness_kernel(slice_force_held_w)
-    fn.__qualname__ = "stiffness_held_w"       # numba's cache keys by qualified name: not the real sweep's
-    return numba.njit(**SERIAL)(fn)
-
-
-_stiffness_slices_kernel = _make_stiffness_kernel(_slice_force)
-stiffness_slices_serial, stiffness_slices_parallel = serial_and_parallel(_stiffness_slices_kernel)
-stiffness_held_w_serial = _held_w_kernel()
+_sweeps = serial_and_parallel(slice_sweep(_slice_force))
+stiffness_slices_serial, stiffness_slices_parallel = (_make_stiffness_kernel(sweep) for sweep in _sweeps)
+# the benchmark's control: the serial sweep with w held at row 0 (no gather of w)
+stiffness_held_w_serial = _make_stiffness_kernel(numba.njit(**SERIAL)(slice_sweep(slice_force_held_w)))
 
 
 def _finish_kernel(kw, v, mass3, xi, out):

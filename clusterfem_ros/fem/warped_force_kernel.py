@@ -25,19 +25,25 @@ import numba
 from llvmlite import ir
 from numba import prange, types
 from numba.core import cgutils
-from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from .cluster_force_kernel import _F64, _I32, _V4, _check_array, _fma, _k, _transpose, _vector_at, accumulating_loop
+from .cluster_force_kernel import (_F64, _I32, _V4, _fma, _k, _transpose, _vector_at, accumulating_loop, double_data,
+                                   slice_kernel_args, slice_kernel_typing, slice_sweep)
 from .numba_config import serial_and_parallel
 
 # Doubles per vertex in the rotations' kernel copy: three rows of (R_a0, R_a1, R_a2, padding).
 ROT_ROW = 12
 
 
+_WARPED_SPECS = (("w_at", 2, types.int64), ("blocks", 3, types.float64), ("offsets", 3, types.float64),
+                 ("w", 2, types.float64), ("rot4", 2, types.float64), ("lane_vertex", 1, types.int64),
+                 ("owner", 1, types.int64), ("out", 2, types.float64))
+
+
 @intrinsic(prefer_literal=True)
-def _warped_slice(typingctx, lanes, s, p0, p1, w_at, blocks, offsets, w, rot4, lane_vertex, owner, out):
-    """out[owner[C s + l]] <- e of lane l's vertex (module docstring) over positions p0..p1 of slice s.
+def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
+    """out[owner[C s + l]] <- e of lane l's vertex (module docstring) over positions p0..p1 of slice s;
+    per_position = (w_at, blocks, offsets), common = (w, rot4, lane_vertex, owner, out).
 
     ``lanes`` (C, a literal) rows at once. Per slice: the C rows' own w_i and R_i (lane_vertex[C s + l]; for a
     padding lane any vertex: its blocks and offsets are zero). Per position: w_j and the three rows of R_j
@@ -46,29 +52,14 @@ def _warped_slice(typingctx, lanes, s, p0, p1, w_at, blocks, offsets, w, rot4, l
     the bit. w_at (P, C) int64, blocks (P, 9, C), offsets (P, 3, C), w (n, 4), rot4 (n, 12), lane_vertex and
     owner (S C,) int64, out (S C, 3), all C-contiguous (checked at typing); the caller checks the shapes.
     """
-    if not isinstance(lanes, types.IntegerLiteral) or lanes.literal_value not in (2, 4, 8):
-        raise TypingError(f"_warped_slice: lanes must be the literal 2, 4 or 8, got {lanes}")
-    for name, a in (("s", s), ("p0", p0), ("p1", p1)):
-        if not isinstance(a, types.Integer):
-            raise TypingError(f"_warped_slice: {name} must be an integer, got {a}")
-    for name, a, ndim, dtype in (("w_at", w_at, 2, types.int64), ("blocks", blocks, 3, types.float64),
-                                 ("offsets", offsets, 3, types.float64), ("w", w, 2, types.float64),
-                                 ("rot4", rot4, 2, types.float64), ("lane_vertex", lane_vertex, 1, types.int64),
-                                 ("owner", owner, 1, types.int64), ("out", out, 2, types.float64)):
-        _check_array(name, a, ndim, dtype)
-    C = lanes.literal_value
+    C = slice_kernel_typing("_warped_slice", lanes, s, p0, p1, per_position, common, _WARPED_SPECS)
     VC = ir.VectorType(_F64, C)
-    sig = types.void(lanes, s, p0, p1, w_at, blocks, offsets, w, rot4, lane_vertex, owner, out)
+    sig = types.void(lanes, s, p0, p1, per_position, common)
 
     def codegen(context, builder, signature, args):
-        sv, p0v, p1v = [context.cast(builder, a, t, types.int64) for a, t in zip(args[1:4], signature.args[1:4])]
-
-        def data(n, as_double=True):
-            p = context.make_array(signature.args[n])(context, builder, args[n]).data
-            return builder.bitcast(p, _F64.as_pointer()) if as_double else p
-
-        atp, blkp, offp, wp, rp = data(4, False), data(5), data(6), data(7), data(8)
-        lvp, ownp, outp = data(9, False), data(10, False), data(11)
+        sv, p0v, p1v, arrays = slice_kernel_args(context, builder, signature, args)
+        atp, lvp, ownp = arrays[0].data, arrays[5].data, arrays[6].data
+        blkp, offp, wp, rp, outp = (double_data(builder, arrays[k]) for k in (1, 2, 3, 4, 7))
         mul, sub, add = builder.fmul, builder.fsub, builder.fadd
 
         def fma(a, b, c):
@@ -124,53 +115,31 @@ def _warped_slice(typingctx, lanes, s, p0, p1, w_at, blocks, offsets, w, rot4, l
     return sig, codegen
 
 
-def _warped_sweep(sh_ptr, sh_w_at, sh_blocks, sh_offsets, bd_w_at, bd_blocks, bd_offsets, lane_vertex, owner,
-                  w, rot4, out):
-    """out[i] <- e_i for every vertex i (rows past n: the padding lanes', zero): shared slices, then boundary
-    slices of four positions, in one loop (one parallel region when threaded)."""
-    lanes = sh_w_at.shape[1]
-    ns = sh_ptr.shape[0] - 1
-    for s in prange(ns + bd_w_at.shape[0] // 4):
-        if s < ns:
-            p0, p1, w_at, blocks, offsets = sh_ptr[s], sh_ptr[s + 1], sh_w_at, sh_blocks, sh_offsets
-        else:
-            p0, p1, w_at, blocks, offsets = 4 * (s - ns), 4 * (s - ns) + 4, bd_w_at, bd_blocks, bd_offsets
-        if lanes == 8:
-            _warped_slice(8, s, p0, p1, w_at, blocks, offsets, w, rot4, lane_vertex, owner, out)
-        elif lanes == 4:
-            _warped_slice(4, s, p0, p1, w_at, blocks, offsets, w, rot4, lane_vertex, owner, out)
-        else:
-            _warped_slice(2, s, p0, p1, w_at, blocks, offsets, w, rot4, lane_vertex, owner, out)
+# warped_sweep(sh_ptr, (sh_w_at, sh_blocks, sh_offsets), (bd_w_at, bd_blocks, bd_offsets),
+#              (w, rot4, lane_vertex, owner, out)): out[i] <- e_i for every vertex i (padding lanes' rows: zero)
+warped_sweep_serial, warped_sweep_parallel = serial_and_parallel(slice_sweep(_warped_slice))
 
 
-warped_sweep_serial, warped_sweep_parallel = serial_and_parallel(_warped_sweep)
+_GRADIENT_SPECS = (("w_at", 2, types.int64), ("grads", 3, types.float64), ("u4", 2, types.float64),
+                   ("lane_vertex", 1, types.int64), ("F", 2, types.float64))
 
 
 @intrinsic(prefer_literal=True)
-def _gradient_slice(typingctx, lanes, s, p0, p1, w_at, grads, u4, lane_vertex, F):
-    """F[:, C s + l] <- F_i of lane l's vertex i (module docstring) over positions p0..p1 of slice s: its own u_i
-    (lane_vertex), per position C rows of u4 gathered at w_at = 4 j and transposed, three C-wide loads of g and
-    nine FMAs in position order. w_at (P, C) int64, grads (P, 3, C), u4 (n, 4), lane_vertex (S C,) int64,
-    F (9, S C), C-contiguous (checked at typing); the caller checks the shapes."""
-    if not isinstance(lanes, types.IntegerLiteral) or lanes.literal_value not in (2, 4, 8):
-        raise TypingError(f"_gradient_slice: lanes must be the literal 2, 4 or 8, got {lanes}")
-    for name, a in (("s", s), ("p0", p0), ("p1", p1)):
-        if not isinstance(a, types.Integer):
-            raise TypingError(f"_gradient_slice: {name} must be an integer, got {a}")
-    for name, a, ndim, dtype in (("w_at", w_at, 2, types.int64), ("grads", grads, 3, types.float64),
-                                 ("u4", u4, 2, types.float64), ("lane_vertex", lane_vertex, 1, types.int64),
-                                 ("F", F, 2, types.float64)):
-        _check_array(name, a, ndim, dtype)
-    C = lanes.literal_value
+def _gradient_slice(typingctx, lanes, s, p0, p1, per_position, common):
+    """F[:, C s + l] <- F_i of lane l's vertex i (module docstring) over positions p0..p1 of slice s;
+    per_position = (w_at, grads), common = (u4, lane_vertex, F). Its own u_i (lane_vertex), per position C rows
+    of u4 gathered at w_at = 4 j and transposed, three C-wide loads of g and nine FMAs in position order.
+    w_at (P, C) int64, grads (P, 3, C), u4 (n, 4), lane_vertex (S C,) int64, F (9, S C), C-contiguous (checked
+    at typing); the caller checks the shapes."""
+    C = slice_kernel_typing("_gradient_slice", lanes, s, p0, p1, per_position, common, _GRADIENT_SPECS)
     VC = ir.VectorType(_F64, C)
-    sig = types.void(lanes, s, p0, p1, w_at, grads, u4, lane_vertex, F)
+    sig = types.void(lanes, s, p0, p1, per_position, common)
 
     def codegen(context, builder, signature, args):
-        sv, p0v, p1v = [context.cast(builder, a, t, types.int64) for a, t in zip(args[1:4], signature.args[1:4])]
-        arrays = {n: context.make_array(signature.args[n])(context, builder, args[n]) for n in range(4, 9)}
-        atp, lvp = arrays[4].data, arrays[7].data
-        gp, up, fp = (builder.bitcast(arrays[n].data, _F64.as_pointer()) for n in (5, 6, 8))
-        columns = cgutils.unpack_tuple(builder, arrays[8].shape, 2)[1]
+        sv, p0v, p1v, arrays = slice_kernel_args(context, builder, signature, args)
+        atp, lvp = arrays[0].data, arrays[3].data
+        gp, up, fp = (double_data(builder, arrays[k]) for k in (1, 2, 4))
+        columns = cgutils.unpack_tuple(builder, arrays[4].shape, 2)[1]
 
         def rows(offsets):
             return _transpose(builder, [builder.load(_vector_at(builder, up, at, _V4), align=8) for at in offsets])
@@ -198,24 +167,9 @@ def _gradient_slice(typingctx, lanes, s, p0, p1, w_at, grads, u4, lane_vertex, F
     return sig, codegen
 
 
-def _gradient_sweep(sh_ptr, sh_w_at, sh_grads, bd_w_at, bd_grads, lane_vertex, u4, F):
-    """F[:, k] <- the deformation gradient of lane k's vertex (identity for the padding lanes), every slice."""
-    lanes = sh_w_at.shape[1]
-    ns = sh_ptr.shape[0] - 1
-    for s in prange(ns + bd_w_at.shape[0] // 4):
-        if s < ns:
-            p0, p1, w_at, grads = sh_ptr[s], sh_ptr[s + 1], sh_w_at, sh_grads
-        else:
-            p0, p1, w_at, grads = 4 * (s - ns), 4 * (s - ns) + 4, bd_w_at, bd_grads
-        if lanes == 8:
-            _gradient_slice(8, s, p0, p1, w_at, grads, u4, lane_vertex, F)
-        elif lanes == 4:
-            _gradient_slice(4, s, p0, p1, w_at, grads, u4, lane_vertex, F)
-        else:
-            _gradient_slice(2, s, p0, p1, w_at, grads, u4, lane_vertex, F)
-
-
-gradient_sweep_serial, gradient_sweep_parallel = serial_and_parallel(_gradient_sweep)
+# gradient_sweep(sh_ptr, (sh_w_at, sh_grads), (bd_w_at, bd_grads), (u4, lane_vertex, F)): F[:, k] <- the
+# deformation gradient of lane k's vertex (the identity in padding lanes)
+gradient_sweep_serial, gradient_sweep_parallel = serial_and_parallel(slice_sweep(_gradient_slice))
 
 
 def _rows_of_4(u, u4):

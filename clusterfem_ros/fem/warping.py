@@ -370,13 +370,14 @@ def _make_rotation_kernel(gradient_sweep, rows_of_4, flags):
     """The rotations around one build (serial or threaded) of the gradient sweep."""
 
     def rotations(gradients, u, work):
-        """rot, rot4 <- the vertex rotations of u. ``gradients``: (sh_ptr, sh_w_at, sh_grads, bd_w_at, bd_grads,
-        lane_vertex, owner) (VertexFrames); ``work``: (rot, rot4, u4, F, scratch, how, tmp, e)."""
+        """rot, rot4 <- the vertex rotations of u. ``gradients``: (sh_ptr, (sh_w_at, sh_grads), (bd_w_at,
+        bd_grads), lane_vertex, owner) (VertexFrames); ``work``: (rot, rot4, u4, F, scratch, how, tmp, e)."""
         rot, rot4, u4, F, scratch, how, tmp, _ = work
+        sh_ptr, shared, boundary, lane_vertex, owner = gradients
         rows_of_4(u, u4)
-        gradient_sweep(*gradients[:6], u4, F)
+        gradient_sweep(sh_ptr, shared, boundary, (u4, lane_vertex, F))
         for c in prange(scratch.shape[0]):
-            _rotate_chunk(c, gradients[6], F, rot, rot4, scratch, how, tmp)
+            _rotate_chunk(c, owner, F, rot, rot4, scratch, how, tmp)
 
     return numba.njit(**flags)(rotations)
 
@@ -391,7 +392,8 @@ def _make_warped_kernels(rotations, sweep, finish, flags):
         in rows by vertex (the padding lanes' rows after the n vertices'); rot <- the vertex rotations of u.
         Every rotation first (a row reads its neighbours'), then the sweep."""
         rotations(gradients, u, work)
-        sweep(*slices, w, work[1], work[7])
+        sh_ptr, shared, boundary, lane_vertex, owner = slices
+        sweep(sh_ptr, shared, boundary, (w, work[1], lane_vertex, owner, work[7]))
 
     warped_e = numba.njit(**SERIAL)(warped_e)     # no loop of its own: its callees carry the threads
 
@@ -437,10 +439,10 @@ class VertexFrames:
     rest: np.ndarray        # (n, 3)
     s0inv: np.ndarray       # (n, 3, 3)
     rot: np.ndarray         # (n, 3, 3), updated by every force / rotation call
-    gradients: tuple        # the gradient sweep's: (sh_ptr, sh_w_at, sh_grads, bd_w_at, bd_grads, lane_vertex,
+    gradients: tuple        # the gradient sweep's: (sh_ptr, (sh_w_at, sh_grads), (bd_w_at, bd_grads), lane_vertex,
                             #   owner); g = S_i^-1 (x0_j - x0_i) per block, (P, 3, C)
-    slices: tuple           # the force sweep's: (sh_ptr, sh_w_at, sh_blocks, sh_offsets, bd_w_at, bd_blocks,
-                            #   bd_offsets, lane_vertex, owner); offsets d = x0_j - x0_i per block, (P, 3, C)
+    slices: tuple           # the force sweep's: (sh_ptr, (sh_w_at, sh_blocks, sh_offsets), (bd_w_at, bd_blocks,
+                            #   bd_offsets), lane_vertex, owner); offsets d = x0_j - x0_i per block, (P, 3, C)
     w: np.ndarray           # (n, 4) workspace: x + zeta v, rows padded to 4
     rot4: np.ndarray        # (n, 12) workspace: the rotations' rows padded to 4
     u4: np.ndarray          # (n, 4) workspace: u, rows padded to 4
@@ -466,9 +468,9 @@ class VertexFrames:
             g = aligned_zeros(d.shape)
             g[...] = np.einsum("pcab,pbc->pac", s0inv[own], d)
             grads.append(g)
-        gradients = (sl.shared_ptr, sl.shared_w_at, grads[0], sl.boundary_w_at, grads[1], lane_vertex, sl.owner)
-        slices = (sl.shared_ptr, sl.shared_w_at, sl.shared_blocks, offsets[0], sl.boundary_w_at, sl.boundary_blocks,
-                  offsets[1], lane_vertex, sl.owner)
+        gradients = (sl.shared_ptr, (sl.shared_w_at, grads[0]), (sl.boundary_w_at, grads[1]), lane_vertex, sl.owner)
+        slices = (sl.shared_ptr, (sl.shared_w_at, sl.shared_blocks, offsets[0]),
+                  (sl.boundary_w_at, sl.boundary_blocks, offsets[1]), lane_vertex, sl.owner)
         return cls(rest, s0inv, np.repeat(np.eye(3)[None], n, axis=0), gradients, slices,
                    aligned_zeros((n, 4)), aligned_zeros((n, ROT_ROW)), aligned_zeros((n, 4)), aligned_zeros((9, lanes)),
                    np.zeros((chunks, 2, 9, LANES)), np.zeros((chunks, LANES), dtype=np.int8),
