@@ -12,7 +12,8 @@ rotated once per row after the loop, the R_j half is sum_j R_j K_ij R_j^T t.
 The pass walks the same slices as the linear kernel (cluster_slices.py: C rows per slice, lane l for row l),
 with d_ij stored per block beside K_ij (``rest_offsets``) and the rotations as rows of 4 (x, y, z, padding)
 per matrix row, so that R_j is gathered like w_j: C row loads and one transpose per matrix row. The row kernel
-it replaced did the 54 products of a block one lane at a time (12 ns per block on the jelly man, Zen 4).
+it replaced did the 54 products of a block one lane at a time: 12-18 ns per block on the jelly man on an AMD
+EPYC VM (Zen 4), where this sweep takes ~4 ns (tests/test_warped_force_kernel.py checks it against the twin).
 
 The deformation gradients, F_i = I + sum_j (u_j - u_i) g_ij^T with the constant g_ij = S_i^-1 d_ij (fem/warping.py),
 walk the same slices with g stored per block (P, 3, C) and u as rows of 4: nine C-wide FMAs per position. Lane l
