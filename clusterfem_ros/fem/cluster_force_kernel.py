@@ -11,7 +11,6 @@ tests/naive.py holds the plain numpy twin.
 """
 from __future__ import annotations
 
-import numba
 import numpy as np
 from llvmlite import ir
 from numba import prange, types
@@ -21,7 +20,7 @@ from numba.extending import intrinsic
 
 from .cluster_slices import W_ROW, ClusterSlices, aligned_zeros
 from .clusters import Clusters
-from .numba_config import PARALLEL, PARALLEL_MIN_VERTICES, SERIAL, serial_and_parallel
+from .numba_config import PARALLEL_MIN_VERTICES, compiled, serial_and_parallel
 
 
 _F64 = ir.DoubleType()
@@ -204,50 +203,51 @@ _slice_force = _slice_force_intrinsic(gather=True)
 slice_force_held_w = _slice_force_intrinsic(gather=False)
 
 
-def slice_sweep(slice_fn):
-    """The loop over every slice around one slice kernel, ``slice_fn(lanes, s, p0, p1, per_position, common)``:
-    shared slices (positions sh_ptr[s]..sh_ptr[s+1]) then boundary slices of four positions, in one loop (one
-    parallel region when threaded), the kernel built for the slices' lane count (8, 4 or 2). ``shared`` and
-    ``boundary``: the per-position arrays of each part, w_at (P, C) first; ``common``: the kernel's other
-    arguments. Used here and by the warped sweeps (warped_force_kernel.py); serial_and_parallel builds it."""
-
-    def sweep(sh_ptr, shared, boundary, common):
-        lanes = shared[0].shape[1]
-        ns = sh_ptr.shape[0] - 1
-        for s in prange(ns + boundary[0].shape[0] // 4):
-            if s < ns:
-                p0, p1, arrays = sh_ptr[s], sh_ptr[s + 1], shared
-            else:
-                p0, p1, arrays = 4 * (s - ns), 4 * (s - ns) + 4, boundary
-            if lanes == 8:
-                slice_fn(8, s, p0, p1, arrays, common)
-            elif lanes == 4:
-                slice_fn(4, s, p0, p1, arrays, common)
-            else:
-                slice_fn(2, s, p0, p1, arrays, common)
-
-    return sweep
+def _sweep(sh_ptr, shared, boundary, common):
+    """The loop over every slice around one slice kernel, the global ``slice_kernel`` (bound per build by
+    slice_sweep): shared slices (positions sh_ptr[s]..sh_ptr[s+1]) then boundary slices of four positions, in
+    one loop (one parallel region when threaded), the kernel built for the slices' lane count (8, 4 or 2).
+    ``shared`` and ``boundary``: the per-position arrays of each part, w_at (P, C) first; ``common``: the
+    kernel's other arguments."""
+    lanes = shared[0].shape[1]
+    ns = sh_ptr.shape[0] - 1
+    for s in prange(ns + boundary[0].shape[0] // 4):
+        if s < ns:
+            p0, p1, arrays = sh_ptr[s], sh_ptr[s + 1], shared
+        else:
+            p0, p1, arrays = 4 * (s - ns), 4 * (s - ns) + 4, boundary
+        if lanes == 8:
+            slice_kernel(8, s, p0, p1, arrays, common)  # noqa: F821 (bound by slice_sweep)
+        elif lanes == 4:
+            slice_kernel(4, s, p0, p1, arrays, common)  # noqa: F821
+        else:
+            slice_kernel(2, s, p0, p1, arrays, common)  # noqa: F821
 
 
-def _make_stiffness_kernel(sweep):
-    """The checked linear sweep around one build of slice_sweep (the real slice kernel's, or the benchmark's
-    control that holds w)."""
-
-    def stiffness_slices(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
-        """kw[i] <- (K w)_i for every vertex i (rows past n: the padding lanes', zero)."""
-        if w.shape[1] != W_ROW:
-            raise ValueError("the cluster force kernel needs w with 4 columns (x, y, z, padding)")
-        if kw.shape[0] != owner.shape[0] or kw.shape[1] != 3:
-            raise ValueError("the cluster force kernel needs kw with a row of 3 per lane of the slices (scratch())")
-        sweep(sh_ptr, (sh_w_at, sh_blocks), (bd_w_at, bd_blocks), (w, owner, kw))
-
-    return numba.njit(**SERIAL)(stiffness_slices)     # no loop of its own: the sweep carries the threads
+def slice_sweep(slice_fn, name: str):
+    """(serial, parallel) builds of the sweep over every slice around the slice kernel ``slice_fn(lanes, s, p0,
+    p1, per_position, common)``, called as sweep(sh_ptr, shared, boundary, common); ``name`` tells their cache
+    entries apart. Used here and by the warped sweeps (warped_force_kernel.py)."""
+    return serial_and_parallel(_sweep, "_" + name, serial={"slice_kernel": slice_fn}, parallel={"slice_kernel": slice_fn})
 
 
-_sweeps = serial_and_parallel(slice_sweep(_slice_force))
-stiffness_slices_serial, stiffness_slices_parallel = (_make_stiffness_kernel(sweep) for sweep in _sweeps)
+def _stiffness_slices(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
+    """kw[i] <- (K w)_i for every vertex i (rows past n: the padding lanes', zero), by the global ``sweep``
+    (bound per build: serial or threaded, or the benchmark's control that holds w)."""
+    if w.shape[1] != W_ROW:
+        raise ValueError("the cluster force kernel needs w with 4 columns (x, y, z, padding)")
+    if kw.shape[0] != owner.shape[0] or kw.shape[1] != 3:
+        raise ValueError("the cluster force kernel needs kw with a row of 3 per lane of the slices (scratch())")
+    sweep(sh_ptr, (sh_w_at, sh_blocks), (bd_w_at, bd_blocks), (w, owner, kw))  # noqa: F821 (bound)
+
+
+_linear_sweeps = slice_sweep(_slice_force, "linear")
+# no loop of their own: the sweeps carry the threads
+stiffness_slices_serial, stiffness_slices_parallel = (compiled(_stiffness_slices, suffix, sweep=sweep)
+                                                      for suffix, sweep in zip(("", "_parallel"), _linear_sweeps))
 # the benchmark's control: the serial sweep with w held at row 0 (no gather of w)
-stiffness_held_w_serial = _make_stiffness_kernel(numba.njit(**SERIAL)(slice_sweep(slice_force_held_w)))
+stiffness_held_w_serial = compiled(_stiffness_slices, "_held_w",
+                                   sweep=slice_sweep(slice_force_held_w, "held_w")[0])
 
 
 def _finish_kernel(kw, v, mass3, xi, out):
@@ -261,22 +261,21 @@ def _finish_kernel(kw, v, mass3, xi, out):
 finish_serial, finish_parallel = serial_and_parallel(_finish_kernel)
 
 
-def _make_force_kernel(stiffness, finish):
-    def force_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, u, v, mass3, zeta, xi, w, kw, out):
-        """w[:, :3] <- u + zeta v (w: (n, 4)), the slice sweep, then the finish: f = -K w - xi M v (mass3: the
-        lumped mass per coordinate; the clustered integrator runs the same sweep, with the finish inside its
-        update; the core benchmark times this)."""
-        n = u.shape[0]
-        for i in prange(n):
-            for c in range(3):
-                w[i, c] = u[i, c] + zeta * v[i, c]
-        stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw)
-        finish(kw, v, mass3, xi, out)
-    return force_kernel
+def _force_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, u, v, mass3, zeta, xi, w, kw, out):
+    """w[:, :3] <- u + zeta v (w: (n, 4)), the slice sweep, then the finish: f = -K w - xi M v (mass3: the
+    lumped mass per coordinate; the clustered integrator runs the same sweep, with the finish inside its
+    update; the core benchmark times this). ``stiffness`` and ``finish``: globals bound per build."""
+    n = u.shape[0]
+    for i in prange(n):
+        for c in range(3):
+            w[i, c] = u[i, c] + zeta * v[i, c]
+    stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw)  # noqa: F821 (bound)
+    finish(kw, v, mass3, xi, out)  # noqa: F821
 
 
-force_kernel_serial = numba.njit(**SERIAL)(_make_force_kernel(stiffness_slices_serial, finish_serial))
-force_kernel_parallel = numba.njit(**PARALLEL)(_make_force_kernel(stiffness_slices_parallel, finish_parallel))
+force_kernel_serial, force_kernel_parallel = serial_and_parallel(
+    _force_kernel, serial={"stiffness": stiffness_slices_serial, "finish": finish_serial},
+    parallel={"stiffness": stiffness_slices_parallel, "finish": finish_parallel})
 
 
 def cluster_args(sl: ClusterSlices) -> tuple:

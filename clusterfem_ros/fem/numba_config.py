@@ -29,16 +29,35 @@ def simd_lanes() -> int:
     return 8 if llvm.get_host_cpu_features().get("avx512f", False) else 4
 
 
-def serial_and_parallel(fn):
-    """(serial, parallel) numba builds of one kernel source.
+def compiled(fn, suffix: str = "", flags: dict = SERIAL, **names):
+    """numba build of a copy of ``fn`` named ``<qualname><suffix>``, its global ``names`` bound to the objects
+    given (the compiled functions it calls).
 
-    The parallel build compiles a copy of the function named ``<name>_parallel``: numba's on-disk cache keys
-    an entry by the function's qualified name, signature and closure, not by its flags, so two cached builds
-    of the same function object share one entry and the parallel dispatcher silently loaded the serial code.
+    This is how one kernel source calls different builds (serial or threaded sweeps, the real slice kernel or
+    the benchmark's control) without being a closure. numba keys its on-disk cache by the pickled closure
+    cells, and a compiled function pickles with a per-process id: every closure over one missed the cache and
+    was compiled again in every process (the warped step's kernels: 9 s on each start of the node). The suffix
+    keeps each binding's cache entries apart (the cache keys by qualified name, signature and code, not by
+    the globals). Bind after every global ``fn`` uses is defined: the copy sees the module's globals as they
+    are at the call."""
+    if not names and not suffix:
+        return numba.njit(**flags)(fn)
+    g = dict(fn.__globals__)
+    g.update(names)
+    copy = types.FunctionType(fn.__code__, g, fn.__name__ + suffix, fn.__defaults__, fn.__closure__)
+    copy.__qualname__ = fn.__qualname__ + suffix
+    copy.__module__ = fn.__module__
+    copy.__doc__ = fn.__doc__
+    return numba.njit(**flags)(copy)
+
+
+def serial_and_parallel(fn, suffix: str = "", serial: dict | None = None, parallel: dict | None = None):
+    """(serial, parallel) numba builds of one kernel source, ``serial`` / ``parallel``: the global names each
+    build binds (``compiled``).
+
+    The parallel build is a copy named ``<name>_parallel``: numba's on-disk cache keys an entry by the
+    function's qualified name, signature and closure, not by its flags, so two cached builds of the same
+    function object share one entry and the parallel dispatcher silently loaded the serial code.
     """
-    par = types.FunctionType(fn.__code__, fn.__globals__, fn.__name__ + "_parallel", fn.__defaults__,
-                             fn.__closure__)
-    par.__qualname__ = fn.__qualname__ + "_parallel"
-    par.__module__ = fn.__module__
-    par.__doc__ = fn.__doc__
-    return numba.njit(**SERIAL)(fn), numba.njit(**PARALLEL)(par)
+    return (compiled(fn, suffix, SERIAL, **(serial or {})),
+            compiled(fn, suffix + "_parallel", PARALLEL, **(parallel or {})))

@@ -22,7 +22,6 @@ in slice order. The row loop it replaced took 5.6 ns per block, most of the rota
 """
 from __future__ import annotations
 
-import numba
 from llvmlite import ir
 from numba import prange, types
 from numba.core import cgutils
@@ -118,7 +117,7 @@ def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
 
 # warped_sweep(sh_ptr, (sh_w_at, sh_blocks, sh_offsets), (bd_w_at, bd_blocks, bd_offsets),
 #              (w, rot4, lane_vertex, owner, out)): out[i] <- e_i for every vertex i (padding lanes' rows: zero)
-warped_sweep_serial, warped_sweep_parallel = serial_and_parallel(slice_sweep(_warped_slice))
+warped_sweep_serial, warped_sweep_parallel = slice_sweep(_warped_slice, "warped")
 
 
 _GRADIENT_SPECS = (("w_at", 2, types.int64), ("grads", 3, types.float64), ("u4", 2, types.float64),
@@ -170,7 +169,7 @@ def _gradient_slice(typingctx, lanes, s, p0, p1, per_position, common):
 
 # gradient_sweep(sh_ptr, (sh_w_at, sh_grads), (bd_w_at, bd_grads), (u4, lane_vertex, F)): F[:, k] <- the
 # deformation gradient of lane k's vertex (the identity in padding lanes)
-gradient_sweep_serial, gradient_sweep_parallel = serial_and_parallel(slice_sweep(_gradient_slice))
+gradient_sweep_serial, gradient_sweep_parallel = slice_sweep(_gradient_slice, "gradient")
 
 
 def _rows_of_4(u, u4):

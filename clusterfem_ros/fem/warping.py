@@ -56,7 +56,7 @@ from numba import prange
 from .cluster_force_kernel import finish_parallel, finish_serial
 from .cluster_slices import ClusterSlices, aligned_zeros, lane_vertices, position_lanes, rest_offsets
 from .model import FemModel
-from .numba_config import PARALLEL, PARALLEL_MIN_VERTICES, SERIAL
+from .numba_config import PARALLEL_MIN_VERTICES, SERIAL, compiled, serial_and_parallel
 from .warped_force_kernel import (ROT_ROW, gradient_sweep_parallel, gradient_sweep_serial, rows_of_4_parallel,
                                   rows_of_4_serial, warped_sweep_parallel, warped_sweep_serial)
 
@@ -366,54 +366,48 @@ def _rotate_chunk(c, owner, F, rot, rot4, scratch, how, tmp):
     _chunk_rotations(k0, nl, owner, Fc, P, converged, how[c], tmp[c], rot, rot4)
 
 
-def _make_rotation_kernel(gradient_sweep, rows_of_4, flags):
-    """The rotations around one build (serial or threaded) of the gradient sweep."""
+# The warped kernels, one source each, serial and threaded builds. The globals ``gradient_sweep``,
+# ``rows_of_4``, ``rotations``, ``sweep``, ``warped_e`` and ``finish`` are bound per build (numba_config.compiled).
+# Argument groups (VertexFrames): ``gradients`` and ``slices``, the two sweeps' slice arrays; ``work``, the
+# workspace (rot, rot4, u4, F, scratch, how, tmp, e).
 
-    def rotations(gradients, u, work):
-        """rot, rot4 <- the vertex rotations of u. ``gradients``: (sh_ptr, (sh_w_at, sh_grads), (bd_w_at,
-        bd_grads), lane_vertex, owner) (VertexFrames); ``work``: (rot, rot4, u4, F, scratch, how, tmp, e)."""
-        rot, rot4, u4, F, scratch, how, tmp, _ = work
-        sh_ptr, shared, boundary, lane_vertex, owner = gradients
-        rows_of_4(u, u4)
-        gradient_sweep(sh_ptr, shared, boundary, (u4, lane_vertex, F))
-        for c in prange(scratch.shape[0]):
-            _rotate_chunk(c, owner, F, rot, rot4, scratch, how, tmp)
-
-    return numba.njit(**flags)(rotations)
-
-
-def _make_warped_kernels(rotations, sweep, finish, flags):
-    """The warped kernels around one build (serial or threaded) of the rotations, the force sweep and the finish.
-    Argument groups (VertexFrames): ``gradients`` and ``slices``, the two sweeps' slice arrays; ``work``, the
-    workspace (rot, rot4, u4, F, scratch, how, tmp, e)."""
-
-    def warped_e(gradients, slices, u, w, work):
-        """e <- the elastic-damping part of the warped force of w = x0 + u + zeta v (warped_force_kernel.py),
-        in rows by vertex (the padding lanes' rows after the n vertices'); rot <- the vertex rotations of u.
-        Every rotation first (a row reads its neighbours'), then the sweep."""
-        rotations(gradients, u, work)
-        sh_ptr, shared, boundary, lane_vertex, owner = slices
-        sweep(sh_ptr, shared, boundary, (w, work[1], lane_vertex, owner, work[7]))
-
-    warped_e = numba.njit(**SERIAL)(warped_e)     # no loop of its own: its callees carry the threads
-
-    def warped_force(gradients, slices, rest, u, v, w, mass3, zeta, xi, work, out):
-        """out <- the warped force of (u, v), f = -e - xi M v (mass3: the lumped mass per coordinate)."""
-        for i in prange(u.shape[0]):
-            for c in range(3):
-                w[i, c] = rest[i, c] + u[i, c] + zeta * v[i, c]
-        warped_e(gradients, slices, u, w, work)
-        finish(work[7], v, mass3, xi, out)
-
-    return warped_e, numba.njit(**flags)(warped_force)
+def _rotations(gradients, u, work):
+    """rot, rot4 <- the vertex rotations of u: the gradient sweep, then the polar iteration by chunks."""
+    rot, rot4, u4, F, scratch, how, tmp, _ = work
+    sh_ptr, shared, boundary, lane_vertex, owner = gradients
+    rows_of_4(u, u4)  # noqa: F821 (bound)
+    gradient_sweep(sh_ptr, shared, boundary, (u4, lane_vertex, F))  # noqa: F821
+    for c in prange(scratch.shape[0]):
+        _rotate_chunk(c, owner, F, rot, rot4, scratch, how, tmp)
 
 
-rotation_kernel_serial = _make_rotation_kernel(gradient_sweep_serial, rows_of_4_serial, SERIAL)
-rotation_kernel_parallel = _make_rotation_kernel(gradient_sweep_parallel, rows_of_4_parallel, PARALLEL)
-warped_e_serial, warped_kernel_serial = _make_warped_kernels(rotation_kernel_serial, warped_sweep_serial,
-                                                             finish_serial, SERIAL)
-warped_e_parallel, warped_kernel_parallel = _make_warped_kernels(rotation_kernel_parallel, warped_sweep_parallel,
-                                                                 finish_parallel, PARALLEL)
+def _warped_e(gradients, slices, u, w, work):
+    """e <- the elastic-damping part of the warped force of w = x0 + u + zeta v (warped_force_kernel.py), in
+    rows by vertex (the padding lanes' rows after the n vertices'); rot <- the vertex rotations of u. Every
+    rotation first (a row reads its neighbours'), then the sweep."""
+    rotations(gradients, u, work)  # noqa: F821 (bound)
+    sh_ptr, shared, boundary, lane_vertex, owner = slices
+    sweep(sh_ptr, shared, boundary, (w, work[1], lane_vertex, owner, work[7]))  # noqa: F821
+
+
+def _warped_force(gradients, slices, rest, u, v, w, mass3, zeta, xi, work, out):
+    """out <- the warped force of (u, v), f = -e - xi M v (mass3: the lumped mass per coordinate)."""
+    for i in prange(u.shape[0]):
+        for c in range(3):
+            w[i, c] = rest[i, c] + u[i, c] + zeta * v[i, c]
+    warped_e(gradients, slices, u, w, work)  # noqa: F821 (bound)
+    finish(work[7], v, mass3, xi, out)  # noqa: F821
+
+
+rotation_kernel_serial, rotation_kernel_parallel = serial_and_parallel(
+    _rotations, serial={"gradient_sweep": gradient_sweep_serial, "rows_of_4": rows_of_4_serial},
+    parallel={"gradient_sweep": gradient_sweep_parallel, "rows_of_4": rows_of_4_parallel})
+# no loop of their own: their callees carry the threads
+warped_e_serial = compiled(_warped_e, rotations=rotation_kernel_serial, sweep=warped_sweep_serial)
+warped_e_parallel = compiled(_warped_e, "_parallel", rotations=rotation_kernel_parallel, sweep=warped_sweep_parallel)
+warped_kernel_serial, warped_kernel_parallel = serial_and_parallel(
+    _warped_force, serial={"warped_e": warped_e_serial, "finish": finish_serial},
+    parallel={"warped_e": warped_e_parallel, "finish": finish_parallel})
 
 
 def rest_gram_inverse(model: FemModel) -> np.ndarray:

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..cluster_force_kernel import cluster_args, scratch, stiffness_slices_parallel, stiffness_slices_serial
 from ..model import Control, FemModel, State
-from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL
+from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
 from ..warping import VertexFrames, warped_e_parallel, warped_e_serial
 from .base import StepCommon, StepInfo
@@ -91,75 +91,75 @@ _NO_VEC = np.zeros((0, 3))
 _NO_GAIN = np.zeros(0)
 
 
-def _make_symplectic_euler(stiffness):
-    """The fused step around one build of the linear force kernel (closures: numba inlines the calls), and
-    the same step for a body with no attachments.
+# The fused steps, linear and warped, each with its attachment-free variant, one source each. The globals
+# ``stiffness``, ``warped_e`` and ``step`` are bound per build (numba_config.compiled: serial or threaded
+# kernels; not closures, which numba's cache cannot keep across processes).
+
+def _symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner,
+                      mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, kw,
+                      att_idx, att_u, att_v, att_a, att_kp, att_kd):
+    """The linear step around one build of the force sweep (``stiffness``).
 
     ``w`` = u + zeta v is the kernel's input; it is refreshed in the update loop. A sub-step makes the slice
     sweep, which leaves K w in ``kw`` in vertex order, and one flat pass over the vertices, which finishes the
     force (-K w - xi M v, plus the attachments, subtracted from kw) inside the update. Returns False if any |u|
-    passed ``limit`` or anything is not finite. The attachment-free variant exists because numba's dispatch
-    costs ~75 ns per array argument: six empty arrays were 0.45 us of a 9 us step on the paper's sphere.
+    passed ``limit`` or anything is not finite.
     """
-
-    def symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner,
-                         mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, kw,
-                         att_idx, att_u, att_v, att_a, att_kp, att_kd):
-        n = u.shape[0]
-        _prepare(n, zeta, fixed, u, u, v, w, False)
-        ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
-        for s in range(nsub):
-            stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw)
-            _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, kw)
-            ok = _update(n, h, zeta, inv_mass3, kw, xi, mass3, f_const, u, u, v, w, False, limit,
-                         s + 1 < nsub)
-        return ok
-
-    step = numba.njit(**SERIAL)(symplectic_euler)
-
-    def free_symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner,
-                              mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, kw):
-        return step(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner,
-                    mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, kw,
-                    _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
-
-    return step, numba.njit(**SERIAL)(free_symplectic_euler)
+    n = u.shape[0]
+    _prepare(n, zeta, fixed, u, u, v, w, False)
+    ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
+    for s in range(nsub):
+        stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw)  # noqa: F821 (bound)
+        _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, kw)
+        ok = _update(n, h, zeta, inv_mass3, kw, xi, mass3, f_const, u, u, v, w, False, limit, s + 1 < nsub)
+    return ok
 
 
-def _make_warped_symplectic_euler(warped_e):
-    """The fused step around one build of the warped kernel; w = x0 + u + zeta v. The kernel leaves e, the
-    warped counterpart of K w (fem/warped_force_kernel.py), in vertex order, and the update finishes the force
-    as in the linear step. With its attachment-free variant, as for the linear step."""
+def _free_symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner,
+                           mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, kw):
+    """The linear ``step`` for a body with no attachments: numba's dispatch costs ~75 ns per array argument,
+    and six empty arrays were 0.45 us of a 9 us step on the paper's sphere."""
+    return step(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner,  # noqa: F821 (bound)
+                mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, kw,
+                _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
 
-    def warped_symplectic_euler(gradients, slices, rest, work,
-                                mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
-                                att_idx, att_u, att_v, att_a, att_kp, att_kd):
-        n = u.shape[0]
-        _prepare(n, zeta, fixed, rest, u, v, w, True)
-        ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
-        for s in range(nsub):
-            warped_e(gradients, slices, u, w, work)
-            _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, e)
-            ok = _update(n, h, zeta, inv_mass3, e, xi, mass3, f_const, rest, u, v, w, True, limit,
-                         s + 1 < nsub)
-        return ok
 
-    step = numba.njit(**SERIAL)(warped_symplectic_euler)
+def _warped_symplectic_euler(gradients, slices, rest, work,
+                             mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
+                             att_idx, att_u, att_v, att_a, att_kp, att_kd):
+    """The warped step around one build of the warped kernel (``warped_e``); w = x0 + u + zeta v. The kernel
+    leaves e, the warped counterpart of K w (fem/warped_force_kernel.py), in vertex order, and the update
+    finishes the force as in the linear step."""
+    n = u.shape[0]
+    _prepare(n, zeta, fixed, rest, u, v, w, True)
+    ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
+    for s in range(nsub):
+        warped_e(gradients, slices, u, w, work)  # noqa: F821 (bound)
+        _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, e)
+        ok = _update(n, h, zeta, inv_mass3, e, xi, mass3, f_const, rest, u, v, w, True, limit, s + 1 < nsub)
+    return ok
 
-    def free_warped_symplectic_euler(gradients, slices, rest, work,
-                                     mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e):
-        return step(gradients, slices, rest, work,
-                    mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
-                    _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
 
-    return step, numba.njit(**SERIAL)(free_warped_symplectic_euler)
+def _free_warped_symplectic_euler(gradients, slices, rest, work,
+                                  mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e):
+    """The warped ``step`` for a body with no attachments."""
+    return step(gradients, slices, rest, work,  # noqa: F821 (bound)
+                mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
+                _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
+
+
+def _builds(step_source, free_source, suffix, **kernel):
+    """(attached, attachment-free) builds of one step source around the given kernel build."""
+    step = compiled(step_source, suffix, **kernel)
+    return step, compiled(free_source, suffix, step=step)
 
 
 # (attached, attachment-free) builds, serial and threaded kernels
-_step_serial = _make_symplectic_euler(stiffness_slices_serial)
-_step_parallel = _make_symplectic_euler(stiffness_slices_parallel)
-_warped_step_serial = _make_warped_symplectic_euler(warped_e_serial)
-_warped_step_parallel = _make_warped_symplectic_euler(warped_e_parallel)
+_step_serial = _builds(_symplectic_euler, _free_symplectic_euler, "", stiffness=stiffness_slices_serial)
+_step_parallel = _builds(_symplectic_euler, _free_symplectic_euler, "_parallel", stiffness=stiffness_slices_parallel)
+_warped_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "", warped_e=warped_e_serial)
+_warped_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_parallel",
+                                warped_e=warped_e_parallel)
 
 
 class ThreadChoice:
