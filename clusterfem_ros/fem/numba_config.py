@@ -39,7 +39,8 @@ def compiled(fn, suffix: str = "", flags: dict = SERIAL, **names):
     was compiled again in every process (the warped step's kernels: 9 s on each start of the node). The suffix
     keeps each binding's cache entries apart (the cache keys by qualified name, signature and code, not by
     the globals). Bind after every global ``fn`` uses is defined: the copy sees the module's globals as they
-    are at the call."""
+    are at the call. Like any cached numba function that calls another, a build is not recompiled when only
+    its callee's file changes: scripts/env.sh keys NUMBA_CACHE_DIR by the whole package's source for that."""
     if not names and not suffix:
         return numba.njit(**flags)(fn)
     g = dict(fn.__globals__)
