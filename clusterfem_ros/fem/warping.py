@@ -153,11 +153,11 @@ def _rotation_of(F, X, R):
     _rotation_mueller(F, R)
 
 
-# One chunk of LANES cluster rows is the rotations' unit of work: its deformation gradients are gathered
-# into lanes (structure of arrays, (3, 9, LANES) doubles = 27 KiB, L1-resident), then the polar iteration runs
-# on all lanes at once (no data-dependent exit inside a lane loop, so it is vectorised and the long latency
-# chain of one 3x3 polar step overlaps across vertices). Chunks are independent, so the threaded build runs
-# them in parallel. The force pass then walks the cluster slices (warped_force_kernel.py).
+# One chunk of LANES lanes of the deformation gradients (in slice order, from the gradient sweep:
+# warped_force_kernel.py) is the polar iteration's unit of work: its iterates, (2, 9, LANES) doubles = 18 KiB,
+# stay in L1, and the iteration runs on all lanes at once (no data-dependent exit inside a lane loop, so it is
+# vectorised and the long latency chain of one 3x3 polar step overlaps across vertices). Chunks are
+# independent, so the threaded build runs them in parallel.
 LANES = 128
 # A lane has converged when the squared Frobenius change of its last polar step is below POLAR_TOL. Both
 # iterations used converge quadratically: near the polar factor a step that changes X by delta leaves an
