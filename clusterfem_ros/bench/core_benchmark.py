@@ -6,11 +6,12 @@ Every method runs the same scene (the object's bottom fixed, gravity, same mater
 is timed after warm-up (JIT compilation excluded). All methods and kernel pieces of a shape are timed in
 interleaved rounds (bench/timing.interleaved_seconds): times are medians over the rounds, ratios the medians
 of each round's own ratio, so a slow spell of the host cannot flip a target (timed one after the other, one
-run read the sphere's implicit-direct ratio as 17x; interleaved, 21-27x on the same host). 'stream' is a bare pass that reads every block
-and column index of the clusters once, vectorized: the memory-bound floor for the force kernel.
+run read the sphere's implicit-direct ratio as 17x; interleaved, 21-27x on the same host). 'stream' is a bare
+pass that reads every block and column index of the clusters once, vectorized: the memory-bound floor for the
+force kernel.
 
 The floor is the faster of two bare reads of 64-byte-aligned copies of the clusters' block and index arrays:
-numba's own loop, which LLVM vectorizes 4 wide on this host (it prefers 256-bit vectors on AVX-512 parts), and
+numba's own loop, which LLVM vectorizes 4 wide (it prefers 256-bit vectors on AVX-512 parts), and
 an IR loop as wide as the kernel's vectors (8 doubles). While the blocks sit in L2 (the paper's sizes) the
 8-wide read is 10-12 % faster; from 2 MB of blocks on the two are equal. Until 2026-11-23 evening the floor
 was the 4-wide read alone, which made the sweep of then look 1.45-1.53x the stream; it was 1.6-1.75x the
@@ -22,6 +23,11 @@ over the vertices), timed inside numba; the whole step, with Python and numba's 
 blocks and the finish in vertex order (cluster_force_kernel.force_kernel_serial). 'sweep' is the pass over
 the block data alone (stiffness_slices_serial). 'w held' is the sweep with w held at one row: the same block
 loads, FMAs and stores without the gather of w (and without reading the indices).
+
+On the AMD EPYC VM (Zen 4, 1 MB L2) of 2026-11-23 night the sweep is 1.31-1.47x the floor, the whole force
+1.65-1.94x and the step's compiled part 1.81-2.06x; at 16 MB of blocks the sweep read 1.8-3.7x across runs
+(the held-w control 1.1x), so there the gather did not hide behind the memory traffic as it did on the Intel
+host below.
 
 History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions ran on a Zen 1):
 - The row kernel (one cluster row at a time, the nine products of a block in 4-wide FMAs, w[j] gathered

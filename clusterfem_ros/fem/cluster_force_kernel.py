@@ -228,7 +228,8 @@ def slice_sweep(slice_fn, name: str):
     """(serial, parallel) builds of the sweep over every slice around the slice kernel ``slice_fn(lanes, s, p0,
     p1, per_position, common)``, called as sweep(sh_ptr, shared, boundary, common); ``name`` tells their cache
     entries apart. Used here and by the warped sweeps (warped_force_kernel.py)."""
-    return serial_and_parallel(_sweep, "_" + name, serial={"slice_kernel": slice_fn}, parallel={"slice_kernel": slice_fn})
+    bound = {"slice_kernel": slice_fn}
+    return serial_and_parallel(_sweep, "_" + name, serial=bound, parallel=bound)
 
 
 def _stiffness_slices(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
