@@ -24,10 +24,10 @@ blocks and the finish in vertex order (cluster_force_kernel.force_kernel_serial)
 the block data alone (stiffness_slices_serial). 'w held' is the sweep with w held at one row: the same block
 loads, FMAs and stores without the gather of w (and without reading the indices).
 
-On the AMD EPYC VM (Zen 4, 1 MB L2) of 2026-11-23 night the sweep is 1.31-1.47x the floor, the whole force
-1.65-1.94x and the step's compiled part 1.81-2.06x; at 16 MB of blocks the sweep read 1.8-3.7x across runs
-(the held-w control 1.1x), so there the gather did not hide behind the memory traffic as it did on the Intel
-host below.
+On the AMD EPYC VM (Zen 4, 1 MB L2) of 2026-11-23 night the sweep is 1.35-1.65x the floor (at 1.5x or under
+in 11 of 17 runs), the whole force 1.65-2.03x and the step's compiled part 1.81-2.25x; at 16 MB of blocks the
+sweep read 1.8-3.7x across runs (the held-w control 1.1x), so there the gather did not hide behind the memory
+traffic as it did on the Intel host below.
 
 History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions ran on a Zen 1):
 - The row kernel (one cluster row at a time, the nine products of a block in 4-wide FMAs, w[j] gathered
