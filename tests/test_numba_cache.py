@@ -1,9 +1,11 @@
-"""Every cached numba kernel can be loaded from the on-disk cache by a new process.
+"""Every cached numba kernel can be loaded from the on-disk cache by a new process, safely.
 
-numba keys a cache entry by the pickled closure cells of the function, and a compiled function pickles with
-a per-process id: a kernel that closes over another compiled function misses the cache in every new process
-and is compiled again (the warped step's kernels took 9 s on each start of the node before
-numba_config.compiled replaced such closures)."""
+- numba keys a cache entry by the pickled closure cells of the function, and a compiled function pickles with
+  a per-process id: a kernel that closes over another compiled function misses the cache in every new process
+  and is compiled again (the warped step's kernels took 9 s on each start of the node before
+  numba_config.compiled replaced such closures).
+- A cached kernel that reaches threaded code crashed the process that loaded it when it had been compiled in a
+  process that loaded its threaded callee from the cache (numba_config.PARALLEL): no cached kernel may."""
 import importlib
 import pkgutil
 
@@ -39,3 +41,18 @@ def test_no_cached_kernel_is_a_closure(name):
     cells = d.py_func.__closure__
     assert cells is None, (f"{name} closes over {[c.cell_contents for c in cells]}: numba's cache misses it in "
                            "every new process; bind the callees with numba_config.compiled instead")
+
+
+@pytest.mark.parametrize("name", sorted(_cached_dispatchers()))
+def test_no_cached_kernel_reaches_threaded_code(name):
+    seen, todo = set(), [(name, _cached_dispatchers()[name])]
+    while todo:
+        path, d = todo.pop()
+        if id(d) in seen:
+            continue
+        seen.add(id(d))
+        assert not d.targetoptions.get("parallel"), (
+            f"{path} runs threads but is reached from the cached {name}: a process that compiles {name} after "
+            "loading the threaded part from the cache saves an entry the next process crashes on")
+        g = d.py_func.__globals__
+        todo += [(f"{path} -> {n}", g[n]) for n in d.py_func.__code__.co_names if isinstance(g.get(n), CPUDispatcher)]

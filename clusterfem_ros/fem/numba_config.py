@@ -9,7 +9,12 @@ import types
 import numba
 
 SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
-PARALLEL = dict(SERIAL, parallel=True)
+# Threaded code is not cached on disk, nor is any function that calls it (``compiled`` drops the cache for
+# those). numba names a threaded kernel's parallel parts in the order a process compiles them; a cached
+# caller compiled in a process that had loaded its threaded callee from the cache referred to names the next
+# process did not have, and loading it crashed (segfault on the warped jelly man's threaded step after a test
+# run had filled the cache, every time; numba issues #4807, #8578). Serial code stays cached.
+PARALLEL = dict(SERIAL, parallel=True, cache=False)
 
 # Below this many vertices the bare force kernels (clustered_force, warped_force, vertex_rotations) run
 # serial. On an idle 2-core Zen 1 the threaded builds already pay at the jelly man's 1803 vertices (warped
@@ -41,15 +46,25 @@ def compiled(fn, suffix: str = "", flags: dict = SERIAL, **names):
     the globals). Bind after every global ``fn`` uses is defined: the copy sees the module's globals as they
     are at the call. Like any cached numba function that calls another, a build is not recompiled when only
     its callee's file changes: scripts/env.sh keys NUMBA_CACHE_DIR by the whole package's source for that."""
-    if not names and not suffix:
-        return numba.njit(**flags)(fn)
-    g = dict(fn.__globals__)
-    g.update(names)
-    copy = types.FunctionType(fn.__code__, g, fn.__name__ + suffix, fn.__defaults__, fn.__closure__)
-    copy.__qualname__ = fn.__qualname__ + suffix
-    copy.__module__ = fn.__module__
-    copy.__doc__ = fn.__doc__
-    return numba.njit(**flags)(copy)
+    threaded = bool(flags.get("parallel")) or any(contains_threads(obj) for obj in names.values())
+    if threaded:
+        flags = dict(flags, cache=False)             # see PARALLEL
+    if names or suffix:
+        g = dict(fn.__globals__)
+        g.update(names)
+        copy = types.FunctionType(fn.__code__, g, fn.__name__ + suffix, fn.__defaults__, fn.__closure__)
+        copy.__qualname__ = fn.__qualname__ + suffix
+        copy.__module__ = fn.__module__
+        copy.__doc__ = fn.__doc__
+        fn = copy
+    build = numba.njit(**flags)(fn)
+    build.runs_threads = threaded
+    return build
+
+
+def contains_threads(obj) -> bool:
+    """Whether ``obj`` is a build of ``compiled`` that runs threaded code or calls a build that does."""
+    return getattr(obj, "runs_threads", False)
 
 
 def serial_and_parallel(fn, suffix: str = "", serial: dict | None = None, parallel: dict | None = None):
