@@ -262,21 +262,33 @@ def _finish_kernel(kw, v, mass3, xi, out):
 finish_serial, finish_parallel = serial_and_parallel(_finish_kernel)
 
 
+def _kernel_input(n, zeta, rest, u, v, w, warped):
+    """w[:n, :3] <- the force kernels' input: u + zeta v (linear), x0 + u + zeta v (warped; ``rest`` is x0,
+    unread when not warped). One source for the force kernels here and in warping.py and the clustered
+    integrator's passes."""
+    for i in prange(n):
+        for c in range(3):
+            w[i, c] = (rest[i, c] + u[i, c] if warped else u[i, c]) + zeta * v[i, c]
+
+
+kernel_input_serial, kernel_input_parallel = serial_and_parallel(_kernel_input)
+
+
 def _force_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, u, v, mass3, zeta, xi, w, kw, out):
     """w[:, :3] <- u + zeta v (w: (n, 4)), the slice sweep, then the finish: f = -K w - xi M v (mass3: the
     lumped mass per coordinate; the clustered integrator runs the same sweep, with the finish inside its
-    update; the core benchmark times this). ``stiffness`` and ``finish``: globals bound per build."""
-    n = u.shape[0]
-    for i in prange(n):
-        for c in range(3):
-            w[i, c] = u[i, c] + zeta * v[i, c]
-    stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw)  # noqa: F821 (bound)
+    update; the core benchmark times this). ``kernel_input``, ``stiffness`` and ``finish``: globals bound per
+    build."""
+    kernel_input(u.shape[0], zeta, u, u, v, w, False)  # noqa: F821 (bound)
+    stiffness(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw)  # noqa: F821
     finish(kw, v, mass3, xi, out)  # noqa: F821
 
 
-force_kernel_serial, force_kernel_parallel = serial_and_parallel(
-    _force_kernel, serial={"stiffness": stiffness_slices_serial, "finish": finish_serial},
-    parallel={"stiffness": stiffness_slices_parallel, "finish": finish_parallel})
+# no loop of their own: their callees carry the threads
+force_kernel_serial = compiled(_force_kernel, kernel_input=kernel_input_serial, stiffness=stiffness_slices_serial,
+                               finish=finish_serial)
+force_kernel_parallel = compiled(_force_kernel, "_parallel", kernel_input=kernel_input_parallel,
+                                 stiffness=stiffness_slices_parallel, finish=finish_parallel)
 
 
 def cluster_args(sl: ClusterSlices) -> tuple:

@@ -53,7 +53,7 @@ import numpy as np
 import scipy.sparse as sp
 from numba import prange
 
-from .cluster_force_kernel import finish_parallel, finish_serial
+from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .cluster_slices import ClusterSlices, aligned_zeros, lane_vertices, position_lanes, rest_offsets
 from .model import FemModel
 from .numba_config import PARALLEL_MIN_VERTICES, SERIAL, compiled, serial_and_parallel
@@ -367,7 +367,8 @@ def _rotate_chunk(c, owner, F, rot, rot4, scratch, how, tmp):
 
 
 # The warped kernels, one source each, serial and threaded builds. The globals ``gradient_sweep``,
-# ``rows_of_4``, ``rotations``, ``sweep``, ``warped_e`` and ``finish`` are bound per build (numba_config.compiled).
+# ``rows_of_4``, ``rotations``, ``sweep``, ``kernel_input``, ``warped_e`` and ``finish`` are bound per build
+# (numba_config.compiled).
 # Argument groups (VertexFrames): ``gradients`` and ``slices``, the two sweeps' slice arrays; ``work``, the
 # workspace (rot, rot4, u4, F, scratch, how, tmp, e).
 
@@ -392,10 +393,8 @@ def _warped_e(gradients, slices, u, w, work):
 
 def _warped_force(gradients, slices, rest, u, v, w, mass3, zeta, xi, work, out):
     """out <- the warped force of (u, v), f = -e - xi M v (mass3: the lumped mass per coordinate)."""
-    for i in prange(u.shape[0]):
-        for c in range(3):
-            w[i, c] = rest[i, c] + u[i, c] + zeta * v[i, c]
-    warped_e(gradients, slices, u, w, work)  # noqa: F821 (bound)
+    kernel_input(u.shape[0], zeta, rest, u, v, w, True)  # noqa: F821 (bound)
+    warped_e(gradients, slices, u, w, work)  # noqa: F821
     finish(work[7], v, mass3, xi, out)  # noqa: F821
 
 
@@ -405,9 +404,10 @@ rotation_kernel_serial, rotation_kernel_parallel = serial_and_parallel(
 # no loop of their own: their callees carry the threads
 warped_e_serial = compiled(_warped_e, rotations=rotation_kernel_serial, sweep=warped_sweep_serial)
 warped_e_parallel = compiled(_warped_e, "_parallel", rotations=rotation_kernel_parallel, sweep=warped_sweep_parallel)
-warped_kernel_serial, warped_kernel_parallel = serial_and_parallel(
-    _warped_force, serial={"warped_e": warped_e_serial, "finish": finish_serial},
-    parallel={"warped_e": warped_e_parallel, "finish": finish_parallel})
+warped_kernel_serial = compiled(_warped_force, kernel_input=kernel_input_serial, warped_e=warped_e_serial,
+                                finish=finish_serial)
+warped_kernel_parallel = compiled(_warped_force, "_parallel", kernel_input=kernel_input_parallel,
+                                  warped_e=warped_e_parallel, finish=finish_parallel)
 
 
 def rest_gram_inverse(model: FemModel) -> np.ndarray:

@@ -17,7 +17,8 @@ import time
 import numba
 import numpy as np
 
-from ..cluster_force_kernel import cluster_args, scratch, stiffness_slices_parallel, stiffness_slices_serial
+from ..cluster_force_kernel import (cluster_args, kernel_input_serial, scratch, stiffness_slices_parallel,
+                                    stiffness_slices_serial)
 from ..model import Control, FemModel, State
 from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
@@ -47,15 +48,8 @@ def _update(n, h, zeta, inv_mass3, kw, xi, mass3, f_const, rest, u, v, w, warped
         uf[k] = uc
         ok &= abs(uc) <= limit
     if refresh:
-        _kernel_input(n, zeta, rest, u, v, w, warped)
+        kernel_input_serial(n, zeta, rest, u, v, w, warped)
     return ok
-
-
-def _kernel_input(n, zeta, rest, u, v, w, warped):
-    """w <- the force kernel's input: u + zeta v (linear), x0 + u + zeta v (warped)."""
-    for i in range(n):
-        for c in range(3):
-            w[i, c] = (rest[i, c] + u[i, c] if warped else u[i, c]) + zeta * v[i, c]
 
 
 def _prepare(n, zeta, fixed, rest, u, v, w, warped):
@@ -65,7 +59,7 @@ def _prepare(n, zeta, fixed, rest, u, v, w, warped):
         for c in range(3):
             u[i, c] = 0.0
             v[i, c] = 0.0
-    _kernel_input(n, zeta, rest, u, v, w, warped)
+    kernel_input_serial(n, zeta, rest, u, v, w, warped)
 
 
 def _attach(tau, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, kw):
@@ -80,7 +74,6 @@ def _attach(tau, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, kw):
             kw[i, c] += m * (att_a[a, c] + att_kp[a] * (tu - u[i, c]) + att_kd[a] * (tv - v[i, c]))
 
 
-_kernel_input = numba.njit(**SERIAL)(_kernel_input)
 _update = numba.njit(**SERIAL)(_update)
 _prepare = numba.njit(**SERIAL)(_prepare)
 _attach = numba.njit(**SERIAL)(_attach)
