@@ -93,10 +93,10 @@ def _transpose(builder, rows):
 
 
 def slice_kernel_typing(kernel, lanes, s, p0, p1, per_position, common, specs):
-    """The typing checks every slice kernel makes; returns C. A slice kernel is called as
-    ``kernel(lanes, s, p0, p1, per_position, common)`` (slice_sweep): ``lanes`` (C) a literal 2, 4 or 8,
-    slice s, positions p0..p1, and two tuples of C-contiguous arrays, per position (w_at first) and common;
-    specs: (name, ndim, dtype) of every array of the two, in order."""
+    """The typing checks every slice kernel makes; returns C and the kernel's signature. A slice kernel is
+    called as ``kernel(lanes, s, p0, p1, per_position, common)`` (slice_sweep): ``lanes`` (C) a literal 2, 4
+    or 8, slice s, positions p0..p1, and two tuples of C-contiguous arrays, per position (w_at first) and
+    common; specs: (name, ndim, dtype) of every array of the two, in order."""
     if not isinstance(lanes, types.IntegerLiteral) or lanes.literal_value not in (2, 4, 8):
         raise TypingError(f"{kernel}: lanes must be the literal 2, 4 or 8, got {lanes}")
     for name, a in (("s", s), ("p0", p0), ("p1", p1)):
@@ -111,7 +111,7 @@ def slice_kernel_typing(kernel, lanes, s, p0, p1, per_position, common, specs):
     for (name, ndim, dtype), a in zip(specs, arrays):
         if not (isinstance(a, types.Array) and a.ndim == ndim and a.dtype == dtype and a.layout == "C"):
             raise TypingError(f"{kernel}: {name} must be a C-contiguous {ndim}-d {dtype} array, got {a}")
-    return lanes.literal_value
+    return lanes.literal_value, types.void(lanes, s, p0, p1, per_position, common)
 
 
 def slice_kernel_args(context, builder, signature, args):
@@ -155,9 +155,8 @@ def _slice_force_intrinsic(gather: bool):
 
 
 def _slice_force_typing(gather, lanes, s, p0, p1, per_position, common):
-    C = slice_kernel_typing("_slice_force", lanes, s, p0, p1, per_position, common, _LINEAR_SPECS)
+    C, sig = slice_kernel_typing("_slice_force", lanes, s, p0, p1, per_position, common, _LINEAR_SPECS)
     VC = ir.VectorType(_F64, C)
-    sig = types.void(lanes, s, p0, p1, per_position, common)
 
     def codegen(context, builder, signature, args):
         sv, p0v, p1v, arrays = slice_kernel_args(context, builder, signature, args)
@@ -248,7 +247,7 @@ stiffness_slices_serial, stiffness_slices_parallel = (compiled(_stiffness_slices
                                                       for suffix, sweep in zip(("", "_parallel"), _linear_sweeps))
 # the benchmark's control: the serial sweep with w held at row 0 (no gather of w)
 stiffness_held_w_serial = compiled(_stiffness_slices, "_held_w",
-                                   sweep=slice_sweep(slice_force_held_w, "held_w")[0])
+                                   sweep=compiled(_sweep, "_held_w", slice_kernel=slice_force_held_w))
 
 
 def _finish_kernel(kw, v, mass3, xi, out):

@@ -52,9 +52,8 @@ def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
     the bit. w_at (P, C) int64, blocks (P, 9, C), offsets (P, 3, C), w (n, 4), rot4 (n, 12), lane_vertex and
     owner (S C,) int64, out (S C, 3), all C-contiguous (checked at typing); the caller checks the shapes.
     """
-    C = slice_kernel_typing("_warped_slice", lanes, s, p0, p1, per_position, common, _WARPED_SPECS)
+    C, sig = slice_kernel_typing("_warped_slice", lanes, s, p0, p1, per_position, common, _WARPED_SPECS)
     VC = ir.VectorType(_F64, C)
-    sig = types.void(lanes, s, p0, p1, per_position, common)
 
     def codegen(context, builder, signature, args):
         sv, p0v, p1v, arrays = slice_kernel_args(context, builder, signature, args)
@@ -131,9 +130,8 @@ def _gradient_slice(typingctx, lanes, s, p0, p1, per_position, common):
     of u4 gathered at w_at = 4 j and transposed, three C-wide loads of g and nine FMAs in position order.
     w_at (P, C) int64, grads (P, 3, C), u4 (n, 4), lane_vertex (S C,) int64, F (9, S C), C-contiguous (checked
     at typing); the caller checks the shapes."""
-    C = slice_kernel_typing("_gradient_slice", lanes, s, p0, p1, per_position, common, _GRADIENT_SPECS)
+    C, sig = slice_kernel_typing("_gradient_slice", lanes, s, p0, p1, per_position, common, _GRADIENT_SPECS)
     VC = ir.VectorType(_F64, C)
-    sig = types.void(lanes, s, p0, p1, per_position, common)
 
     def codegen(context, builder, signature, args):
         sv, p0v, p1v, arrays = slice_kernel_args(context, builder, signature, args)
