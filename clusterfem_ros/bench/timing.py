@@ -8,19 +8,7 @@ from typing import Callable
 
 def median_seconds(fn: Callable[[], object], min_time: float = 0.3, repeats: int = 7, warmup: int = 3) -> float:
     """Median over ``repeats`` batches of the time of one call; batches last about min_time / repeats."""
-    for _ in range(warmup):
-        fn()
-    t0 = time.perf_counter()
-    fn()
-    one = max(time.perf_counter() - t0, 1e-7)
-    n = max(1, int(min_time / repeats / one))
-    samples = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        for _ in range(n):
-            fn()
-        samples.append((time.perf_counter() - t0) / n)
-    return statistics.median(samples)
+    return statistics.median(interleaved_seconds({"fn": fn}, min_time, repeats, warmup)["fn"])
 
 
 def interleaved_seconds(fns: dict[str, Callable[[], object]], min_time: float = 0.3, rounds: int = 11,
