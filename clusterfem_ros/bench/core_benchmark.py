@@ -68,8 +68,8 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from ..fem.cluster_force_kernel import (accumulating_loop, cluster_args, force_kernel_serial, scratch,
-                                        stiffness_held_w_serial, stiffness_slices_serial)
+from ..fem.cluster_force_kernel import (_k, _vector_at, accumulating_loop, cluster_args, force_kernel_serial,
+                                        scratch, stiffness_held_w_serial, stiffness_slices_serial)
 from ..fem.cluster_slices import aligned_zeros
 from ..fem.integrators import make_integrator
 from ..fem.material import Material
@@ -99,15 +99,13 @@ def _wide_sum(typingctx, lanes, a, m):
         add = builder.fadd if is_float else builder.add
         data = context.make_array(signature.args[1])(context, builder, args[1]).data
         m = context.cast(builder, args[2], signature.args[2], types.int64)
-        i64 = ir.IntType(64)
         zero = ir.Constant(vt, [0.0 if is_float else 0] * C)
 
         def four_vectors(k, acc):
-            at = [builder.bitcast(builder.gep(data, [builder.add(k, ir.Constant(i64, j * C))]), vt.as_pointer())
-                  for j in range(4)]
-            return [add(a_k, builder.load(p, align=8)) for a_k, p in zip(acc, at)]
+            return [add(a_k, builder.load(_vector_at(builder, data, builder.add(k, _k(j * C)), vt), align=8))
+                    for j, a_k in enumerate(acc)]
 
-        totals = accumulating_loop(builder, ir.Constant(i64, 0), m, 4 * C, [zero] * 4, four_vectors)
+        totals = accumulating_loop(builder, _k(0), m, 4 * C, [zero] * 4, four_vectors)
         v = add(add(totals[0], totals[1]), add(totals[2], totals[3]))
         out = builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
         for lane in range(1, C):
@@ -166,6 +164,11 @@ def _inside_numba(fn):
     return loop
 
 
+def in_numba(fn, args: tuple, reps: int):
+    """A zero-argument callable that runs ``fn(*args)`` reps times inside numba (_inside_numba)."""
+    return functools.partial(_inside_numba(fn), args, reps)
+
+
 def aligned_copy(a: np.ndarray, alignment: int = 64) -> np.ndarray:
     """A copy of ``a`` whose data starts on an ``alignment``-byte boundary."""
     out = aligned_zeros(a.shape, a.dtype, alignment)
@@ -195,14 +198,10 @@ def kernel_calls(model, reps: int = 200) -> dict[str, object]:
     aligned = tuple(aligned_copy(a) for a in (cl.shared_cols, cl.shared_blocks, cl.boundary_cols, cl.boundary_blocks))
     sliced = (sl.shared_w_at.reshape(-1), sl.shared_blocks, sl.boundary_w_at.reshape(-1), sl.boundary_blocks)
 
-    def compiled(fn, *fn_args):
-        loop = _inside_numba(fn)
-        return lambda: loop(fn_args, reps)
-
     return {
-        "kernel": compiled(force_kernel_serial, *args, u, v, mass3, 1e-3, 1.0, w, kw, f),
-        "sweep": compiled(stiffness_slices_serial, *args, w, kw),
-        "held": compiled(stiffness_held_w_serial, *args, w, kw),
+        "kernel": in_numba(force_kernel_serial, (*args, u, v, mass3, 1e-3, 1.0, w, kw, f), reps),
+        "sweep": in_numba(stiffness_slices_serial, (*args, w, kw), reps),
+        "held": in_numba(stiffness_held_w_serial, (*args, w, kw), reps),
         "stream4": lambda: _stream(*aligned, reps),
         "stream8": lambda: _wide_stream(*aligned, reps, lanes),
         "slices4": lambda: _stream(*sliced, reps),
@@ -269,8 +268,7 @@ def bench_shape(name: str, h: float, scale: float, reps: int = 200) -> dict:
             out["substeps"] = info.substeps
             out["margin"] = info.margin
             fn, args = integ.compiled_step(state, control, h)
-            loop = _inside_numba(fn)
-            calls["step_numba"] = functools.partial(loop, args, reps)
+            calls["step_numba"] = in_numba(fn, args, reps)
     pieces = kernel_calls(model, reps)
     calls.update(pieces)
     samples = per_call(interleaved_seconds(calls), dict.fromkeys([*pieces, "step_numba"], reps))
