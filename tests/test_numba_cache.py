@@ -4,16 +4,26 @@
   a per-process id: a kernel that closes over another compiled function misses the cache in every new process
   and is compiled again (the warped step's kernels took 9 s on each start of the node before
   numba_config.compiled replaced such closures).
-- A cached kernel that reaches threaded code crashed the process that loaded it when it had been compiled in a
-  process that loaded its threaded callee from the cache (numba_config.PARALLEL): no cached kernel may."""
+- A cached kernel that called a separately compiled threaded kernel crashed the process that loaded it when it
+  had been compiled in a process that loaded its threaded callee from the cache (numba_config.PARALLEL): every
+  threaded kernel is inlined into its callers, which are threaded themselves, so none makes that call.
+- Threaded kernels are cached: a process loads what another compiled, and computes the same bits."""
 import importlib
+import os
 import pkgutil
+import subprocess
+import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
 from numba.core.caching import NullCache
 from numba.core.registry import CPUDispatcher
 
 import clusterfem_ros
+from clusterfem_ros.fem.numba_config import contains_threads
+
+CHILD = Path(__file__).with_name("test_numba_cache_child.py")
 
 
 def _cached_dispatchers():
@@ -44,15 +54,49 @@ def test_no_cached_kernel_is_a_closure(name):
 
 
 @pytest.mark.parametrize("name", sorted(_cached_dispatchers()))
-def test_no_cached_kernel_reaches_threaded_code(name):
-    seen, todo = set(), [(name, _cached_dispatchers()[name])]
-    while todo:
-        path, d = todo.pop()
-        if id(d) in seen:
-            continue
-        seen.add(id(d))
-        assert not d.targetoptions.get("parallel"), (
-            f"{path} runs threads but is reached from the cached {name}: a process that compiles {name} after "
-            "loading the threaded part from the cache saves an entry the next process crashes on")
-        g = d.py_func.__globals__
-        todo += [(f"{path} -> {n}", g[n]) for n in d.py_func.__code__.co_names if isinstance(g.get(n), CPUDispatcher)]
+def test_no_kernel_calls_a_separately_compiled_threaded_kernel(name):
+    d = _cached_dispatchers()[name]
+    g = d.py_func.__globals__
+    for callee in (n for n in d.py_func.__code__.co_names if contains_threads(g.get(n))):
+        options = g[callee].targetoptions
+        assert options.get("inline") == "always" and "parallel" in options, (
+            f"{name} calls the threaded {callee} as a separate function: a process that compiles {name} after "
+            "loading that callee from the cache saves an entry the next process crashes on")
+        assert contains_threads(d) and "parallel" in d.targetoptions, (
+            f"{name} inlines the threaded {callee} but is not built parallel: its loops would run serial")
+
+
+def _child(cache: Path, out: Path, *what: str) -> dict[str, tuple[int, int]]:
+    """Run test_numba_cache_child.py with ``cache`` as numba's cache; (hits, misses) per threaded build."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    run = subprocess.run([sys.executable, str(CHILD), str(out), *what], env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert run.returncode == 0, f"{what} exited with {run.returncode} (a negative code is a signal):\n{run.stderr[-3000:]}"
+    counts = {}
+    for line in run.stdout.splitlines():
+        build, _, hits, _, misses = line.split()
+        counts[build] = (int(hits), int(misses))
+    return counts
+
+
+def test_threaded_kernels_load_from_a_cache_that_other_processes_filled(tmp_path):
+    """The order that crashed before: one process caches the threaded force kernels, a second compiles the
+    threaded steps (which contain the same threaded code), a third loads everything. Every process exits
+    cleanly, the third compiles nothing, and all agree with the serial builds to the bit."""
+    from tests.test_numba_cache_child import forces, sphere_and_state, steps
+
+    cache = tmp_path / "numba_cache"
+    first = _child(cache, tmp_path / "1.npz", "forces")
+    second = _child(cache, tmp_path / "2.npz", "steps")
+    third = _child(cache, tmp_path / "3.npz", "forces", "steps")
+    assert all(misses > 0 for _, misses in (*first.values(), *second.values())), (first, second)
+    assert all(hits > 0 and misses == 0 for hits, misses in third.values()), third
+
+    model, u, v = sphere_and_state()
+    serial = {**forces(model, u, v, threads=False), **steps(model, u, v, threads=False)}
+    loaded = dict(np.load(tmp_path / "3.npz"))
+    compiled_here = {**np.load(tmp_path / "1.npz"), **np.load(tmp_path / "2.npz")}
+    assert sorted(loaded) == sorted(serial) == sorted(compiled_here)
+    for key, value in serial.items():
+        assert np.abs(value).max() > 0, key
+        assert np.array_equal(loaded[key], value) and np.array_equal(compiled_here[key], value), key

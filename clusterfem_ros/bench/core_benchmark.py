@@ -74,6 +74,7 @@ from ..fem.cluster_slices import aligned_zeros
 from ..fem.integrators import make_integrator
 from ..fem.material import Material
 from ..fem.model import Control, State, build_model
+from ..fem.numba_config import contains_threads
 from ..fem.voxel_mesh import PAPER_SHAPES, paper_mesh
 from .timing import interleaved_seconds, paired_ratio, table
 
@@ -156,7 +157,10 @@ def _stream(sh_cols, sh_blocks, bd_cols, bd_blocks, reps):
 @functools.lru_cache(maxsize=None)
 def _inside_numba(fn):
     """A compiled loop that calls ``fn(*args)`` reps times: its time per call has no Python dispatch in it.
-    One loop per function (numba compiles it once per argument types)."""
+    One loop per function (numba compiles it once per argument types). Serial builds only: a threaded build
+    would be inlined into this loop (numba_config.PARALLEL) and run serial."""
+    if contains_threads(fn):
+        raise ValueError(f"in_numba times serial builds; {fn.__name__} is threaded: time it from Python")
     @numba.njit
     def loop(args, reps):
         for _ in range(reps):

@@ -9,12 +9,15 @@ import types
 import numba
 
 SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
-# Threaded code is not cached on disk, nor is any function that calls it (``compiled`` drops the cache for
-# those). numba names a threaded kernel's parallel parts in the order a process compiles them; a cached
-# caller compiled in a process that had loaded its threaded callee from the cache referred to names the next
-# process did not have, and loading it crashed (segfault on the warped jelly man's threaded step after a test
-# run had filled the cache, every time; numba issues #4807, #8578). Serial code stays cached.
-PARALLEL = dict(SERIAL, parallel=True, cache=False)
+# Threaded builds are cached too, each one self-contained. A cached function that calls a separately compiled
+# threaded function crashed the process that loaded it when it had been compiled in a process that loaded the
+# threaded callee from the cache: numba names a threaded function's parallel parts in the order a process
+# compiles them (segfault on the warped jelly man's threaded step after a test run had filled the cache, every
+# time; numba issues #4807, #8578). So ``compiled`` never lets that call happen: a threaded build is inlined
+# into every caller (numba IR, inline="always"), and a build that calls one is threaded itself, so its parallel
+# loops are its own and it calls only serial code. Before, threaded builds were not cached at all (5e68de1)
+# and the warped step's was compiled at every start of the node (8-10 s; loaded from the cache: 0.2 s).
+PARALLEL = dict(SERIAL, parallel=True)
 
 # Below this many vertices the bare force kernels (clustered_force, warped_force, vertex_rotations) run
 # serial. On an idle 2-core Zen 1 the threaded builds already pay at the jelly man's 1803 vertices (warped
@@ -45,10 +48,14 @@ def compiled(fn, suffix: str = "", flags: dict = SERIAL, **names):
     keeps each binding's cache entries apart (the cache keys by qualified name, signature and code, not by
     the globals). Bind after every global ``fn`` uses is defined: the copy sees the module's globals as they
     are at the call. Like any cached numba function that calls another, a build is not recompiled when only
-    its callee's file changes: scripts/env.sh keys NUMBA_CACHE_DIR by the whole package's source for that."""
+    its callee's file changes: scripts/env.sh keys NUMBA_CACHE_DIR by the whole package's source for that.
+    A build is threaded if ``flags`` say parallel or it binds a threaded build; a threaded build is parallel
+    and inlined into its callers (see PARALLEL), so call it only from threaded builds or from Python."""
     threaded = bool(flags.get("parallel")) or any(contains_threads(obj) for obj in names.values())
-    if threaded:
-        flags = dict(flags, cache=False)             # see PARALLEL
+    if threaded:                                    # see PARALLEL; a new options dict per build (numba empties it)
+        # fusion off: numba would merge adjacent loops of inlined callees into one parallel region; each stays
+        # the region it is in its callee's own build
+        flags = dict(flags, parallel={"fusion": False}, inline="always")
     if names or suffix:
         g = dict(fn.__globals__)
         g.update(names)
