@@ -80,9 +80,9 @@ def _child(cache: Path, out: Path, *what: str) -> dict[str, tuple[int, int]]:
 
 
 def test_threaded_kernels_load_from_a_cache_that_other_processes_filled(tmp_path):
-    """The order that crashed before: one process caches the threaded force kernels, a second compiles the
-    threaded steps (which contain the same threaded code), a third loads everything. Every process exits
-    cleanly, the third compiles nothing, and all agree with the serial builds to the bit."""
+    """One process caches the threaded force kernels, a second the threaded steps (which hold the same
+    threaded code, inlined), a third loads everything: every process exits cleanly, the third compiles
+    nothing, and all agree with the serial builds to the bit."""
     from tests.test_numba_cache_child import forces, sphere_and_state, steps
 
     cache = tmp_path / "numba_cache"
