@@ -33,3 +33,14 @@ def element_stiffness(x: np.ndarray, E: float, nu: float) -> np.ndarray:
         gx, gy, gz = g[a]
         B[:, 3 * a:3 * a + 3] = [[gx, 0, 0], [0, gy, 0], [0, 0, gz], [0, gz, gy], [gz, 0, gx], [gy, gx, 0]]
     return V * B.T @ C @ B
+
+
+def capsule_inside(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """Twin of skeleton.jelly_body.capsule_inside: the numpy einsum form it replaced (all points against all
+    bones at once)."""
+    d = ends - starts
+    L2 = np.einsum("bj,bj->b", d, d)
+    rel = points[:, None, :] - starts[None]
+    t = np.clip(np.einsum("kbj,bj->kb", rel, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+    q = rel - t[..., None] * d
+    return (np.einsum("kbj,kbj->kb", q, q) <= radii * radii).any(axis=1)

@@ -5,6 +5,7 @@ import pytest
 from clusterfem_ros.skeleton.humanoid import default_humanoid
 from clusterfem_ros.skeleton.jelly_body import capsule_inside, humanoid_capsules, jelly_man_mesh
 from clusterfem_ros.skeleton.kinematics import Skeleton
+from tests import naive
 
 
 @pytest.fixture(scope="module")
@@ -51,6 +52,26 @@ def test_capsule_inside_matches_a_direct_distance_check():
     assert 0.1 < inside.mean() < 0.9
     with pytest.raises(ValueError, match="radii"):
         capsule_inside(p, s, e, -r)
+
+
+def test_capsule_inside_equals_its_numpy_twin_on_a_voxel_grid_around_the_humanoid(spec):
+    """The compiled test gives the einsum form's answer for every point of two grids around the body; a point
+    exactly on a capsule's surface is inside; a zero-length bone is a ball."""
+    s, e, r = humanoid_capsules(spec)
+    lo = np.minimum(s, e).min(axis=0) - r.max()
+    hi = np.maximum(s, e).max(axis=0) + r.max()
+    for h in (0.01, 0.0137):
+        g = [np.arange(lo[a], hi[a] + h, h) for a in range(3)]
+        p = np.stack(np.meshgrid(*g, indexing="ij"), -1).reshape(-1, 3)
+        inside = capsule_inside(p, s, e, r)
+        assert 0.005 < inside.mean() < 0.5
+        assert np.array_equal(inside, naive.capsule_inside(p, s, e, r)), h
+    zero_length = capsule_inside(np.array([[0.0, 0.0, 0.1], [0.0, 0.0, 0.3]]), np.zeros((1, 3)), np.zeros((1, 3)),
+                                 np.array([0.2]))
+    assert zero_length.tolist() == [True, False]                            # a ball
+    axis = np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0]]), np.array([0.25])
+    on_surface = np.array([[0.25, 0.0, 0.5], [0.0, -0.25, 0.75], [0.0, 0.0, 1.25], [0.25, 0.0, 1.25]])
+    assert capsule_inside(on_surface, *axis).tolist() == [True, True, True, False]   # distances exact in binary
 
 
 def test_jelly_man_mesh_is_near_the_target_and_wraps_the_bones(spec):

@@ -8,17 +8,36 @@ by bisection so the tet count is as near ``target_tets`` as the grid allows (the
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 
-CHUNK = 20000           # points per block in capsule_inside (bounds the (k, nb, 3) temporary)
+from ..fem.numba_config import SERIAL
+
+
+
+@numba.njit(**SERIAL)
+def _inside_any(x, s, d, L2, r2, out):
+    """out[k] <- whether point k is within any capsule; per point the bones in order, stopping at the first
+    that holds it. The arithmetic of each bone's test is the einsum form's, term by term (tests/naive.py)."""
+    for k in range(x.shape[0]):
+        for b in range(s.shape[0]):
+            q0, q1, q2 = x[k, 0] - s[b, 0], x[k, 1] - s[b, 1], x[k, 2] - s[b, 2]
+            t = min(max((q0 * d[b, 0] + q1 * d[b, 1] + q2 * d[b, 2]) / L2[b], 0.0), 1.0)
+            q0, q1, q2 = q0 - t * d[b, 0], q1 - t * d[b, 1], q2 - t * d[b, 2]
+            if q0 * q0 + q1 * q1 + q2 * q2 <= r2[b]:
+                out[k] = True
+                break
 
 
 def capsule_inside(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, radii: np.ndarray) -> np.ndarray:
-    """(k,) bool: True where a point lies within any capsule (distance to its segment <= its radius)."""
-    x = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    s = np.asarray(starts, dtype=np.float64).reshape(-1, 3)
-    e = np.asarray(ends, dtype=np.float64).reshape(-1, 3)
-    r = np.asarray(radii, dtype=np.float64).reshape(-1)
+    """(k,) bool: True where a point lies within any capsule (distance to its segment <= its radius).
+
+    Compiled: the jelly man's voxelization tests ~20 grids of up to ~10^5 points against 21 bones, which took
+    1.4-1.8 s of a 2.2-3.3 s node start in numpy (the (k, nb, 3) temporaries of the einsum form)."""
+    x = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    s = np.ascontiguousarray(starts, dtype=np.float64).reshape(-1, 3)
+    e = np.ascontiguousarray(ends, dtype=np.float64).reshape(-1, 3)
+    r = np.ascontiguousarray(radii, dtype=np.float64).reshape(-1)
     if not (s.shape == e.shape and r.shape == (s.shape[0],)):
         raise ValueError(f"capsules: starts {s.shape}, ends {e.shape}, radii {r.shape} must describe the same "
                          "number of bones ((nb, 3), (nb, 3), (nb,))")
@@ -27,11 +46,7 @@ def capsule_inside(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, rad
     d = e - s
     L2 = np.einsum("bj,bj->b", d, d)
     out = np.zeros(x.shape[0], dtype=bool)
-    for a in range(0, x.shape[0], CHUNK):
-        rel = x[a:a + CHUNK, None, :] - s[None]
-        t = np.clip(np.einsum("kbj,bj->kb", rel, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
-        dist2 = np.einsum("kbj,kbj->kb", rel - t[..., None] * d, rel - t[..., None] * d)
-        out[a:a + CHUNK] = (dist2 <= r * r).any(axis=1)
+    _inside_any(x, s, d, np.where(L2 > 0, L2, 1.0), r * r, out)
     return out
 
 
