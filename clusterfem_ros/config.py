@@ -64,6 +64,8 @@ PARAMS: tuple[Param, ...] = (
     Param("binding.kp", [4.0e4, 4.0e3], "per-level position gain [1/s^2]"),
     Param("binding.kd", [400.0, 120.0], "per-level velocity gain [1/s]"),
     Param("binding.kinematic_core", False, "prescribe the innermost level exactly instead of by forces"),
+    Param("binding.sliding_levels", 0, "the outermost this many levels slide along their bone's axis (the paper's "
+          "line constraints) instead of following points on the bone", 0, 16),
     Param("input.max_age", 1.0, "reject joint states older than this relative to the newest [s]", 0.0, 3600.0),
     Param("input.max_future", 0.5, "reject joint states stamped this far ahead of the clock [s]", 0.0, 3600.0),
     Param("input.teleport_distance", 0.5, "a root jump larger than this between samples is a teleport [m]", 0.0, 100.0),
@@ -144,6 +146,13 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
     if not (len(kp) == len(kd) == len(radii)):
         raise ConfigError(f"binding.kp ({len(kp)} values) and binding.kd ({len(kd)}) need one value per level "
                           f"of binding.level_radii ({len(radii)})")
+    sliding = out["binding.sliding_levels"]
+    if sliding > len(radii):
+        raise ConfigError(f"binding.sliding_levels = {sliding}: there are only {len(radii)} levels "
+                          f"(binding.level_radii); give 0..{len(radii)}")
+    if sliding == len(radii) and out["binding.kinematic_core"]:
+        raise ConfigError(f"binding.sliding_levels = {sliding} lets the innermost level slide, but "
+                          "binding.kinematic_core prescribes it: slide fewer levels or turn the kinematic core off")
     if out["body.kind"] == "mesh" and not out["body.mesh_file"]:
         raise ConfigError("body.kind = 'mesh' needs body.mesh_file: the path of a volume mesh")
     if out["skeleton.source"] == "urdf_file" and not out["skeleton.urdf_file"]:

@@ -116,7 +116,7 @@ class Scene:
         state, so the first real steps are not a second-long stall that drops inputs."""
         _say(progress, "loading compiled kernels")
         state = State.rest(self.model)
-        control = self._control(0.0) if self.driver is not None else Control()
+        control = self._control(0.0, state) if self.driver is not None else Control()
         for _ in range(steps):
             self.integrator.step(state, control, self.h)
         if self.driver is not None:
@@ -198,7 +198,7 @@ class Scene:
                                         bone_names=sk.bone_names, warn=False)
         gains = LevelGains(kp=tuple(c["binding.kp"]), kd=tuple(c["binding.kd"]))
         self.driver = SkeletonDriver(self.binding, self.model.rest, gains, kinematic=c["binding.kinematic_core"],
-                                     bone_names=sk.bone_names)
+                                     bone_names=sk.bone_names, sliding_levels=c["binding.sliding_levels"])
         self.joints = JointMap(sk.joint_names, q0)
         self.stream = JointStreamInterpolator(sk.joint_names, revolute=sk.revolute_mask(),
                                               max_age=c["input.max_age"], max_future=c["input.max_future"],
@@ -236,10 +236,11 @@ class Scene:
         q, v = self.stream.sample(t) if self.stream.ready else (self.joints.q, np.zeros(self.skeleton.nv))
         return self.skeleton.forward(q, v)
 
-    def _control(self, t: float) -> Control:
+    def _control(self, t: float, state: State) -> Control:
+        """The skeleton's constraints for the step from t (``state``, the body at t: sliding levels read it)."""
         if self.driver is None:
             return Control()
-        return self.driver.control(self._poses(t), self.h)
+        return self.driver.control(self._poses(t), self.h, state=state)
 
     def start(self, t: float) -> None:
         """Put the body on its skeleton's pose at time t (no transient from the rest pose), and start the clock."""
@@ -262,7 +263,7 @@ class Scene:
         if self._replace:
             self._place_on_skeleton()
         t0 = time.perf_counter()
-        info = self.integrator.step(self.state, self._control(self.sim_time), self.h)
+        info = self.integrator.step(self.state, self._control(self.sim_time, self.state), self.h)
         self._k += 1
         self.steps_done += 1
         return StepReport(1, info.substeps, info.margin, time.perf_counter() - t0)

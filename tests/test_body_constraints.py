@@ -202,3 +202,49 @@ def test_line_constraint_lets_the_body_slide_along_the_bone_only():
     assert perp < 0.05 * abs(ux)
     with pytest.raises(ValueError, match="need the body's current state"):
         drv.control(P, 1e-3)
+
+
+def test_sliding_levels_hold_across_the_bone_and_push_nothing_along_it():
+    """sliding_levels=1: the outer level is held by line constraints (its level's gains), the inner by points.
+    For a displaced, moving state on a spinning chain the outer level's hold kp (u* - u) + kd (v* - v) has no
+    component along its bone's axis (the slide is free; the feed-forward a* is the slid point's acceleration,
+    centripetal part included), while the point hold pushes along it; the inner level's attachments are
+    unchanged. The tracking error of the sliding level ignores the slide."""
+    gains = LevelGains((4e4, 4e3), (400.0, 120.0))
+    held = SkeletonDriver(BINDING, MESH.vertices, gains)
+    sliding = SkeletonDriver(BINDING, MESH.vertices, gains, sliding_levels=1)
+    rng = np.random.default_rng(5)
+    state = State(0.004 * rng.standard_normal(MESH.vertices.shape), 0.1 * rng.standard_normal(MESH.vertices.shape))
+    motion = _spin(2.0)
+    P = SK.forward(*motion.qv(0.3))
+    a_held, a_slide = held.control(P, 1e-3).attachments, sliding.control(P, 1e-3, state=state).attachments
+
+    def force(att):
+        hold = att.kp[:, None] * (att.target_u - state.u[att.index]) + att.kd[:, None] * (att.target_v - state.v[att.index])
+        return dict(zip(att.index.tolist(), np.hstack([hold, att.target_a])))
+
+    f_held, f_slide = force(a_held), force(a_slide)
+    assert sorted(f_held) == sorted(f_slide) == sorted(BINDING.bound.tolist())   # each bound vertex once
+    outer = np.flatnonzero(BINDING.level == 1)
+    inner = np.flatnonzero(BINDING.level == 0)
+    assert outer.size and inner.size
+    axis_local = BINDING.axis_local[:, 1] - BINDING.axis_local[:, 0]
+    axis = np.einsum("kij,kj->ki", P.rotation[BINDING.bone[outer]], axis_local[BINDING.bone[outer]])
+    axis /= np.linalg.norm(axis, axis=1)[:, None]
+    fs = np.array([f_slide[i][:3] for i in outer])
+    fh = np.array([f_held[i][:3] for i in outer])
+    along = np.einsum("ki,ki->k", fs, axis)
+    across_s = fs - along[:, None] * axis
+    assert np.abs(along).max() < 1e-12 * np.abs(fs).max()
+    assert np.abs(np.einsum("ki,ki->k", fh, axis)).max() > 1e-2 * np.abs(fh).max()   # the point hold pushes along
+    assert np.abs(across_s).max() > 0.1 * np.abs(fs).max()
+    for i in inner:
+        assert np.array_equal(f_slide[i], f_held[i])
+    err_held, err_slide = held.tracking_error(state), sliding.tracking_error(state)
+    assert err_slide[0] == err_held[0] and 0 < err_slide[1] < err_held[1]
+    with pytest.raises(ValueError, match="current state"):
+        sliding.control(P, 1e-3)
+    with pytest.raises(ValueError, match="sliding_levels = 3"):
+        SkeletonDriver(BINDING, MESH.vertices, gains, sliding_levels=3)
+    with pytest.raises(ValueError, match="kinematic"):
+        SkeletonDriver(BINDING, MESH.vertices, gains, sliding_levels=2, kinematic=True)

@@ -37,6 +37,8 @@ def test_bad_values_are_refused_naming_the_value_and_the_range(name, value, word
     ({"binding.kp": [1.0]}, "one value per level"),
     ({"body.kind": "mesh"}, "needs body.mesh_file"),
     ({"skeleton.source": "none"}, "built around a skeleton"),
+    ({"binding.sliding_levels": 3}, "only 2 levels"),
+    ({"binding.sliding_levels": 2, "binding.kinematic_core": True}, "kinematic_core prescribes it"),
 ])
 def test_inconsistent_combinations_are_refused(values, words):
     with pytest.raises(ConfigError, match=words):

@@ -198,25 +198,55 @@ def point_targets(points: Sequence[PointConstraint], rest: np.ndarray, rest_R: n
             np.array([c.kd for c in points], dtype=np.float64))
 
 
-def line_targets(lines: Sequence[LineConstraint], rest: np.ndarray, axis_local: np.ndarray, rest_R: np.ndarray,
-                 rest_p: np.ndarray, R: np.ndarray, p: np.ndarray, twist: np.ndarray, dtwist: np.ndarray,
-                 x_now: np.ndarray, v_now: np.ndarray):
-    """(index, x*, v*, a*, kp, kd) of line constraints given the current world positions/velocities (n, 3)."""
-    idx = np.array([c.vertex for c in lines], dtype=np.int64)
-    bone = np.array([c.bone for c in lines], dtype=np.int64)
+@dataclass(frozen=True)
+class LineSet:
+    """Many line constraints as arrays, built once (``line_set``), for ``line_set_targets`` every step: the
+    vertex, its bone, its rest point in the bone frame and the bone's unit axis there, and the gains, (k,)."""
+    index: np.ndarray           # (k,) int64
+    bone: np.ndarray            # (k,) int64
+    rest_local: np.ndarray      # (k, 3)
+    axis: np.ndarray            # (k, 3) unit, bone frame
+    kp: np.ndarray              # (k,)
+    kd: np.ndarray              # (k,)
+
+    def __len__(self) -> int:
+        return int(self.index.size)
+
+
+def line_set(index: np.ndarray, bone: np.ndarray, kp: np.ndarray, kd: np.ndarray, rest: np.ndarray,
+             axis_local: np.ndarray, rest_R: np.ndarray, rest_p: np.ndarray) -> LineSet:
+    """The LineSet of vertices ``index`` sliding along bones ``bone`` with gains kp, kd (all (k,)). Raises
+    ValueError for a zero-length bone, which has no axis."""
+    idx = np.asarray(index, dtype=np.int64).reshape(-1)
+    bone = np.asarray(bone, dtype=np.int64).reshape(-1)
     axis = axis_local[bone, 1] - axis_local[bone, 0]
     length = np.linalg.norm(axis, axis=1)
     if (length <= 0).any():
         j = int(np.flatnonzero(length <= 0)[0])
-        raise ValueError(f"line constraint on vertex {lines[j].vertex}: bone {lines[j].bone} has zero length, "
+        raise ValueError(f"line constraint on vertex {idx[j]}: bone {bone[j]} has zero length, "
                          "so it has no axis; use a point constraint instead")
-    a_hat = axis / length[:, None]                                          # (k, 3) local
-    c_rest = np.einsum("kji,kj->ki", rest_R[bone], rest[idx] - rest_p[bone])
+    return LineSet(idx, bone, np.einsum("kji,kj->ki", rest_R[bone], rest[idx] - rest_p[bone]),
+                   axis / length[:, None], np.asarray(kp, dtype=np.float64).reshape(-1),
+                   np.asarray(kd, dtype=np.float64).reshape(-1))
+
+
+def line_set_targets(ls: LineSet, R: np.ndarray, p: np.ndarray, twist: np.ndarray, dtwist: np.ndarray,
+                     x_now: np.ndarray, v_now: np.ndarray):
+    """(index, x*, v*, a*, kp, kd) of the line constraints given the current world positions/velocities (n, 3)."""
+    idx, bone, a_hat = ls.index, ls.bone, ls.axis
     c_now = np.einsum("kji,kj->ki", R[bone], x_now[idx] - p[bone])
-    slide = np.einsum("ki,ki->k", c_now - c_rest, a_hat)
-    x, v, a = rigid_point_motion(R, p, twist, dtwist, bone, c_rest + slide[:, None] * a_hat)
+    slide = np.einsum("ki,ki->k", c_now - ls.rest_local, a_hat)
+    x, v, a = rigid_point_motion(R, p, twist, dtwist, bone, ls.rest_local + slide[:, None] * a_hat)
     a_w = np.einsum("kij,kj->ki", R[bone], a_hat)
     v_rel = np.einsum("ki,ki->k", v_now[idx] - v, a_w)[:, None] * a_w     # axial velocity relative to the bone
     a = a + 2.0 * np.cross(twist[bone, :3], v_rel)                          # Coriolis of the slide
-    return (idx, x, v + v_rel, a, np.array([c.kp for c in lines], dtype=np.float64),
-            np.array([c.kd for c in lines], dtype=np.float64))
+    return idx, x, v + v_rel, a, ls.kp, ls.kd
+
+
+def line_targets(lines: Sequence[LineConstraint], rest: np.ndarray, axis_local: np.ndarray, rest_R: np.ndarray,
+                 rest_p: np.ndarray, R: np.ndarray, p: np.ndarray, twist: np.ndarray, dtwist: np.ndarray,
+                 x_now: np.ndarray, v_now: np.ndarray):
+    """(index, x*, v*, a*, kp, kd) of line constraints given the current world positions/velocities (n, 3)."""
+    ls = line_set([c.vertex for c in lines], [c.bone for c in lines], [c.kp for c in lines], [c.kd for c in lines],
+                  rest, axis_local, rest_R, rest_p)
+    return line_set_targets(ls, R, p, twist, dtwist, x_now, v_now)

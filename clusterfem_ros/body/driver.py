@@ -23,8 +23,8 @@ import numpy as np
 
 from ..fem.model import Attachments, Control, State
 from .binding import Binding
-from .constraints import (LevelGains, _rigid_motion, LineConstraint, PointConstraint, PoseLike, check_poses, line_targets,
-                          point_targets, rigid_point_motion)
+from .constraints import (LevelGains, _rigid_motion, LineConstraint, PointConstraint, PoseLike, check_poses, line_set,
+                          line_set_targets, point_targets, rigid_point_motion)
 
 DIFFERENCES = ("backward", "central")
 
@@ -50,13 +50,15 @@ class SkeletonDriver:
 
     ``rest_vertices`` (n, 3) are the body's rest positions (``FemModel.rest``). ``points`` / ``lines`` add
     point and line constraints (line constraints need ``state`` in ``control``). A vertex in several
-    constraints gets the sum of their forces; a prescribed vertex ignores forces.
+    constraints gets the sum of their forces; a prescribed vertex ignores forces. The outermost
+    ``sliding_levels`` levels are held by line constraints along their bones (free to slide along the axis,
+    the paper's line constraints) with their level's gains, the others by points on the bones.
     """
 
     def __init__(self, binding: Binding, rest_vertices: np.ndarray, gains: LevelGains | None = None, *,
                  kinematic: bool = False, difference: str = "backward",
                  points: Sequence[PointConstraint] = (), lines: Sequence[LineConstraint] = (),
-                 bone_names: Sequence[str] | None = None):
+                 bone_names: Sequence[str] | None = None, sliding_levels: int = 0):
         rest = np.asarray(rest_vertices, dtype=np.float64)
         if rest.shape != (binding.level.size, 3):
             raise ValueError(f"rest_vertices has shape {rest.shape}, but the binding is for "
@@ -67,6 +69,12 @@ class SkeletonDriver:
         self.gains = LevelGains.default(binding.n_levels) if gains is None else gains
         if self.gains.n_levels != binding.n_levels:
             raise ValueError(f"{self.gains.n_levels} levels of gains for a binding with {binding.n_levels} levels")
+        L = binding.n_levels
+        if not (isinstance(sliding_levels, (int, np.integer)) and 0 <= sliding_levels <= L):
+            raise ValueError(f"sliding_levels = {sliding_levels!r}: give a whole number of levels in [0, {L}]")
+        if kinematic and sliding_levels == L:
+            raise ValueError(f"sliding_levels = {L} would let the innermost level slide, but kinematic=True "
+                             "prescribes it: slide fewer levels or turn the kinematic core off")
         if bone_names is not None and len(bone_names) != binding.n_bones:
             raise ValueError(f"{len(bone_names)} bone names for {binding.n_bones} bones")
         n, nb = rest.shape[0], binding.n_bones
@@ -88,6 +96,7 @@ class SkeletonDriver:
         self._kp = np.asarray(self.gains.kp)[lev]
         self._kd = np.asarray(self.gains.kd)[lev]
         self._n_inner = int((lev == 0).sum())                    # level 0 is the prefix bound[:n_inner]
+        self._n_held = int((lev < L - sliding_levels).sum())     # held at points: bound[:n_held]; then sliding
         self._bone_b = np.ascontiguousarray(binding.bone[self.bound])
         self._local_b = np.ascontiguousarray(binding.local[self.bound])
         self._rest_b = rest[self.bound]
@@ -97,6 +106,14 @@ class SkeletonDriver:
         self.target_u = np.zeros((self.bound.size, 3))          # last bone targets, displacements
         self.target_v = np.zeros((self.bound.size, 3))
         self.target_a = np.zeros((self.bound.size, 3))
+        slide = self.bound[self._n_held:]
+        index = np.concatenate([[c.vertex for c in self.lines], slide]).astype(np.int64)
+        self._line_set = None if index.size == 0 else line_set(
+            index, np.concatenate([[c.bone for c in self.lines], binding.bone[slide]]),
+            np.concatenate([[c.kp for c in self.lines], self._kp[self._n_held:]]),
+            np.concatenate([[c.kd for c in self.lines], self._kd[self._n_held:]]),
+            rest, binding.axis_local, binding.rest_rotation, binding.rest_translation)
+        self._slide_axis = np.zeros((slide.size, 3))            # world axes of the sliding vertices' bones
 
     def reset(self) -> None:
         """Forget the twist history (after a jump in the trajectory); the next steps use lower-order differences."""
@@ -147,15 +164,17 @@ class SkeletonDriver:
         self.target_v, self.target_a = v, a
 
         k0 = self._n_inner if self.kinematic else 0        # kinematic: level 0 is prescribed, not attached
-        parts = [(self.bound[k0:], self.target_u[k0:], v[k0:], a[k0:], self._kp[k0:], self._kd[k0:])]
+        k1 = self._n_held
+        parts = [(self.bound[k0:k1], self.target_u[k0:k1], v[k0:k1], a[k0:k1], self._kp[k0:k1], self._kd[k0:k1])]
         if self.points:
             parts.append(point_targets(self.points, self.rest, b.rest_rotation, b.rest_translation,
                                        R, p, twist, dtwist))
-        if self.lines:
+        if self._line_set is not None:
             if state is None:
                 raise ValueError("line constraints need the body's current state: call control(..., state=state)")
-            parts.append(line_targets(self.lines, self.rest, b.axis_local, b.rest_rotation, b.rest_translation,
-                                      R, p, twist, dtwist, self.rest + state.u, state.v))
+            parts.append(line_set_targets(self._line_set, R, p, twist, dtwist, self.rest + state.u, state.v))
+            n_user = len(self.lines)
+            self._slide_axis = np.einsum("kij,kj->ki", R[self._line_set.bone[n_user:]], self._line_set.axis[n_user:])
         for j in range(1, len(parts)):                      # point and line targets are world positions
             parts[j] = (parts[j][0], parts[j][1] - self.rest[parts[j][0]]) + tuple(parts[j][2:])
         if len(parts) == 1:
@@ -181,7 +200,11 @@ class SkeletonDriver:
         return State(x - self.rest, v, float(t))
 
     def tracking_error(self, state: State) -> np.ndarray:
-        """(L,) max |u - u*| per level [m], against the targets of the last ``control`` call (same time t)."""
-        err = np.linalg.norm(state.u[self.bound] - self.target_u, axis=1)
+        """(L,) max |u - u*| per level [m], against the targets of the last ``control`` call (same time t); for
+        a sliding level, the part across the bone's axis only."""
+        d = state.u[self.bound] - self.target_u
+        tail, axis = d[self._n_held:], self._slide_axis
+        tail -= np.einsum("ki,ki->k", tail, axis)[:, None] * axis
+        err = np.linalg.norm(d, axis=1)
         lev = self.binding.level[self.bound]
         return np.array([err[lev == k].max() if (lev == k).any() else 0.0 for k in range(self.binding.n_levels)])
