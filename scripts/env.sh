@@ -17,15 +17,7 @@ fi
 . "$VENV/bin/activate"
 export FASTDDS_BUILTIN_TRANSPORTS=SHM
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( ( $$ % 100 ) + 100 ))}"
-# numba re-checks a cached function only against its own file, not the kernels it inlines from other
-# files: after an edit to fem/cluster_force_kernel.py the cached integrator would keep the old code. The
-# cache directory is keyed on the whole package's source, so an edit or a pull starts a fresh cache.
-src_key="$(cat "$ROOT"/clusterfem_ros/*.py "$ROOT"/clusterfem_ros/*/*.py "$ROOT"/clusterfem_ros/*/*/*.py 2>/dev/null \
-  | sha1sum | cut -c1-12)"
-if [ -z "${NUMBA_CACHE_DIR:-}" ]; then
-  export NUMBA_CACHE_DIR="$VENV/numba_cache/$src_key"
-  mkdir -p "$NUMBA_CACHE_DIR"
-  find "$VENV/numba_cache" -mindepth 1 -maxdepth 1 ! -name "$src_key" -exec rm -rf {} + 2>/dev/null || true
-fi
+# numba's cache directory is keyed on the package's source by clusterfem_ros.fem.numba_config (key_the_cache),
+# in $VENV/numba_cache/<key>, unless NUMBA_CACHE_DIR is set.
 export PYTHONUNBUFFERED=1
 cd "$ROOT"

@@ -7,7 +7,9 @@
 - A cached kernel that called a separately compiled threaded kernel crashed the process that loaded it when it
   had been compiled in a process that loaded its threaded callee from the cache (numba_config.PARALLEL): every
   threaded kernel is inlined into its callers, which are threaded themselves, so none makes that call.
-- Threaded kernels are cached: a process loads what another compiled, and computes the same bits."""
+- Threaded kernels are cached: a process loads what another compiled, and computes the same bits.
+- The cache directory is keyed on the package's source (numba re-checks a cached kernel only against its own
+  file, so an edited callee would otherwise leave stale callers in the cache)."""
 import importlib
 import os
 import pkgutil
@@ -100,3 +102,39 @@ def test_threaded_kernels_load_from_a_cache_that_other_processes_filled(tmp_path
     for key, value in serial.items():
         assert np.abs(value).max() > 0, key
         assert np.array_equal(loaded[key], value) and np.array_equal(compiled_here[key], value), key
+
+
+def test_the_source_key_changes_with_any_file_of_the_package(tmp_path):
+    from clusterfem_ros.fem.numba_config import source_key
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "a.py").write_text("x = 1\n")
+    (pkg / "sub" / "b.py").write_text("y = 2\n")
+    (pkg / "notes.txt").write_text("not code\n")
+    first = source_key(pkg)
+    assert len(first) == 12 and source_key(pkg) == first
+    (pkg / "notes.txt").write_text("changed\n")
+    assert source_key(pkg) == first                     # only .py files count
+    (pkg / "sub" / "b.py").write_text("y = 3\n")
+    second = source_key(pkg)
+    assert second != first
+    (pkg / "sub" / "b.py").rename(pkg / "sub" / "c.py")
+    assert source_key(pkg) not in (first, second)
+
+
+def test_without_numba_cache_dir_the_cache_is_keyed_on_the_package_source(tmp_path):
+    """numba re-checks a cached kernel only against its own file: a bare pytest run after editing a callee
+    could load stale kernels. numba_config keys the directory on the package's source instead."""
+    code = ("import os, sys\n"
+            "from clusterfem_ros.fem.cluster_force_kernel import force_kernel_serial as k\n"
+            "print(os.environ['NUMBA_CACHE_DIR']); print(k._cache._cache_path); print(sys.prefix)\n")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    cache_dir, kernel_dir, prefix = run.stdout.split()
+    from clusterfem_ros.fem.numba_config import source_key
+    assert Path(cache_dir) == Path(prefix) / "numba_cache" / source_key(Path(clusterfem_ros.__file__).parent)
+    assert Path(kernel_dir).is_relative_to(cache_dir)
+    given = subprocess.run([sys.executable, "-c", code], env=dict(env, NUMBA_CACHE_DIR=str(tmp_path)),
+                           capture_output=True, text=True, timeout=120)
+    assert given.returncode == 0 and given.stdout.split()[0] == str(tmp_path)          # the user's wins

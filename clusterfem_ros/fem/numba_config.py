@@ -4,9 +4,50 @@
 """
 from __future__ import annotations
 
+import hashlib
+import os
+import shutil
+import sys
 import types
+from pathlib import Path
 
 import numba
+
+
+def source_key(package: Path) -> str:
+    """12 hex digits of the sha1 of every .py file under ``package`` (names and contents, sorted by path)."""
+    h = hashlib.sha1()
+    for f in sorted(package.rglob("*.py")):
+        h.update(str(f.relative_to(package)).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:12]
+
+
+def key_the_cache(package: Path = Path(__file__).resolve().parents[1]) -> str | None:
+    """Point numba's on-disk cache at <environment>/numba_cache/<source_key> unless NUMBA_CACHE_DIR is set;
+    returns the directory (None when left to numba or the user), and removes the other keys' directories.
+
+    numba re-checks a cached function only against its own file, not against the kernels it calls or
+    inlines from other files: after an edit to cluster_force_kernel.py the cached step would keep the old
+    sweep (and, inlined, the old threaded code) with no warning. Keyed on the whole package's source, an
+    edit or a pull starts a fresh cache, for the README's commands and for a bare ``pytest`` alike. The
+    variable is set too, so child processes share the directory."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return None
+    root = Path(sys.prefix) / "numba_cache"
+    key = source_key(package)
+    try:
+        (root / key).mkdir(parents=True, exist_ok=True)
+    except OSError:                     # a read-only environment: numba's default (beside the sources)
+        return None
+    for old in root.iterdir():
+        if old.name != key and old.is_dir():
+            shutil.rmtree(old, ignore_errors=True)
+    os.environ["NUMBA_CACHE_DIR"] = str(root / key)
+    numba.config.reload_config()
+    return os.environ["NUMBA_CACHE_DIR"]
+
+
+key_the_cache()               # before any kernel below or in the modules that import these flags is made
 
 SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 # Threaded builds are cached too, each one self-contained. A cached function that calls a separately compiled
@@ -48,7 +89,7 @@ def compiled(fn, suffix: str = "", flags: dict = SERIAL, **names):
     keeps each binding's cache entries apart (the cache keys by qualified name, signature and code, not by
     the globals). Bind after every global ``fn`` uses is defined: the copy sees the module's globals as they
     are at the call. Like any cached numba function that calls another, a build is not recompiled when only
-    its callee's file changes: scripts/env.sh keys NUMBA_CACHE_DIR by the whole package's source for that.
+    its callee's file changes: key_the_cache keys the cache directory by the whole package's source for that.
     A build is threaded if ``flags`` say parallel or it binds a threaded build; a threaded build is parallel
     and inlined into its callers (see PARALLEL), so call it only from threaded builds or from Python."""
     threaded = bool(flags.get("parallel")) or any(contains_threads(obj) for obj in names.values())
