@@ -1,6 +1,7 @@
 """Numba flags in one place. Kernels are compiled twice from one source: serial and multi-threaded.
 
-``prange`` is a plain ``range`` in the serial build, so the two builds cannot drift apart.
+``prange`` is a plain ``range`` in the serial build, so the two builds cannot drift apart. Both builds are
+cached on disk, in a directory keyed on the package's source (``key_the_cache``, run at import).
 """
 from __future__ import annotations
 

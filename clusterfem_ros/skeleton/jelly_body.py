@@ -14,7 +14,6 @@ import numpy as np
 from ..fem.numba_config import SERIAL
 
 
-
 @numba.njit(**SERIAL)
 def _inside_any(x, s, d, L2, r2, out):
     """out[k] <- whether point k is within any capsule; per point the bones in order, stopping at the first
