@@ -138,3 +138,26 @@ def test_without_numba_cache_dir_the_cache_is_keyed_on_the_package_source(tmp_pa
     given = subprocess.run([sys.executable, "-c", code], env=dict(env, NUMBA_CACHE_DIR=str(tmp_path)),
                            capture_output=True, text=True, timeout=120)
     assert given.returncode == 0 and given.stdout.split()[0] == str(tmp_path)          # the user's wins
+
+
+def test_keying_keeps_the_two_caches_used_last_besides_its_own(tmp_path):
+    """Two checkouts sharing one environment must not wipe each other's cache at every start; older keys go."""
+    root = tmp_path / "numba_cache"
+    for age, name in enumerate(("oldest", "older", "recent")):
+        (root / name).mkdir(parents=True)
+        os.utime(root / name, (1e9 + age, 1e9 + age))
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "a.py").write_text("x = 1\n")
+    code = ("import os, sys\nfrom pathlib import Path\n"
+            "from clusterfem_ros.fem import numba_config as c\n"
+            "os.environ.pop('NUMBA_CACHE_DIR')\n"
+            "print(c.key_the_cache(Path(sys.argv[1]), Path(sys.argv[2])), os.environ['NUMBA_CACHE_DIR'])\n")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    run = subprocess.run([sys.executable, "-c", code, str(pkg), str(root)], env=env, capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    from clusterfem_ros.fem.numba_config import source_key
+    returned, exported = run.stdout.split()
+    assert returned == exported == str(root / source_key(pkg))
+    assert sorted(p.name for p in root.iterdir()) == sorted([source_key(pkg), "older", "recent"])

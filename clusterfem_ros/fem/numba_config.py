@@ -23,9 +23,15 @@ def source_key(package: Path) -> str:
     return h.hexdigest()[:12]
 
 
-def key_the_cache(package: Path = Path(__file__).resolve().parents[1]) -> str | None:
-    """Point numba's on-disk cache at <environment>/numba_cache/<source_key> unless NUMBA_CACHE_DIR is set;
-    returns the directory (None when left to numba or the user), and removes the other keys' directories.
+KEEP_OTHER_KEYS = 2
+
+
+def key_the_cache(package: Path = Path(__file__).resolve().parents[1], root: Path | None = None) -> str | None:
+    """Point numba's on-disk cache at <root>/<source_key> (root: <environment>/numba_cache) unless
+    NUMBA_CACHE_DIR is set;
+    returns the directory (None when left to numba or the user). Of the other keys' directories the
+    KEEP_OTHER_KEYS used last are kept (two checkouts sharing one environment do not wipe each other's cache
+    at every start), the rest removed.
 
     numba re-checks a cached function only against its own file, not against the kernels it calls or
     inlines from other files: after an edit to cluster_force_kernel.py the cached step would keep the old
@@ -34,15 +40,16 @@ def key_the_cache(package: Path = Path(__file__).resolve().parents[1]) -> str | 
     variable is set too, so child processes share the directory."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return None
-    root = Path(sys.prefix) / "numba_cache"
+    root = Path(sys.prefix) / "numba_cache" if root is None else root
     key = source_key(package)
     try:
         (root / key).mkdir(parents=True, exist_ok=True)
     except OSError:                     # a read-only environment: numba's default (beside the sources)
         return None
-    for old in root.iterdir():
-        if old.name != key and old.is_dir():
-            shutil.rmtree(old, ignore_errors=True)
+    os.utime(root / key)                # marks it used
+    others = sorted((d for d in root.iterdir() if d.name != key and d.is_dir()), key=lambda d: d.stat().st_mtime)
+    for old in others[:max(len(others) - KEEP_OTHER_KEYS, 0)]:
+        shutil.rmtree(old, ignore_errors=True)
     os.environ["NUMBA_CACHE_DIR"] = str(root / key)
     numba.config.reload_config()
     return os.environ["NUMBA_CACHE_DIR"]
