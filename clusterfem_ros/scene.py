@@ -102,6 +102,7 @@ class Scene:
         self.start_time: float | None = None
         self.first_stamp: float | None = None     # stamp of the first joint state accepted
         self.steps_done = 0
+        self.step_wall_s = 0.0          # wall time inside step() over steps_done steps
         self.dropped_s = 0.0             # simulated time skipped because physics could not keep up
         self._replace = False
         self._stress_cache = None
@@ -264,9 +265,11 @@ class Scene:
             self._place_on_skeleton()
         t0 = time.perf_counter()
         info = self.integrator.step(self.state, self._control(self.sim_time, self.state), self.h)
+        wall = time.perf_counter() - t0
         self._k += 1
         self.steps_done += 1
-        return StepReport(1, info.substeps, info.margin, time.perf_counter() - t0)
+        self.step_wall_s += wall
+        return StepReport(1, info.substeps, info.margin, wall)
 
     @property
     def sim_time(self) -> float | None:

@@ -35,8 +35,9 @@ def test_a_scene_without_skeleton_builds_no_skeleton_and_refuses_joint_states():
     problems = scene.push_joint_state(0.0, ["a"], np.zeros(1))
     assert problems[0][0] == "no_skeleton" and scene.inputs.rejected == {"no_skeleton": 1}
     scene.advance_to(0.0)
-    scene.advance_to(0.05)
+    rep = scene.advance_to(0.05)
     assert scene.steps_done == 50 and scene._stress_cache is None     # no stress until asked
+    assert scene.step_wall_s == pytest.approx(rep.wall_s, rel=1e-12) and rep.wall_s > 0   # the run's step time
     assert np.isfinite(scene.vertex_von_mises()).all()
 
 
