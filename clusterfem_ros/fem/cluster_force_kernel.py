@@ -92,6 +92,37 @@ def _transpose(builder, rows):
             for c in range(3)]
 
 
+def lane_values(builder, ptr, first, lanes):
+    """The ``lanes`` int64 values ptr[first + l], l = 0..C-1: a position's column offsets (w_at), or a slice's
+    per-lane vertices or output rows (first = C s)."""
+    return [builder.load(builder.gep(ptr, [builder.add(first, _k(lane))]), align=8) for lane in range(lanes)]
+
+
+def gathered_rows(builder, data, offsets):
+    """The rows of 4 doubles that start at ``offsets`` in ``data`` (one per lane), transposed (_transpose):
+    their x's, y's and z's as three C-wide vectors. How every slice kernel gathers a per-vertex array."""
+    return _transpose(builder, [builder.load(_vector_at(builder, data, at, _V4), align=8) for at in offsets])
+
+
+def position_entries(builder, data, p, count, vtype):
+    """The ``count`` C-wide vectors of position p of a (P, count, C) array: a block's nine entries, an
+    offset's or a gradient weight's three."""
+    base = builder.mul(p, _k(count * vtype.count))
+    return [builder.load(_vector_at(builder, data, builder.add(base, _k(e * vtype.count)), vtype), align=8)
+            for e in range(count)]
+
+
+def store_lane_rows(builder, out, owner, first_lane, totals):
+    """out[owner[first_lane + l], c] <- lane l of totals[c] (c = 0, 1, 2): each lane's sums to its vertex's row
+    of an (S C, 3) array."""
+    lanes = totals[0].type.count
+    for lane, own in enumerate(lane_values(builder, owner, first_lane, lanes)):
+        row = builder.mul(own, _k(3))
+        for c, total in enumerate(totals):
+            builder.store(builder.extract_element(total, ir.Constant(_I32, lane)),
+                          builder.gep(out, [builder.add(row, _k(c))]), align=8)
+
+
 def slice_kernel_typing(kernel, lanes, s, p0, p1, per_position, common, specs):
     """The typing checks every slice kernel makes; returns C and the kernel's signature. A slice kernel is
     called as ``kernel(lanes, s, p0, p1, per_position, common)`` (slice_sweep): ``lanes`` (C) a literal 2, 4
@@ -164,35 +195,21 @@ def _slice_force_typing(gather, lanes, s, p0, p1, per_position, common):
         blkp, wp, outp = (double_data(builder, arrays[k]) for k in (1, 2, 4))
         zero = ir.Constant(VC, [0.0] * C)
         if not gather:                          # row 0 of w in every lane, loaded once
-            held = _transpose(builder, [builder.load(_vector_at(builder, wp, _k(0), _V4), align=8)] * C)
+            held = gathered_rows(builder, wp, [_k(0)] * C)
 
         def position(p, acc):
-            if gather:
-                first = builder.mul(p, _k(C))
-                rows = []
-                for lane in range(C):
-                    at = builder.load(builder.gep(atp, [builder.add(first, _k(lane))]), align=8)
-                    rows.append(builder.load(_vector_at(builder, wp, at, _V4), align=8))
-                wxyz = _transpose(builder, rows)
-            else:
-                wxyz = held
-            first_entry = builder.mul(p, _k(9 * C))
+            wxyz = gathered_rows(builder, wp, lane_values(builder, atp, builder.mul(p, _k(C)), C)) if gather else held
+            K = position_entries(builder, blkp, p, 9, VC)
             new = []
             for r in range(3):                  # row r of the C blocks: entries (r, 0..2)
                 a = acc[r]
                 for c in range(3):
-                    at = builder.add(first_entry, _k((3 * r + c) * C))
-                    a = _fma(builder, builder.load(_vector_at(builder, blkp, at, VC), align=8), wxyz[c], a)
+                    a = _fma(builder, K[3 * r + c], wxyz[c], a)
                 new.append(a)
             return new
 
         totals = accumulating_loop(builder, p0v, p1v, 1, [zero] * 3, position)
-        first_lane = builder.mul(sv, _k(C))       # lane l's sums go to row owner[C s + l], x, y, z
-        for lane in range(C):
-            row = builder.mul(builder.load(builder.gep(ownp, [builder.add(first_lane, _k(lane))]), align=8), _k(3))
-            for c, total in enumerate(totals):
-                builder.store(builder.extract_element(total, ir.Constant(_I32, lane)),
-                              builder.gep(outp, [builder.add(row, _k(c))]), align=8)
+        store_lane_rows(builder, outp, ownp, builder.mul(sv, _k(C)), totals)    # lane l -> row owner[C s + l]
         return context.get_dummy_value()
 
     return sig, codegen

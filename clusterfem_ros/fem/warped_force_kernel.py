@@ -27,8 +27,9 @@ from numba import prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .cluster_force_kernel import (_F64, _I32, _V4, _fma, _k, _transpose, _vector_at, accumulating_loop, double_data,
-                                   slice_kernel_args, slice_kernel_typing, slice_sweep)
+from .cluster_force_kernel import (_F64, _fma, _k, _vector_at, accumulating_loop, double_data, gathered_rows,
+                                   lane_values, position_entries, slice_kernel_args, slice_kernel_typing, slice_sweep,
+                                   store_lane_rows)
 from .numba_config import serial_and_parallel
 
 # Doubles per vertex in the rotations' kernel copy: three rows of (R_a0, R_a1, R_a2, padding).
@@ -66,31 +67,19 @@ def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
 
         def gathered(w_offsets):
             """w_j (3 vectors) and R_j (3 x 3 vectors, [a][b] = R[a, b]) of the lanes' w offsets 4 j."""
-            wj = _transpose(builder, [builder.load(_vector_at(builder, wp, at, _V4), align=8) for at in w_offsets])
             r_at = [builder.mul(at, _k(3)) for at in w_offsets]
-            rj = [_transpose(builder, [builder.load(_vector_at(builder, rp, builder.add(at, _k(4 * a)), _V4), align=8)
-                                       for at in r_at]) for a in range(3)]
-            return wj, rj
+            return (gathered_rows(builder, wp, w_offsets),
+                    [gathered_rows(builder, rp, [builder.add(at, _k(4 * a)) for at in r_at]) for a in range(3)])
 
         first_lane = builder.mul(sv, _k(C))
-        lane_at = [builder.mul(builder.load(builder.gep(lvp, [builder.add(first_lane, _k(lane))]), align=8), _k(4))
-                   for lane in range(C)]
-        wi, ri = gathered(lane_at)
+        wi, ri = gathered([builder.mul(i, _k(4)) for i in lane_values(builder, lvp, first_lane, C)])
         zero = ir.Constant(VC, [0.0] * C)
 
         def position(p, acc):
             f, g = acc[:3], acc[3:]
-            first = builder.mul(p, _k(C))
-            wj, rj = gathered([builder.load(builder.gep(atp, [builder.add(first, _k(lane))]), align=8)
-                               for lane in range(C)])
-
-            def entries(ptr, count):
-                base = builder.mul(p, _k(count * C))
-                return [builder.load(_vector_at(builder, ptr, builder.add(base, _k(e * C)), VC), align=8)
-                        for e in range(count)]
-
-            K = entries(blkp, 9)
-            d = entries(offp, 3)
+            wj, rj = gathered(lane_values(builder, atp, builder.mul(p, _k(C)), C))
+            K = position_entries(builder, blkp, p, 9, VC)
+            d = position_entries(builder, offp, p, 3, VC)
             z = [sub(wj[c], wi[c]) for c in range(3)]
             y = [sub(fma(ri[2][b], z[2], fma(ri[1][b], z[1], mul(ri[0][b], z[0]))), d[b]) for b in range(3)]
             t = [sub(z[a], fma(ri[a][2], d[2], fma(ri[a][1], d[1], mul(ri[a][0], d[0])))) for a in range(3)]
@@ -104,11 +93,7 @@ def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
         f, g = acc[:3], acc[3:]
         half = ir.Constant(VC, [0.5] * C)
         e = [mul(half, add(fma(ri[a][2], f[2], fma(ri[a][1], f[1], mul(ri[a][0], f[0]))), g[a])) for a in range(3)]
-        for lane in range(C):
-            row = builder.mul(builder.load(builder.gep(ownp, [builder.add(first_lane, _k(lane))]), align=8), _k(3))
-            for c in range(3):
-                builder.store(builder.extract_element(e[c], ir.Constant(_I32, lane)),
-                              builder.gep(outp, [builder.add(row, _k(c))]), align=8)
+        store_lane_rows(builder, outp, ownp, first_lane, e)
         return context.get_dummy_value()
 
     return sig, codegen
@@ -139,19 +124,13 @@ def _gradient_slice(typingctx, lanes, s, p0, p1, per_position, common):
         gp, up, fp = (double_data(builder, arrays[k]) for k in (1, 2, 4))
         columns = cgutils.unpack_tuple(builder, arrays[4].shape, 2)[1]
 
-        def rows(offsets):
-            return _transpose(builder, [builder.load(_vector_at(builder, up, at, _V4), align=8) for at in offsets])
-
         first_lane = builder.mul(sv, _k(C))
-        ui = rows([builder.mul(builder.load(builder.gep(lvp, [builder.add(first_lane, _k(lane))]), align=8), _k(4))
-                   for lane in range(C)])
+        ui = gathered_rows(builder, up, [builder.mul(i, _k(4)) for i in lane_values(builder, lvp, first_lane, C)])
 
         def position(p, acc):
-            first = builder.mul(p, _k(C))
-            uj = rows([builder.load(builder.gep(atp, [builder.add(first, _k(lane))]), align=8) for lane in range(C)])
+            uj = gathered_rows(builder, up, lane_values(builder, atp, builder.mul(p, _k(C)), C))
             e = [builder.fsub(uj[c], ui[c]) for c in range(3)]
-            base = builder.mul(p, _k(3 * C))
-            g = [builder.load(_vector_at(builder, gp, builder.add(base, _k(b * C)), VC), align=8) for b in range(3)]
+            g = position_entries(builder, gp, p, 3, VC)
             return [_fma(builder, e[a], g[b], acc[3 * a + b]) for a in range(3) for b in range(3)]
 
         acc = accumulating_loop(builder, p0v, p1v, 1, [ir.Constant(VC, [0.0] * C)] * 9, position)
