@@ -13,15 +13,13 @@ import sys
 
 import numpy as np
 
+from clusterfem_ros.bench.core_benchmark import MATERIAL
 from clusterfem_ros.fem.cluster_force_kernel import clustered_force, force_kernel_parallel
 from clusterfem_ros.fem.integrators.clustered_explicit import (ClusteredExplicit, _step_parallel,
                                                                _warped_step_parallel)
-from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.fem.voxel_mesh import paper_mesh
 from clusterfem_ros.fem.warping import warped_force, warped_kernel_parallel
-
-MATERIAL = Material(E=3.0e4, nu=0.3, rho=1000.0, xi=1.0, zeta=1e-5)
 
 
 def sphere_and_state():
