@@ -65,7 +65,7 @@ PARAMS: tuple[Param, ...] = (
     Param("binding.kd", [400.0, 120.0], "per-level velocity gain [1/s]"),
     Param("binding.kinematic_core", False, "prescribe the innermost level exactly instead of by forces"),
     Param("binding.sliding_levels", 0, "the outermost this many levels slide along their bone's axis (the paper's "
-          "line constraints) instead of following points on the bone", 0, 16),
+          "line constraints) between its ends instead of following points on the bone", 0, 16),
     Param("input.max_age", 1.0, "reject joint states older than this relative to the newest [s]", 0.0, 3600.0),
     Param("input.max_future", 0.5, "reject joint states stamped this far ahead of the clock [s]", 0.0, 3600.0),
     Param("input.teleport_distance", 0.5, "a root jump larger than this between samples is a teleport [m]", 0.0, 100.0),

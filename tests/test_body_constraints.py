@@ -204,12 +204,83 @@ def test_line_constraint_lets_the_body_slide_along_the_bone_only():
         drv.control(P, 1e-3)
 
 
+def test_a_line_within_its_bone_stops_at_the_bone_ends():
+    """within_bone=True: a vertex slid past its bone's end gets the end's point as its target, held like a point
+    on the bone (target velocity the bone point's, no slide velocity), while inside the segment the target is
+    the free line's, bit for bit. On the spinning chain, axis vertices of b1 (x in 0.2..0.4) are displaced
+    along the axis by -0.3..0.3 m."""
+    motion = _spin(2.0)
+    P = SK.forward(*motion.qv(0.3))
+    b1 = np.flatnonzero((BINDING.bone == 1) & (np.hypot(MESH.vertices[:, 1], MESH.vertices[:, 2]) < 1e-9))
+    assert b1.size >= 5
+    axis_w = P.rotation[1] @ np.array([1.0, 0.0, 0.0])
+    rng = np.random.default_rng(3)
+    held = SkeletonDriver(BINDING, MESH.vertices, LevelGains((0.0, 0.0), (0.0, 0.0)))
+    held.control(P, 1e-3)
+    slide = np.linspace(-0.3, 0.3, b1.size)
+    state = State(np.zeros_like(MESH.vertices), 0.1 * rng.standard_normal(MESH.vertices.shape))
+    state.u[held.bound] = held.target_u
+    state.u[b1] += slide[:, None] * axis_w
+    targets = {}
+    for within in (False, True):
+        lines = [LineConstraint(int(i), bone=1, within_bone=within) for i in b1]
+        drv = SkeletonDriver(BINDING, MESH.vertices, LevelGains((0.0, 0.0), (0.0, 0.0)), lines=lines)
+        att = drv.control(P, 1e-3, state=state).attachments      # the bound vertices' (gains 0), then the lines'
+        assert np.array_equal(att.index[-b1.size:], b1)
+        targets[within] = {name: getattr(att, name)[-b1.size:] for name in ("target_u", "target_v", "target_a")}
+    free, stop = targets[False], targets[True]
+    x_now = MESH.vertices[b1] + state.u[b1]
+    axial = lambda x: (x - P.translation[1]) @ axis_w           # noqa: E731 (coordinate along b1 from its start)
+    ends = np.clip(axial(x_now), 0.0, 0.2)
+    inside = (axial(x_now) >= 0.0) & (axial(x_now) <= 0.2)
+    assert inside.any() and (~inside).any()
+    x_free, x_stop = MESH.vertices[b1] + free["target_u"], MESH.vertices[b1] + stop["target_u"]
+    np.testing.assert_allclose(axial(x_free), axial(x_now), atol=1e-12)         # the free line follows the slide
+    np.testing.assert_allclose(axial(x_stop), ends, atol=1e-12)                 # the stopped one is cut at the ends
+    for name in free:
+        assert np.array_equal(free[name][inside], stop[name][inside])
+    # past an end: the motion of the end's point fixed on b1 (a first control has no twist history: dtwist = 0)
+    _, v_point, a_point = rigid_point_motion(P.rotation, P.translation, P.twist, np.zeros_like(P.twist),
+                                             np.ones((~inside).sum(), np.int64),
+                                             (x_stop[~inside] - P.translation[1]) @ P.rotation[1])
+    np.testing.assert_allclose(stop["target_v"][~inside], v_point, atol=1e-12)
+    np.testing.assert_allclose(stop["target_a"][~inside], a_point, atol=1e-12)
+    assert np.abs(free["target_v"][~inside] - v_point).max() > 0.01    # the free line keeps the slide's velocity
+
+
+def test_line_constraints_within_the_bone_stop_a_slide_that_free_lines_let_run():
+    """Gravity along the chain (-x) pulls the axis vertices: on free lines the body slides off the bones'
+    starts (as in the test above), within the bones it stops where the vertices at each bone's start meet it.
+    The stopped vertices carry the whole body, so they sit past the start by about M g / (sum m kp): stiff
+    gains (kp 4e6 /s^2) and a stiffer body (E 5e5 Pa) keep that and the stretch small."""
+    g = np.array([-3.0, 0.0, 0.0])
+    model = _model(tuple(g), E=5e5, xi=0.0)
+    axis = np.flatnonzero(np.hypot(MESH.vertices[:, 1], MESH.vertices[:, 2]) < 1e-9)
+    P = SK.forward(*Motion().qv(0.0))
+    start = P.translation[BINDING.bone[axis], 0]
+    out = {}
+    for within in (False, True):
+        lines = [LineConstraint(int(i), bone=int(BINDING.bone[i]), kp=4e6, kd=4e3, within_bone=within)
+                 for i in axis]
+        drv = SkeletonDriver(BINDING, MESH.vertices, LevelGains((0.0, 0.0), (0.0, 0.0)), lines=lines)
+        integ, state = make_integrator("clustered", model), State.rest(model)
+        for _ in range(300):
+            integ.step(state, drv.control(P, 1e-3, state=state), 1e-3)
+        x = MESH.vertices[axis, 0] + state.u[axis, 0]
+        out[within] = (state.u[axis, 0].mean(), np.maximum(np.minimum(start, MESH.vertices[axis, 0]) - x, 0).max())
+        print(f"within_bone={within}: mean slide {out[within][0] * 1e3:.2f} mm, "
+              f"furthest past a bone's start {out[within][1] * 1e3:.3f} mm")
+    assert out[False][0] < -0.05 and out[False][1] > 0.05
+    assert abs(out[True][0]) < 0.05 * abs(out[False][0]) and out[True][1] < 1e-3
+
+
 def test_sliding_levels_hold_across_the_bone_and_push_nothing_along_it():
     """sliding_levels=1: the outer level is held by line constraints (its level's gains), the inner by points.
     For a displaced, moving state on a spinning chain the outer level's hold kp (u* - u) + kd (v* - v) has no
-    component along its bone's axis (the slide is free; the feed-forward a* is the slid point's acceleration,
-    centripetal part included), while the point hold pushes along it; the inner level's attachments are
-    unchanged. The tracking error of the sliding level ignores the slide."""
+    component along its bone's axis where the vertex is within its bone (the slide is free; the feed-forward a*
+    is the slid point's acceleration, centripetal part included), and pushes it back where it is past an end;
+    the point hold pushes along everywhere; the inner level's attachments are unchanged. The tracking error of
+    the sliding level ignores the slide within the bone and counts the part past its ends."""
     gains = LevelGains((4e4, 4e3), (400.0, 120.0))
     held = SkeletonDriver(BINDING, MESH.vertices, gains)
     sliding = SkeletonDriver(BINDING, MESH.vertices, gains, sliding_levels=1)
@@ -228,20 +299,43 @@ def test_sliding_levels_hold_across_the_bone_and_push_nothing_along_it():
     outer = np.flatnonzero(BINDING.level == 1)
     inner = np.flatnonzero(BINDING.level == 0)
     assert outer.size and inner.size
-    axis_local = BINDING.axis_local[:, 1] - BINDING.axis_local[:, 0]
-    axis = np.einsum("kij,kj->ki", P.rotation[BINDING.bone[outer]], axis_local[BINDING.bone[outer]])
-    axis /= np.linalg.norm(axis, axis=1)[:, None]
+    bone = BINDING.bone[outer]
+    start_local, axis_local = BINDING.axis_local[bone, 0], BINDING.axis_local[bone, 1] - BINDING.axis_local[bone, 0]
+    length = np.linalg.norm(axis_local, axis=1)
+    axis_local /= length[:, None]
+    axis = np.einsum("kij,kj->ki", P.rotation[bone], axis_local)
+    at_rest = np.einsum("ki,ki->k", BINDING.local[outer] - start_local, axis_local)
+    start = P.translation[bone] + np.einsum("kij,kj->ki", P.rotation[bone], start_local)
+    at_now = np.einsum("ki,ki->k", MESH.vertices[outer] + state.u[outer] - start, axis)
+    lo, hi = np.minimum(at_rest, 0.0), np.maximum(at_rest, length)
+    within = (at_now >= lo) & (at_now <= hi)
+    assert within.sum() > 10 and (~within).sum() > 2      # the rest coordinates of the end caps' vertices lie past the ends
     fs = np.array([f_slide[i][:3] for i in outer])
     fh = np.array([f_held[i][:3] for i in outer])
     along = np.einsum("ki,ki->k", fs, axis)
     across_s = fs - along[:, None] * axis
-    assert np.abs(along).max() < 1e-12 * np.abs(fs).max()
+    assert np.abs(along[within]).max() < 1e-12 * np.abs(fs).max()
+    back = np.clip(at_now, lo, hi) - at_now                 # the way back into the bone, past its ends
+    pos = {i: (u, kp) for i, u, kp in zip(a_slide.index.tolist(), a_slide.target_u, a_slide.kp)}
+    spring = np.array([pos[i][1] * (pos[i][0] - state.u[i]) for i in outer])     # kp (u* - u): the position term
+    np.testing.assert_allclose(np.einsum("ki,ki->k", spring, axis), 4e3 * back, atol=1e-9)
+    assert np.abs(back[~within]).min() > 0
     assert np.abs(np.einsum("ki,ki->k", fh, axis)).max() > 1e-2 * np.abs(fh).max()   # the point hold pushes along
     assert np.abs(across_s).max() > 0.1 * np.abs(fs).max()
     for i in inner:
         assert np.array_equal(f_slide[i], f_held[i])
     err_held, err_slide = held.tracking_error(state), sliding.tracking_error(state)
     assert err_slide[0] == err_held[0] and 0 < err_slide[1] < err_held[1]
+    # a slide along the axes alone: no error within the bones, the excess past their ends
+    along_only = State(np.zeros_like(MESH.vertices), np.zeros_like(MESH.vertices))
+    along_only.u[sliding.bound] = sliding.target_u
+    slide = np.linspace(-0.3, 0.3, outer.size)
+    along_only.u[outer] += slide[:, None] * axis
+    slid = at_rest + slide                                  # the poses are rigid: the rest coordinate moves with the bone
+    excess = np.abs(slid - np.clip(slid, lo, hi))
+    assert excess.max() > 0.05 and (excess == 0).any()
+    err = sliding.tracking_error(along_only)
+    assert err[0] == 0.0 and err[1] == pytest.approx(excess.max(), abs=1e-12)
     with pytest.raises(ValueError, match="current state"):
         sliding.control(P, 1e-3)
     with pytest.raises(ValueError, match="sliding_levels = 3"):

@@ -167,11 +167,16 @@ class LineConstraint:
     component at the start of each step; inside a step it only sees the O(h^2) drift between the linear
     target motion and the vertex's, so the slide is free to first order. A vertex on the axis (offset 0)
     is the paper's line constraint.
+
+    ``within_bone=True`` stops the slide at the bone's ends: the vertex's axial coordinate stays within the
+    segment (or within its rest coordinate, if that lies beyond an end), and past an end the target is the
+    end's point, held like a point constraint. The default slides along the whole line.
     """
     vertex: int
     bone: int
     kp: float = 4.0e4
     kd: float = 400.0
+    within_bone: bool = False
 
     def __post_init__(self) -> None:
         if not (np.isfinite([self.kp, self.kd]).all() and self.kp >= 0 and self.kd >= 0):
@@ -201,22 +206,27 @@ def point_targets(points: Sequence[PointConstraint], rest: np.ndarray, rest_R: n
 @dataclass(frozen=True)
 class LineSet:
     """Many line constraints as arrays, built once (``line_set``), for ``line_set_targets`` every step: the
-    vertex, its bone, its rest point in the bone frame and the bone's unit axis there, and the gains, (k,)."""
+    vertex, its bone, its rest point in the bone frame and the bone's unit axis there, the gains, and the
+    range of the slide (from the rest point, along the axis: -inf/inf for a whole line), (k,)."""
     index: np.ndarray           # (k,) int64
     bone: np.ndarray            # (k,) int64
     rest_local: np.ndarray      # (k, 3)
     axis: np.ndarray            # (k, 3) unit, bone frame
     kp: np.ndarray              # (k,)
     kd: np.ndarray              # (k,)
+    slide_min: np.ndarray       # (k,) <= 0 [m]
+    slide_max: np.ndarray       # (k,) >= 0 [m]
 
     def __len__(self) -> int:
         return int(self.index.size)
 
 
 def line_set(index: np.ndarray, bone: np.ndarray, kp: np.ndarray, kd: np.ndarray, rest: np.ndarray,
-             axis_local: np.ndarray, rest_R: np.ndarray, rest_p: np.ndarray) -> LineSet:
-    """The LineSet of vertices ``index`` sliding along bones ``bone`` with gains kp, kd (all (k,)). Raises
-    ValueError for a zero-length bone, which has no axis."""
+             axis_local: np.ndarray, rest_R: np.ndarray, rest_p: np.ndarray,
+             within_bone: np.ndarray | bool = False) -> LineSet:
+    """The LineSet of vertices ``index`` sliding along bones ``bone`` with gains kp, kd (all (k,)); where
+    ``within_bone`` (a bool or (k,)), the slide stops at the bone's ends (LineConstraint). Raises ValueError
+    for a zero-length bone, which has no axis."""
     idx = np.asarray(index, dtype=np.int64).reshape(-1)
     bone = np.asarray(bone, dtype=np.int64).reshape(-1)
     axis = axis_local[bone, 1] - axis_local[bone, 0]
@@ -225,20 +235,29 @@ def line_set(index: np.ndarray, bone: np.ndarray, kp: np.ndarray, kd: np.ndarray
         j = int(np.flatnonzero(length <= 0)[0])
         raise ValueError(f"line constraint on vertex {idx[j]}: bone {bone[j]} has zero length, "
                          "so it has no axis; use a point constraint instead")
-    return LineSet(idx, bone, np.einsum("kji,kj->ki", rest_R[bone], rest[idx] - rest_p[bone]),
-                   axis / length[:, None], np.asarray(kp, dtype=np.float64).reshape(-1),
-                   np.asarray(kd, dtype=np.float64).reshape(-1))
+    axis = axis / length[:, None]
+    rest_local = np.einsum("kji,kj->ki", rest_R[bone], rest[idx] - rest_p[bone])
+    at = np.einsum("ki,ki->k", rest_local - axis_local[bone, 0], axis)    # the rest point's axial coordinate
+    within = np.broadcast_to(np.asarray(within_bone, dtype=bool), idx.shape)
+    slide_min = np.where(within, np.minimum(at, 0.0) - at, -np.inf)
+    slide_max = np.where(within, np.maximum(at, length) - at, np.inf)
+    return LineSet(idx, bone, rest_local, axis, np.asarray(kp, dtype=np.float64).reshape(-1),
+                   np.asarray(kd, dtype=np.float64).reshape(-1), slide_min, slide_max)
 
 
 def line_set_targets(ls: LineSet, R: np.ndarray, p: np.ndarray, twist: np.ndarray, dtwist: np.ndarray,
                      x_now: np.ndarray, v_now: np.ndarray):
-    """(index, x*, v*, a*, kp, kd) of the line constraints given the current world positions/velocities (n, 3)."""
+    """(index, x*, v*, a*, kp, kd) of the line constraints given the current world positions/velocities (n, 3).
+    A slide past its range (LineSet.slide_min/max) is cut to it and held there like a point on the bone."""
     idx, bone, a_hat = ls.index, ls.bone, ls.axis
     c_now = np.einsum("kji,kj->ki", R[bone], x_now[idx] - p[bone])
     slide = np.einsum("ki,ki->k", c_now - ls.rest_local, a_hat)
+    free = (slide >= ls.slide_min) & (slide <= ls.slide_max)
+    slide = np.clip(slide, ls.slide_min, ls.slide_max)
     x, v, a = rigid_point_motion(R, p, twist, dtwist, bone, ls.rest_local + slide[:, None] * a_hat)
     a_w = np.einsum("kij,kj->ki", R[bone], a_hat)
-    v_rel = np.einsum("ki,ki->k", v_now[idx] - v, a_w)[:, None] * a_w     # axial velocity relative to the bone
+    along = np.where(free, np.einsum("ki,ki->k", v_now[idx] - v, a_w), 0.0)
+    v_rel = along[:, None] * a_w                                             # axial velocity relative to the bone
     a = a + 2.0 * np.cross(twist[bone, :3], v_rel)                          # Coriolis of the slide
     return idx, x, v + v_rel, a, ls.kp, ls.kd
 
@@ -248,5 +267,5 @@ def line_targets(lines: Sequence[LineConstraint], rest: np.ndarray, axis_local: 
                  x_now: np.ndarray, v_now: np.ndarray):
     """(index, x*, v*, a*, kp, kd) of line constraints given the current world positions/velocities (n, 3)."""
     ls = line_set([c.vertex for c in lines], [c.bone for c in lines], [c.kp for c in lines], [c.kd for c in lines],
-                  rest, axis_local, rest_R, rest_p)
+                  rest, axis_local, rest_R, rest_p, [c.within_bone for c in lines])
     return line_set_targets(ls, R, p, twist, dtwist, x_now, v_now)

@@ -52,7 +52,8 @@ class SkeletonDriver:
     point and line constraints (line constraints need ``state`` in ``control``). A vertex in several
     constraints gets the sum of their forces; a prescribed vertex ignores forces. The outermost
     ``sliding_levels`` levels are held by line constraints along their bones (free to slide along the axis,
-    the paper's line constraints) with their level's gains, the others by points on the bones.
+    the paper's line constraints) with their level's gains, the others by points on the bones; their slide
+    stops at their bone's ends (LineConstraint.within_bone).
     """
 
     def __init__(self, binding: Binding, rest_vertices: np.ndarray, gains: LevelGains | None = None, *,
@@ -112,8 +113,12 @@ class SkeletonDriver:
             index, np.concatenate([[c.bone for c in self.lines], binding.bone[slide]]),
             np.concatenate([[c.kp for c in self.lines], self._kp[self._n_held:]]),
             np.concatenate([[c.kd for c in self.lines], self._kd[self._n_held:]]),
-            rest, binding.axis_local, binding.rest_rotation, binding.rest_translation)
+            rest, binding.axis_local, binding.rest_rotation, binding.rest_translation,
+            np.concatenate([[c.within_bone for c in self.lines], np.ones(slide.size, bool)]))
         self._slide_axis = np.zeros((slide.size, 3))            # world axes of the sliding vertices' bones
+        n_user = len(self.lines)
+        self._slide_range = (None if self._line_set is None else
+                             (self._line_set.slide_min[n_user:], self._line_set.slide_max[n_user:]))
 
     def reset(self) -> None:
         """Forget the twist history (after a jump in the trajectory); the next steps use lower-order differences."""
@@ -201,10 +206,11 @@ class SkeletonDriver:
 
     def tracking_error(self, state: State) -> np.ndarray:
         """(L,) max |u - u*| per level [m], against the targets of the last ``control`` call (same time t); for
-        a sliding level, the part across the bone's axis only."""
+        a sliding level, without the slide along the bone's axis that stays within the bone."""
         d = state.u[self.bound] - self.target_u
         tail, axis = d[self._n_held:], self._slide_axis
-        tail -= np.einsum("ki,ki->k", tail, axis)[:, None] * axis
+        if tail.size:
+            tail -= np.clip(np.einsum("ki,ki->k", tail, axis), *self._slide_range)[:, None] * axis
         err = np.linalg.norm(d, axis=1)
         lev = self.binding.level[self.bound]
         return np.array([err[lev == k].max() if (lev == k).any() else 0.0 for k in range(self.binding.n_levels)])
