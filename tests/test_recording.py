@@ -202,3 +202,26 @@ def test_recording_layer_imports_no_rclpy_and_no_msgs():
             "bad = [m for m in sys.modules if m.split('.')[0] == 'rclpy' or m.split('.')[0].endswith('_msgs')]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[1])
+
+
+SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample_default_scene"
+
+
+def test_the_sample_recording_replays_exactly_and_a_changed_physics_is_reported(tmp_path, capsys):
+    """bags/sample_default_scene was recorded with physics.clock = input, so the replay command reproduces
+    every recorded surface (exit 0). A failure here means the physics changed since it was recorded: record
+    it again (bags/README.md). The same bag with a stiffer material must fail with exit 1, naming the way out."""
+    from clusterfem_ros.recording.replay import PARAMS_FILE, main
+    assert main([str(SAMPLE)]) == 0, capsys.readouterr()
+    out = capsys.readouterr().out
+    assert "compared 60 surfaces; max vertex difference 0 m" in out
+    stiffer = tmp_path / "stiffer"
+    stiffer.mkdir()
+    for f in SAMPLE.iterdir():
+        (stiffer / f.name).write_bytes(f.read_bytes())
+    text = (SAMPLE / PARAMS_FILE).read_text()
+    assert "young_modulus: 30000.0" in text
+    (stiffer / PARAMS_FILE).write_text(text.replace("young_modulus: 30000.0", "young_modulus: 60000.0"))
+    assert main([str(stiffer)]) == 1
+    err = capsys.readouterr().err
+    assert "the physics changed since it was recorded" in err and "record it again" in err

@@ -6,6 +6,9 @@ the .mcap). Replaying the joint states through a fresh Scene in the same order r
 recorded surface Marker (stamped with its simulated time) to round-off:
 
     python -m clusterfem_ros.recording.replay bags/clusterfem_20261122_120000
+
+It exits with 1 when a bag recorded that way differs by more than ``--tolerance`` (the physics or the
+parameters' meaning changed since the recording), 2 when the bag cannot be replayed.
 """
 from __future__ import annotations
 
@@ -95,6 +98,8 @@ def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bag", help="bag folder written by the clusterfem node")
+    ap.add_argument("--tolerance", type=float, default=1e-6,
+                    help="largest vertex difference [m] a physics.clock = input bag may show (default 1e-6)")
     args = ap.parse_args(argv)
     from ..config import load_scene_file
     from ..scene import Scene
@@ -104,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {params} is missing: only bags recorded by the clusterfem node can be replayed", file=sys.stderr)
         return 2
     config = load_scene_file(params)
-    if config["physics.clock"] != "input":
+    exact = config["physics.clock"] == "input"
+    if not exact:
         print("note: the bag was recorded with physics.clock = wall; its surfaces depend on timing and are "
               "compared only where the replay passes through their stamps", file=sys.stderr)
     samples = read_joint_states(folder)
@@ -112,7 +118,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"replaying {len(samples)} joint states; {len(surfaces)} recorded surfaces")
     got = replay(Scene.build(config), samples, [t for t, _ in surfaces])
     diffs = [float(np.abs(got[t] - p).max()) for t, p in surfaces if t in got and got[t].shape == p.shape]
-    print(f"compared {len(diffs)} surfaces; max vertex difference {max(diffs) if diffs else float('nan'):.3g} m")
+    worst = max(diffs) if diffs else float("nan")
+    print(f"compared {len(diffs)} surfaces; max vertex difference {worst:.3g} m")
+    if exact and not (len(diffs) == len(surfaces) and worst <= args.tolerance):
+        print(f"error: the replay differs from the recording ({len(diffs)} of {len(surfaces)} surfaces compared, "
+              f"max difference {worst:.3g} m > --tolerance {args.tolerance:g} m): the physics changed since it was "
+              "recorded; record it again with the same scene file to update it", file=sys.stderr)
+        return 1
     return 0
 
 
