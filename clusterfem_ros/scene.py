@@ -115,7 +115,12 @@ class Scene:
     def _warm_up(self, progress, steps: int = 40) -> None:
         """Load the compiled kernels (and let the integrator settle on serial or threaded) on a throw-away
         state, so the first real steps are not a second-long stall that drops inputs."""
-        _say(progress, "loading compiled kernels")
+        from .fem.numba_config import is_cached
+        if any(is_cached(k) is False for k in getattr(self.integrator, "kernels", ())):
+            _say(progress, "compiling the step's kernels into numba's cache: the first start of this code on this "
+                           "machine takes 10-25 s here, once; later starts load them in about a second")
+        else:
+            _say(progress, "loading compiled kernels")
         state = State.rest(self.model)
         control = self._control(0.0, state) if self.driver is not None else Control()
         for _ in range(steps):

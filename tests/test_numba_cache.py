@@ -11,6 +11,7 @@
 - The cache directory is keyed on the package's source (numba re-checks a cached kernel only against its own
   file, so an edited callee would otherwise leave stale callers in the cache)."""
 import importlib
+import importlib.util
 import os
 import pkgutil
 import subprocess
@@ -161,3 +162,46 @@ def test_keying_keeps_the_two_caches_used_last_besides_its_own(tmp_path):
     returned, exported = run.stdout.split()
     assert returned == exported == str(root / source_key(pkg))
     assert sorted(p.name for p in root.iterdir()) == sorted([source_key(pkg), "older", "recent"])
+
+
+
+def _fresh_module(path: Path, name: str):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_is_cached_tells_a_build_that_will_compile_from_one_that_will_load(tmp_path):
+    """A cached numba function seen for the first time is not cached; after its first call it is, also for a
+    new dispatcher of the same source (a later process). A function numba does not cache: cannot tell."""
+    from clusterfem_ros.fem.numba_config import is_cached
+    src = tmp_path / "tiny_kernel.py"
+    src.write_text("import numba\n\n@numba.njit(cache=True)\ndef f(x):\n    return x + 1\n\n"
+                   "@numba.njit\ndef g(x):\n    return x + 1\n")
+    first = _fresh_module(src, "tiny_kernel_a")
+    assert is_cached(first.f) is False
+    assert first.f(1) == 2
+    assert is_cached(first.f) is True
+    assert is_cached(_fresh_module(src, "tiny_kernel_b").f) is True
+    assert is_cached(first.g) is None and is_cached(object()) is None
+
+
+def test_a_scene_whose_step_will_compile_says_so_and_how_long_it_takes(tmp_path, monkeypatch):
+    """The first start of a source compiles the step for 10-25 s with nothing else to show: the scene says so
+    before. With the step's kernels cached it says it loads them."""
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.fem.integrators.clustered_explicit import ClusteredExplicit
+    from clusterfem_ros.scene import Scene
+    config = SceneConfig().with_values(skeleton__source="none", body__kind="sphere")
+    Scene.build(config)                         # compiles the step if this source's cache does not hold it yet
+    said = []
+    Scene.build(config, progress=said.append)
+    assert "loading compiled kernels" in said and not any("compiling" in s for s in said)
+    src = tmp_path / "uncached_kernel.py"
+    src.write_text("import numba\n\n@numba.njit(cache=True)\ndef f(x):\n    return x\n")
+    uncached = _fresh_module(src, "uncached_kernel").f
+    monkeypatch.setattr(ClusteredExplicit, "kernels", property(lambda self: (uncached,)))
+    said = []
+    Scene.build(config, progress=said.append)
+    assert any("compiling the step's kernels" in s and "10-25 s" in s for s in said), said

@@ -57,6 +57,18 @@ def key_the_cache(package: Path = Path(__file__).resolve().parents[1], root: Pat
 
 key_the_cache()               # before any kernel below or in the modules that import these flags is made
 
+
+
+def is_cached(build) -> bool | None:
+    """Whether numba's on-disk cache holds a compiled version of ``build`` (a numba dispatcher): False means
+    its first call compiles it (after an install or an update of this source: 10-25 s for a step with its
+    kernels). None when it cannot tell (not a cached build, or numba's internals changed)."""
+    try:
+        return bool(build._cache._cache_file._load_index())
+    except Exception:           # noqa: BLE001 (a private numba API: any failure means "cannot tell")
+        return None
+
+
 SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 # Threaded builds are cached too, each one self-contained. A cached function that calls a separately compiled
 # threaded function crashed the process that loaded it when it had been compiled in a process that loaded the

@@ -258,6 +258,14 @@ class ClusteredExplicit:
         self._plan = None
         self._info = None
 
+    @property
+    def kernels(self) -> tuple:
+        """The compiled builds the coming steps run (both threaded and serial while ThreadChoice may pick
+        either); the attachment-free builds call these."""
+        if self.thread_choice is not None:
+            return self._builds[0][0], self._builds[1][0]
+        return (self._builds[self.threads][0],)
+
     def critical_step(self, control: Control | None = None) -> float:
         return control_critical_step(self.lam_max, self.model.material, control)
 
