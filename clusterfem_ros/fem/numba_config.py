@@ -58,7 +58,6 @@ def key_the_cache(package: Path = Path(__file__).resolve().parents[1], root: Pat
 key_the_cache()               # before any kernel below or in the modules that import these flags is made
 
 
-
 def is_cached(build) -> bool | None:
     """Whether numba's on-disk cache holds a compiled version of ``build`` (a numba dispatcher): False means
     its first call compiles it (after an install or an update of this source: 10-25 s for a step with its
