@@ -44,3 +44,29 @@ def capsule_inside(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, rad
     t = np.clip(np.einsum("kbj,bj->kb", rel, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
     q = rel - t[..., None] * d
     return (np.einsum("kbj,kbj->kb", q, q) <= radii * radii).any(axis=1)
+
+
+def stress(rest: np.ndarray, tets: np.ndarray, u: np.ndarray, lam: float, mu: float, corotated: bool):
+    """(element stress (m, 3, 3), vertex stress (n, 3, 3)) as fem/stress.py defines them: F = I + grad u per
+    tet from its rest edges, R = polar(F) by SVD (or I), eps = sym(R^T F) - I, s = lam tr(eps) I + 2 mu eps,
+    sigma = R s R^T; per vertex the volume-weighted mean of its tets'."""
+    x0 = rest[tets]
+    D0 = (x0[:, 1:] - x0[:, :1]).transpose(0, 2, 1)            # rest edge matrix (m, 3, 3)
+    D = ((rest + u)[tets][:, 1:] - (rest + u)[tets][:, :1]).transpose(0, 2, 1)
+    F = D @ np.linalg.inv(D0)
+    if corotated:
+        U, _, Vt = np.linalg.svd(F)
+        R = U @ Vt
+    else:
+        R = np.broadcast_to(np.eye(3), F.shape)
+    G = R.transpose(0, 2, 1) @ F
+    eps = 0.5 * (G + G.transpose(0, 2, 1)) - np.eye(3)
+    s = lam * np.trace(eps, axis1=1, axis2=2)[:, None, None] * np.eye(3) + 2.0 * mu * eps
+    sigma = R @ s @ R.transpose(0, 2, 1)
+    vol = np.abs(np.linalg.det(D0)) / 6.0
+    vs = np.zeros((len(rest), 3, 3))
+    w = np.zeros(len(rest))
+    for c in range(4):
+        np.add.at(vs, tets[:, c], vol[:, None, None] * sigma)
+        np.add.at(w, tets[:, c], vol)
+    return sigma, vs / w[:, None, None]

@@ -7,6 +7,7 @@ from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import build_model
 from clusterfem_ros.fem.stress import compute_stress, von_mises
 from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
+from tests import naive
 from tests.meshes import random_delaunay_mesh
 
 MAT = Material(E=2.0e5, nu=0.3, rho=1000.0)
@@ -111,3 +112,54 @@ def test_batched_newton_polar_equals_the_svd_polar_including_inverted_and_flat_e
     assert np.allclose(np.linalg.det(R), 1.0, atol=1e-12)
     assert np.abs(R - R_svd)[25:].max() < 1e-12            # the Newton path
     assert np.abs(np.einsum("eji,ejk->eik", R, R) - np.eye(3)).max() < 1e-12
+
+
+@pytest.mark.parametrize("corotated", [True, False])
+def test_stress_equals_the_numpy_twin_on_a_twisted_stretched_sphere(corotated):
+    """The paper's sphere (1085 tets: several chunks of the polar iteration's lanes) twisted by up to 25 deg
+    and stretched 5 %: element and vertex tensors and their von Mises values equal the numpy twin's (SVD
+    polar, np.add.at averages) to round-off."""
+    model = build_model(paper_mesh("sphere"), MAT)
+    x = model.rest
+    angle = 0.44 * x[:, 0] / np.ptp(x[:, 0])
+    c, s = np.cos(angle), np.sin(angle)
+    bent = np.stack([1.05 * x[:, 0], c * x[:, 1] - s * x[:, 2], s * x[:, 1] + c * x[:, 2]], axis=1)
+    u = bent - x
+    assert model.mesh.n_tets > 3 * 128
+    assert (np.linalg.det(_gradients(model, u)) > 0).all()                     # nothing inverted
+    lam, mu = MAT.lame
+    sigma, vs = naive.stress(x, model.mesh.tets, u, lam, mu, corotated)
+    got = compute_stress(model, u, corotated=corotated)
+    scale = np.abs(sigma).max()
+    assert np.abs(got.element_stress - sigma).max() < 1e-9 * scale
+    assert np.abs(got.vertex_stress - vs).max() < 1e-9 * scale
+    assert np.allclose(got.element_von_mises, von_mises(sigma), rtol=1e-8, atol=1e-9 * scale)
+    assert np.allclose(got.vertex_von_mises, von_mises(vs), rtol=1e-8, atol=1e-9 * scale)
+
+
+def _gradients(model, u):
+    e0, e = model.rest[model.mesh.tets], (model.rest + u)[model.mesh.tets]
+    edges = lambda x: np.stack([x[:, k] - x[:, 0] for k in (1, 2, 3)], axis=2)    # noqa: E731
+    return edges(e) @ np.linalg.inv(edges(e0))
+
+
+def test_inverted_elements_get_a_proper_rotation_and_a_finite_stress():
+    """Tets pushed through themselves take the scalar fallback (the nearest proper rotation from I): the
+    stress stays finite and the others' equal the twin's."""
+    model = build_model(random_delaunay_mesh(200), MAT)
+    rng = np.random.default_rng(4)
+    u = 0.001 * rng.standard_normal(model.rest.shape)
+    flip = model.mesh.tets[:5, 0]
+    u[flip] = 2.0 * (model.rest[model.mesh.tets[:5, 1:]].mean(axis=1) - model.rest[flip])     # through the face
+    got = compute_stress(model, u, corotated=True)
+    x = model.rest + u
+    e = x[model.mesh.tets]
+    det = np.linalg.det(np.stack([e[:, 1] - e[:, 0], e[:, 2] - e[:, 0], e[:, 3] - e[:, 0]], axis=1))
+    inverted = det * np.linalg.det(np.stack([model.rest[model.mesh.tets][:, k] - model.rest[model.mesh.tets][:, 0]
+                                              for k in (1, 2, 3)], axis=1)) < 0
+    assert inverted.sum() >= 5
+    assert np.isfinite(got.element_stress).all() and np.isfinite(got.vertex_von_mises).all()
+    lam, mu = MAT.lame
+    sigma, _ = naive.stress(model.rest, model.mesh.tets, u, lam, mu, True)
+    ok = ~inverted
+    assert np.abs(got.element_stress[ok] - sigma[ok]).max() < 1e-9 * np.abs(sigma[ok]).max()

@@ -6,6 +6,12 @@ s = C eps = lambda tr(eps) I + 2 mu eps, returned in the world frame sigma = R_e
 stress of the corotated linear model; invariants such as von Mises do not depend on the frame).
 von Mises = sqrt(3/2 dev(sigma) : dev(sigma)); principal stresses = eigvalsh(sigma), ascending.
 Per vertex: the volume-weighted average of the adjacent elements' tensors, and its invariants.
+
+The corotated rotations come from the warping's polar iteration on LANES elements at once (fem/warping.py:
+scaled Newton, then Newton-Schulz, all lanes of a chunk together), with the scalar path for inverted, flat
+or non-converged elements; the element stress, its von Mises value and the vertex averages follow in the
+same compiled call. The node computes this for every surface marker (30 Hz): on the default jelly man
+(4815 tets) it took 3.2 ms with one scalar Newton iteration per element and the averages in numpy.
 """
 from __future__ import annotations
 
@@ -18,7 +24,7 @@ import numpy as np
 from .assembly import shape_gradients
 from .model import FemModel
 from .numba_config import SERIAL
-from .warping import _rotation_of
+from .warping import LANES, _chunk_start, _orthogonal, _polar_lanes, _rotation_of
 
 
 @dataclass(frozen=True)
@@ -78,48 +84,104 @@ def _rest_data(model: FemModel):
 
 
 @numba.njit(**SERIAL)
-def _element_stress(g, tets, u, lam, mu, corotated, sigma):
-    """sigma[e] <- world-frame Cauchy stress of tet e (see the module docstring); one pass, no temporaries."""
-    F = np.empty((3, 3))
-    X = np.empty((3, 3))
-    R = np.empty((3, 3))
-    G = np.empty((3, 3))
-    s = np.empty((3, 3))
+def _deformation_lanes(g, tets, u, F):
+    """F[:, e] <- F_e = I + sum_c u_(tets[e, c]) g[e, c]^T, row-major, one lane per element."""
     for e in range(tets.shape[0]):
         for a in range(3):
             for b in range(3):
                 acc = 1.0 if a == b else 0.0
                 for c in range(4):
                     acc += u[tets[e, c], a] * g[e, c, b]
-                F[a, b] = acc
-        if corotated:
-            for a in range(3):
-                for b in range(3):
-                    R[a, b] = 1.0 if a == b else 0.0      # start of the fallback for inverted tets
-            _rotation_of(F, X, R)
-            for a in range(3):
-                for b in range(3):
-                    G[a, b] = R[0, a] * F[0, b] + R[1, a] * F[1, b] + R[2, a] * F[2, b]   # R^T F
-        else:
-            for a in range(3):
-                for b in range(3):
-                    G[a, b] = F[a, b]
+                F[3 * a + b, e] = acc
+
+
+@numba.njit(**SERIAL)
+def _element_rotations(F, R):
+    """R[e] <- polar(F_e) by chunks of LANES elements (the warping's lanes iteration); inverted, flat and
+    non-converged elements take the scalar path (_rotation_of, its fallback started from I)."""
+    m = F.shape[1]
+    buf = np.empty((2, 9, LANES))
+    how = np.empty(LANES, dtype=np.int8)
+    Fe = np.empty((3, 3))
+    X = np.empty((3, 3))
+    for k0 in range(0, m, LANES):
+        nl = min(LANES, m - k0)
+        Fc = F[:, k0:k0 + nl]
+        _chunk_start(nl, Fc, buf[0], how)
+        P, converged = _polar_lanes(nl, buf[0], buf[1])
+        for l in range(nl):
+            e = k0 + l
+            if how[l] == 0 and (converged or _orthogonal(P[0, l], P[1, l], P[2, l], P[3, l], P[4, l], P[5, l],
+                                                         P[6, l], P[7, l], P[8, l])):
+                for a in range(9):
+                    R[e, a // 3, a % 3] = P[a, l]
+            else:
+                for a in range(3):
+                    for b in range(3):
+                        Fe[a, b] = Fc[3 * a + b, l]
+                        R[e, a, b] = 1.0 if a == b else 0.0
+                _rotation_of(Fe, X, R[e])
+
+
+@numba.njit(**SERIAL)
+def _von_mises(sigma, out):
+    """out[k] <- sqrt(3/2 s:s), s = dev(sigma[k])."""
+    for k in range(sigma.shape[0]):
+        p = (sigma[k, 0, 0] + sigma[k, 1, 1] + sigma[k, 2, 2]) / 3.0
+        acc = 0.0
+        for a in range(3):
+            for b in range(3):
+                d = sigma[k, a, b] - (p if a == b else 0.0)
+                acc += d * d
+        out[k] = np.sqrt(1.5 * acc)
+
+
+@numba.njit(**SERIAL)
+def _stress_kernel(g, tets, vol, weight, u, lam, mu, corotated, sigma, vm_e, vs, vm_v):
+    """sigma[e] <- world-frame Cauchy stress of tet e (see the module docstring), vs[i] <- the volume-weighted
+    average over the tets at vertex i (weight: their volume sum), and the von Mises values of both."""
+    m = tets.shape[0]
+    F = np.empty((9, m))
+    _deformation_lanes(g, tets, u, F)
+    R = np.empty((m, 3, 3))
+    if corotated:
+        _element_rotations(F, R)
+    G = np.empty((3, 3))
+    s = np.empty((3, 3))
+    for e in range(m):
+        for a in range(3):
+            for b in range(3):
+                if corotated:
+                    G[a, b] = R[e, 0, a] * F[b, e] + R[e, 1, a] * F[3 + b, e] + R[e, 2, a] * F[6 + b, e]  # R^T F
+                else:
+                    G[a, b] = F[3 * a + b, e]
         tr = G[0, 0] + G[1, 1] + G[2, 2] - 3.0
         for a in range(3):
             for b in range(3):
                 s[a, b] = mu * (G[a, b] + G[b, a]) + ((lam * tr - 2.0 * mu) if a == b else 0.0)
-        if corotated:                                     # sigma = R s R^T
-            for a in range(3):
-                for b in range(3):
+        for a in range(3):
+            for b in range(3):
+                if corotated:                               # sigma = R s R^T
                     acc = 0.0
                     for c in range(3):
                         for d in range(3):
-                            acc += R[a, c] * s[c, d] * R[b, d]
+                            acc += R[e, a, c] * s[c, d] * R[e, b, d]
                     sigma[e, a, b] = acc
-        else:
+                else:
+                    sigma[e, a, b] = s[a, b]
+    vs[...] = 0.0
+    for e in range(m):
+        for c in range(4):
+            i = tets[e, c]
             for a in range(3):
                 for b in range(3):
-                    sigma[e, a, b] = s[a, b]
+                    vs[i, a, b] += vol[e] * sigma[e, a, b]
+    for i in range(vs.shape[0]):
+        for a in range(3):
+            for b in range(3):
+                vs[i, a, b] /= weight[i]
+    _von_mises(sigma, vm_e)
+    _von_mises(vs, vm_v)
 
 
 def compute_stress(model: FemModel, u: np.ndarray, corotated: bool = False) -> StressField:
@@ -132,11 +194,8 @@ def compute_stress(model: FemModel, u: np.ndarray, corotated: bool = False) -> S
     g, vol, w = _rest_data(model)
     tets = model.mesh.tets
     lam, mu = model.material.lame
-    sigma = np.empty((tets.shape[0], 3, 3))
-    _element_stress(g, tets, u, float(lam), float(mu), bool(corotated), sigma)
-    weighted = (vol[:, None, None] * sigma).reshape(-1, 9)
-    corners = tets.ravel()
-    vs = np.stack([np.bincount(corners, weights=np.repeat(weighted[:, c], 4), minlength=model.n_vertices)
-                   for c in range(9)], axis=1).reshape(-1, 3, 3)
-    vs /= w[:, None, None]
-    return StressField(sigma, von_mises_of(sigma), vs, von_mises_of(vs))
+    m, n = tets.shape[0], model.n_vertices
+    sigma, vs, vm_e, vm_v = np.empty((m, 3, 3)), np.empty((n, 3, 3)), np.empty(m), np.empty(n)
+    _stress_kernel(g, tets, vol, w, np.ascontiguousarray(u), float(lam), float(mu), bool(corotated),
+                   sigma, vm_e, vs, vm_v)
+    return StressField(sigma, vm_e, vs, vm_v)
