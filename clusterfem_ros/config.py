@@ -27,6 +27,7 @@ class Param:
     lo: float | None = None          # numeric range (inclusive), checked by rclpy and by validate()
     hi: float | None = None
     choices: tuple[str, ...] | None = None
+    item: type = float               # element type of a list parameter
 
 
 PARAMS: tuple[Param, ...] = (
@@ -66,6 +67,13 @@ PARAMS: tuple[Param, ...] = (
     Param("binding.kinematic_core", False, "prescribe the innermost level exactly instead of by forces"),
     Param("binding.sliding_levels", 0, "the outermost this many levels slide along their bone's axis (the paper's "
           "line constraints) between its ends instead of following points on the bone", 0, 16),
+    Param("anchors.points", [], "world points x, y, z, ... of the body's rest pose [m]: the vertices within anchors.radius "
+          "of each are held there by point constraints ([] = none)"),
+    Param("anchors.bones", [], "per anchor point, the bone that carries it ('' = fixed in the world); [] = all in the "
+          "world", item=str),
+    Param("anchors.radius", 0.02, "vertices within this distance of an anchor point are held [m]", 1.0e-4, 10.0),
+    Param("anchors.kp", 4.0e4, "anchor position gain [1/s^2]", 0.0, 1.0e9),
+    Param("anchors.kd", 400.0, "anchor velocity gain [1/s]", 0.0, 1.0e6),
     Param("input.max_age", 1.0, "reject joint states older than this relative to the newest [s]", 0.0, 3600.0),
     Param("input.max_future", 0.5, "reject joint states stamped this far ahead of the clock [s]", 0.0, 3600.0),
     Param("input.teleport_distance", 0.5, "a root jump larger than this between samples is a teleport [m]", 0.0, 100.0),
@@ -107,17 +115,27 @@ def check_value(name: str, value: Any) -> Any:
                 raise TypeError
             value = float(value)
         elif isinstance(d, list):
-            value = [float(x) for x in value]
+            if p.item is str:
+                if isinstance(value, str) or not all(isinstance(x, str) for x in value):
+                    raise TypeError
+                value = list(value)
+            else:
+                if isinstance(value, str) or any(isinstance(x, (bool, str)) for x in value):
+                    raise TypeError
+                value = [float(x) for x in value]
         elif isinstance(d, str) and not isinstance(value, str):
             raise TypeError
     except (TypeError, ValueError):
-        raise ConfigError(f"{name} = {value!r}: expected {type(d).__name__} like {d!r}") from None
+        want = f"a list of {p.item.__name__}" if isinstance(d, list) else f"{type(d).__name__} like {d!r}"
+        raise ConfigError(f"{name} = {value!r}: expected {want}") from None
     if p.choices is not None and value not in p.choices:
         raise ConfigError(f"{name} = {value!r}: choose one of {', '.join(p.choices)}")
     if p.lo is not None and not (p.lo <= value <= p.hi):
         raise ConfigError(f"{name} = {value!r} is outside [{p.lo:g}, {p.hi:g}]: {p.description}")
     if isinstance(d, float) and value != value:
         raise ConfigError(f"{name} = nan: give a finite number")
+    if isinstance(d, list) and p.item is float and not all(x - x == 0.0 for x in value):
+        raise ConfigError(f"{name} = {value}: give finite numbers")
     return value
 
 
@@ -153,6 +171,15 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
     if sliding == len(radii) and out["binding.kinematic_core"]:
         raise ConfigError(f"binding.sliding_levels = {sliding} lets the innermost level slide, but "
                           "binding.kinematic_core prescribes it: slide fewer levels or turn the kinematic core off")
+    points, bones = out["anchors.points"], out["anchors.bones"]
+    if len(points) % 3:
+        raise ConfigError(f"anchors.points has {len(points)} numbers: give x, y, z per anchor point")
+    if bones and len(bones) != len(points) // 3:
+        raise ConfigError(f"anchors.bones has {len(bones)} names for {len(points) // 3} anchor points: give one per "
+                          "point ('' for a point fixed in the world), or none")
+    if any(bones) and out["skeleton.source"] == "none":
+        raise ConfigError(f"anchors.bones = {bones} names bones, but skeleton.source is 'none': give '' (fixed in the "
+                          "world) or choose a skeleton")
     if out["body.kind"] == "mesh" and not out["body.mesh_file"]:
         raise ConfigError("body.kind = 'mesh' needs body.mesh_file: the path of a volume mesh")
     if out["skeleton.source"] == "urdf_file" and not out["skeleton.urdf_file"]:

@@ -23,7 +23,7 @@ from .config import SceneConfig
 from .fem.integrators import make_integrator
 from .fem.material import Material
 from .fem.mesh_io import read_mesh
-from .fem.model import Control, State, build_model
+from .fem.model import Attachments, Control, State, build_model
 from .fem.stability import DivergenceError
 from .fem.tet_mesh import TetMesh, boundary_triangles, signed_volumes
 from .fem.voxel_mesh import paper_mesh
@@ -108,9 +108,28 @@ class Scene:
         self._stress_cache = None
         self._next_volume_check = 0
         self.last = StepReport()
+        self.anchors = self._anchor(progress)
+        self._anchored = None           # the anchors' attachments when no skeleton drives the body
         if skeleton is not None:
             self._bind(progress)
+        elif self.anchors:
+            k = len(self.anchors)
+            self._anchored = Attachments(np.array([a.vertex for a in self.anchors], np.int64), np.zeros((k, 3)),
+                                         np.zeros((k, 3)), np.zeros((k, 3)), np.array([a.kp for a in self.anchors]),
+                                         np.array([a.kd for a in self.anchors]))
         self._warm_up(progress)
+
+    def _anchor(self, progress) -> list:
+        """The point constraints of the scene's anchors (none unless anchors.points lists some)."""
+        c = self.config
+        if not c["anchors.points"]:
+            return []
+        from .body.anchors import anchor_constraints
+        anchors = anchor_constraints(self.model.rest, c["anchors.points"], c["anchors.radius"], c["anchors.kp"],
+                                     c["anchors.kd"], c["anchors.bones"],
+                                     self.skeleton.bone_names if self.skeleton is not None else None)
+        _say(progress, f"anchoring {len(anchors)} vertices at {len(c['anchors.points']) // 3} points")
+        return anchors
 
     def _warm_up(self, progress, steps: int = 40) -> None:
         """Load the compiled kernels (and let the integrator settle on serial or threaded) on a throw-away
@@ -204,7 +223,8 @@ class Scene:
                                         bone_names=sk.bone_names, warn=False)
         gains = LevelGains(kp=tuple(c["binding.kp"]), kd=tuple(c["binding.kd"]))
         self.driver = SkeletonDriver(self.binding, self.model.rest, gains, kinematic=c["binding.kinematic_core"],
-                                     bone_names=sk.bone_names, sliding_levels=c["binding.sliding_levels"])
+                                     bone_names=sk.bone_names, sliding_levels=c["binding.sliding_levels"],
+                                     points=self.anchors)
         self.joints = JointMap(sk.joint_names, q0)
         self.stream = JointStreamInterpolator(sk.joint_names, revolute=sk.revolute_mask(),
                                               max_age=c["input.max_age"], max_future=c["input.max_future"],
@@ -243,9 +263,10 @@ class Scene:
         return self.skeleton.forward(q, v)
 
     def _control(self, t: float, state: State) -> Control:
-        """The skeleton's constraints for the step from t (``state``, the body at t: sliding levels read it)."""
+        """The constraints for the step from t, the skeleton's and the anchors' (``state``: the body at t; sliding
+        levels read it)."""
         if self.driver is None:
-            return Control()
+            return Control() if self._anchored is None else Control(attachments=self._anchored)
         return self.driver.control(self._poses(t), self.h, state=state)
 
     def start(self, t: float) -> None:

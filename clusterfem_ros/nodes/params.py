@@ -12,7 +12,9 @@ LIVE = {"output.marker_rate_hz", "output.stress_rate_hz", "output.diagnostics_ra
 
 
 def descriptor(p) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=p.description)
+    # lists: rclpy types an empty default as a byte array and would refuse the doubles or strings a file gives;
+    # the type is checked by check_value instead
+    d = ParameterDescriptor(description=p.description, dynamic_typing=isinstance(p.default, list))
     if p.choices:
         d.additional_constraints = "one of: " + ", ".join(p.choices)
     if p.lo is not None:

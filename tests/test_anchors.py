@@ -1,0 +1,106 @@
+"""Anchors from a scene file: the vertices near given points held by point constraints (body/anchors.py)."""
+import numpy as np
+import pytest
+
+from clusterfem_ros.body.anchors import anchor_constraints
+from clusterfem_ros.config import ConfigError, SceneConfig
+from clusterfem_ros.fem.voxel_mesh import paper_mesh
+from clusterfem_ros.scene import Scene
+
+SPHERE = paper_mesh("sphere").vertices
+CAP = [float(SPHERE[:, 0].mean()), float(SPHERE[:, 1].mean()), float(SPHERE[:, 2].max())]   # the top's centre
+HANGING = dict(skeleton__source="none", body__kind="sphere", body__fix_bottom=False, warping=False)
+
+
+def test_anchors_hold_exactly_the_vertices_near_each_point_once():
+    points = CAP + [float(SPHERE[:, 0].max()), 0.0, 0.0]
+    near = [set(np.flatnonzero(np.linalg.norm(SPHERE - p, axis=1) <= 0.05).tolist())
+            for p in np.reshape(points, (-1, 3))]
+    got = anchor_constraints(SPHERE, points, 0.05, 4e4, 400.0, bones=["", "hip"], bone_names=["root", "hip"])
+    vertices = [c.vertex for c in got]
+    assert len(vertices) == len(set(vertices)) and set(vertices) == near[0] | near[1]
+    for c in got:
+        if c.vertex in near[0]:                     # the first point's: in the world, at their rest positions
+            assert c.bone is None and np.array_equal(c.world, SPHERE[c.vertex])
+        else:                                       # the second's: carried by 'hip'
+            assert c.bone == 1 and c.world is None
+        assert (c.kp, c.kd) == (4e4, 400.0)
+
+
+@pytest.mark.parametrize("points, bones, names, message", [
+    ([0.0, 0.0, 5.0], [], None, r"anchor point 0 at \[0.0, 0.0, 5.0\] has no vertex within .* nearest is"),
+    (CAP, ["elbow"], ["root", "hip"], r"anchors.bones\[0\] = 'elbow' is not a bone of the skeleton \(root, hip\)"),
+    (CAP, ["", ""], None, "2 names for 1 anchor points"),
+    (CAP[:2], [], None, "finite x, y, z triples"),
+])
+def test_bad_anchors_are_refused_with_the_way_out(points, bones, names, message):
+    with pytest.raises(ValueError, match=message):
+        anchor_constraints(SPHERE, points, 0.02, 4e4, 400.0, bones=bones, bone_names=names)
+
+
+@pytest.mark.parametrize("values, message", [
+    ({"anchors.points": [0.0, 0.1]}, "give x, y, z per anchor point"),
+    ({"anchors.points": [0.0, 0.1, float("nan")]}, "give finite numbers"),
+    ({"anchors.points": ["top"]}, "expected a list of float"),
+    ({"anchors.points": [0.0, 0.1, 0.2], "anchors.bones": ["a", "b"]}, "2 names for 1 anchor points"),
+    ({"anchors.bones": [3]}, "expected a list of str"),
+    ({"anchors.points": [0.0, 0.1, 0.2], "anchors.bones": ["hand"], "skeleton.source": "none", "body.kind": "sphere"},
+     "skeleton.source is 'none'"),
+    ({"anchors.radius": 0.0}, "outside"),
+])
+def test_the_config_refuses_bad_anchors(values, message):
+    with pytest.raises(ConfigError, match=message):
+        SceneConfig().with_values(values)
+
+
+def test_a_sphere_hangs_from_its_anchored_cap_and_sags_by_the_weight_over_the_held_stiffness():
+    """Without anchors the sphere falls (slowed only by the mass damping xi: u = g/xi (t - (1 - e^-xi t)/xi));
+    anchored at its top cap it hangs and comes to rest, and the held vertices sit below their rest positions
+    by M g / (sum of the held masses x kp) on mass-weighted average: at rest the attachment forces
+    m_i kp (u*_i - u_i) carry the whole weight."""
+    free = Scene.build(SceneConfig().with_values(**HANGING))
+    assert free.anchors == [] and free._anchored is None
+    free.start(0.0)
+    free.advance_to(0.3)
+    xi, t = free.config["material.mass_damping"], 0.3
+    assert free.state.u[:, 2].mean() == pytest.approx(-9.81 / xi * (t - (1.0 - np.exp(-xi * t)) / xi), rel=0.01)
+    for kp in (4e4, 4e5):
+        said = []
+        scene = Scene.build(SceneConfig().with_values(anchors__points=CAP, anchors__radius=0.05, anchors__kp=kp,
+                                                      anchors__kd=2.0 * np.sqrt(kp), **HANGING), progress=said.append)
+        held = np.array([a.vertex for a in scene.anchors])
+        assert any(f"anchoring {held.size} vertices at 1 points" in s for s in said) and held.size > 10
+        scene.start(0.0)
+        scene.advance_to(5.0)
+        m = scene.model.mass
+        sag = -(m[held] * scene.state.u[held, 2]).sum() / m[held].sum()
+        expected = m.sum() * 9.81 / (m[held].sum() * kp)
+        print(f"kp {kp:.0e}: {held.size} held, cap sag {sag * 1e3:.2f} mm (M g / sum m kp = {expected * 1e3:.2f} mm)")
+        assert sag == pytest.approx(expected, rel=0.03)
+        assert np.abs(scene.state.v).max() < 0.05 and np.isfinite(scene.state.u).all()
+
+
+def test_a_bone_anchor_rides_its_bone_on_the_jelly_man():
+    """An anchor carried by a bone: its vertices join the driver's point constraints, their targets move with
+    the bone, and the walk stays finite."""
+    from clusterfem_ros.motion import load_motion
+    base = Scene.build(SceneConfig().with_values(body__target_tets=700))
+    name = "r_forearm"
+    hand = base.skeleton.bone_names.index(name)
+    x = base.model.rest[np.flatnonzero(base.binding.bone == hand)[0]]
+    scene = Scene.build(SceneConfig().with_values(body__target_tets=700, anchors__points=x.tolist(),
+                                                  anchors__bones=[name], anchors__radius=0.03))
+    assert scene.anchors and scene.driver.points == tuple(scene.anchors)
+    assert all(a.bone == hand for a in scene.anchors)
+    m = load_motion()
+    for k in range(61):
+        q, v = m.trajectory.sample(k / 120.0, loop=True)
+        scene.push_joint_state(1000.0 + k / 120.0, m.trajectory.names, q, v)
+        scene.advance_to(1000.0 + k / 120.0)
+    idx = np.array([a.vertex for a in scene.anchors])
+    att = scene._control(scene.sim_time, scene.state).attachments
+    rows = [np.flatnonzero(att.index == i)[-1] for i in idx]                   # the anchor rows come after the levels'
+    R, p = scene._poses(scene.sim_time).rotation[hand], scene._poses(scene.sim_time).translation[hand]
+    local = (scene.model.rest[idx] - scene.binding.rest_translation[hand]) @ scene.binding.rest_rotation[hand]
+    np.testing.assert_allclose(scene.model.rest[idx] + att.target_u[rows], local @ R.T + p, atol=1e-9)
+    assert np.isfinite(scene.state.u).all()
