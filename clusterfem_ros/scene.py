@@ -141,7 +141,7 @@ class Scene:
         else:
             _say(progress, "loading compiled kernels")
         state = State.rest(self.model)
-        control = self._control(0.0, state) if self.driver is not None else Control()
+        control = self._control(0.0, state)     # what the steps will get: the anchored build is another one
         for _ in range(steps):
             self.integrator.step(state, control, self.h)
         if self.driver is not None:

@@ -2,8 +2,9 @@
 
     scripts/run [--duration 8] [--scene config/default_scene.yaml] [--no-record] [--png bags/jelly_man.png]
 
-Player and simulation run in one process on one single-threaded executor (rclpy's multi-threaded one
-is slower here) (shared-memory DDS only).
+The mocap player runs as its own process, the simulation in this one on a single-threaded executor
+(rclpy's multi-threaded one is slower here; shared-memory DDS only). A scene without skeleton
+(skeleton.source = none) has nothing to play: it runs at once, without a player.
 Progress is printed every second; at the end: a summary, the bag folder, and a PNG of the deformed
 body coloured by von Mises stress.
 """
@@ -65,18 +66,24 @@ def main(argv: list[str] | None = None) -> int:
           f"warping {config['warping']}, h = {config['physics.step']:g} s; ROS_DOMAIN_ID="
           f"{os.environ.get('ROS_DOMAIN_ID', '0')}, DDS transport {os.environ['FASTDDS_BUILTIN_TRANSPORTS']}", flush=True)
     rclpy.init()
-    sim = player = None
+    sim = player = spin = None
     executor = SingleThreadedExecutor()
+    driven = config["skeleton.source"] != "none"
     try:
         t_build = time.perf_counter()
         sim = ClusterFemNode(parameter_overrides=overrides)
         print(f"[demo] simulation ready in {time.perf_counter() - t_build:.1f} s", flush=True)
-        player = subprocess.Popen([sys.executable, "-m", "clusterfem_ros.nodes.player_node", "--ros-args",
-                                   "-p", "source:=builtin_walk", "--log-level", "warn"])
+        if driven:
+            player = subprocess.Popen([sys.executable, "-m", "clusterfem_ros.nodes.player_node", "--ros-args",
+                                       "-p", "source:=builtin_walk", "--log-level", "warn"])
         executor.add_node(sim)
         spin = threading.Thread(target=executor.spin, daemon=True)
         spin.start()
-        _wait_for_first_input(sim, player)
+        if driven:
+            _wait_for_first_input(sim, player)
+        else:
+            print("[demo] the scene has no skeleton (skeleton.source = none): no mocap player; the body moves under "
+                  "gravity and its anchors", flush=True)
         t0 = time.perf_counter()
         last_steps, last_wall = 0, 0.0
         while time.perf_counter() - t0 < args.duration:
@@ -91,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
             last_steps, last_wall = d["steps"], wall
         executor.shutdown(timeout_sec=5.0)
         spin.join(timeout=10.0)
+        spin = None
         d = sim.diagnostics()
         scene = sim.scene
         verts, tris = scene.surface()
@@ -114,6 +122,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  picture         {png}")
         return 0
     finally:
+        if spin is not None:                    # an early exit: stop spinning before the node goes, or the
+            executor.shutdown(timeout_sec=5.0)  # executor thread dies with the process ("terminate called")
+            spin.join(timeout=10.0)
         if player is not None and player.poll() is None:
             player.send_signal(signal.SIGINT)
             try:
