@@ -104,3 +104,15 @@ def test_a_bone_anchor_rides_its_bone_on_the_jelly_man():
     local = (scene.model.rest[idx] - scene.binding.rest_translation[hand]) @ scene.binding.rest_rotation[hand]
     np.testing.assert_allclose(scene.model.rest[idx] + att.target_u[rows], local @ R.T + p, atol=1e-9)
     assert np.isfinite(scene.state.u).all()
+
+
+def test_the_warm_up_steps_with_the_anchors_so_the_first_real_step_does_not_load_another_build(monkeypatch):
+    """The attached and attachment-free steps are different compiled builds: warming up without the anchors left
+    the first real step of an anchored sphere to load (or compile) the attached one (1.9 s in the demo)."""
+    from clusterfem_ros.fem.integrators.clustered_explicit import ClusteredExplicit
+    seen = []
+    original = ClusteredExplicit.step
+    monkeypatch.setattr(ClusteredExplicit, "step", lambda self, state, control, h: (
+        seen.append(control.attachments.index.size), original(self, state, control, h))[1])
+    scene = Scene.build(SceneConfig().with_values(anchors__points=CAP, anchors__radius=0.05, **HANGING))
+    assert seen and all(k == len(scene.anchors) > 0 for k in seen)
