@@ -34,6 +34,12 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
             raise SystemExit(f"[demo] the mocap player exited with code {player.returncode} before sending a "
                              "joint state: run `python -m clusterfem_ros.nodes.player_node` to see why")
         if time.perf_counter() - t0 > PLAYER_START_TIMEOUT_S:
+            received = sim.counts.get("joint_states", 0)
+            if received:
+                rejected = dict(sim.scene.inputs.rejected) if sim.scene is not None else {}
+                raise SystemExit(f"[demo] {received} joint states arrived in {PLAYER_START_TIMEOUT_S:g} s but none was "
+                                 f"used (rejected: {rejected}): the player's joints (the built-in walk's humanoid) "
+                                 "do not fit this scene's skeleton; the node's warnings above name them")
             raise SystemExit(f"[demo] no joint state from the player within {PLAYER_START_TIMEOUT_S:g} s: check that "
                              "both processes share ROS_DOMAIN_ID and FASTDDS_BUILTIN_TRANSPORTS (scripts/env.sh)")
         time.sleep(0.05)
