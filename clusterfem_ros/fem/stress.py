@@ -24,7 +24,7 @@ import numpy as np
 from .assembly import shape_gradients
 from .model import FemModel
 from .numba_config import SERIAL
-from .warping import LANES, _chunk_start, _orthogonal, _polar_lanes, _rotation_of
+from .warping import LANES, _chunk_start, _lane_accepted, _polar_lanes, _scalar_rotation
 
 
 @dataclass(frozen=True)
@@ -98,29 +98,24 @@ def _deformation_lanes(g, tets, u, F):
 @numba.njit(**SERIAL)
 def _element_rotations(F, R):
     """R[e] <- polar(F_e) by chunks of LANES elements (the warping's lanes iteration); inverted, flat and
-    non-converged elements take the scalar path (_rotation_of, its fallback started from I)."""
+    non-converged elements take the scalar path (_scalar_rotation, started from I)."""
     m = F.shape[1]
     buf = np.empty((2, 9, LANES))
     how = np.empty(LANES, dtype=np.int8)
-    Fe = np.empty((3, 3))
-    X = np.empty((3, 3))
+    tmp = np.empty((2, 3, 3))
     for k0 in range(0, m, LANES):
         nl = min(LANES, m - k0)
         Fc = F[:, k0:k0 + nl]
         _chunk_start(nl, Fc, buf[0], how)
         P, converged = _polar_lanes(nl, buf[0], buf[1])
         for l in range(nl):
-            e = k0 + l
-            if how[l] == 0 and (converged or _orthogonal(P[0, l], P[1, l], P[2, l], P[3, l], P[4, l], P[5, l],
-                                                         P[6, l], P[7, l], P[8, l])):
-                for a in range(9):
-                    R[e, a // 3, a % 3] = P[a, l]
-            else:
+            if _lane_accepted(l, P, converged, how):
                 for a in range(3):
                     for b in range(3):
-                        Fe[a, b] = Fc[3 * a + b, l]
-                        R[e, a, b] = 1.0 if a == b else 0.0
-                _rotation_of(Fe, X, R[e])
+                        R[k0 + l, a, b] = P[3 * a + b, l]
+            else:
+                R[k0 + l] = np.eye(3)
+                _scalar_rotation(l, Fc, tmp, R[k0 + l])
 
 
 @numba.njit(**SERIAL)

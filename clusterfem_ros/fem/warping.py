@@ -42,7 +42,8 @@ R_i y); the R_i half is R_i sum_j K_ij y, the row's rotation applied once after 
 sum_j R_j (K_ij (R_j^T (R_i y))).
 
 ``warped_force`` and ``vertex_rotations`` are the checked public entries; tests/naive_warping.py holds
-the numpy twin. ``_rotation_of`` (scalar, one matrix) is also used by fem/stress.py.
+the numpy twin. ``_lane_accepted`` and ``_scalar_rotation`` (accept a lane's polar factor, or redo it) are
+also used by fem/stress.py.
 """
 from __future__ import annotations
 
@@ -328,27 +329,38 @@ def _orthogonal(r00, r01, r02, r10, r11, r12, r20, r21, r22):
 
 
 @numba.njit(**SERIAL)
+def _lane_accepted(l, P, converged, how):
+    """Whether lane l's polar factor P[:, l] is its rotation: the lane started from F (how[l] = 0) and every
+    lane converged or this one is orthogonal. Otherwise the scalar path (_scalar_rotation) redoes it."""
+    return how[l] == 0 and (converged or _orthogonal(P[0, l], P[1, l], P[2, l], P[3, l], P[4, l], P[5, l],
+                                                     P[6, l], P[7, l], P[8, l]))
+
+
+@numba.njit(**SERIAL)
+def _scalar_rotation(l, F, tmp, R):
+    """R <- the scalar _rotation_of of lane l of F (9, nl) (inverted/flat: Mueller, warm-started from R's
+    value on entry). tmp: (2, 3, 3) scratch."""
+    for a in range(3):
+        for b in range(3):
+            tmp[0, a, b] = F[3 * a + b, l]
+    _rotation_of(tmp[0], tmp[1], R)
+
+
+@numba.njit(**SERIAL)
 def _chunk_rotations(k0, nl, owner, F, P, converged, how, tmp, rot, rot4):
     """rot[i] and rot4[i] (i = owner[k0 + l], skipped past the n vertices: padding lanes) <- lane l's polar
-    factor P[:, l] if every lane converged or this one is orthogonal, else the scalar _rotation_of of F[:, l]
-    (inverted/flat: Mueller from the previous rotation; or no convergence)."""
+    factor P[:, l] if accepted, else the scalar path's, warm-started from the vertex's previous rotation."""
     n = rot.shape[0]
     for l in range(nl):
         i = owner[k0 + l]
         if i >= n:
             continue
-        r00, r01, r02 = P[0, l], P[1, l], P[2, l]
-        r10, r11, r12 = P[3, l], P[4, l], P[5, l]
-        r20, r21, r22 = P[6, l], P[7, l], P[8, l]
-        if how[l] == 0 and (converged or _orthogonal(r00, r01, r02, r10, r11, r12, r20, r21, r22)):
-            rot[i, 0, 0], rot[i, 0, 1], rot[i, 0, 2] = r00, r01, r02
-            rot[i, 1, 0], rot[i, 1, 1], rot[i, 1, 2] = r10, r11, r12
-            rot[i, 2, 0], rot[i, 2, 1], rot[i, 2, 2] = r20, r21, r22
-        else:
+        if _lane_accepted(l, P, converged, how):
             for a in range(3):
                 for b in range(3):
-                    tmp[0, a, b] = F[3 * a + b, l]
-            _rotation_of(tmp[0], tmp[1], rot[i])
+                    rot[i, a, b] = P[3 * a + b, l]
+        else:
+            _scalar_rotation(l, F, tmp, rot[i])
         for a in range(3):
             for b in range(3):
                 rot4[i, 4 * a + b] = rot[i, a, b]
