@@ -112,11 +112,10 @@ class Scene:
         self._anchored = None           # the anchors' attachments when no skeleton drives the body
         if skeleton is not None:
             self._bind(progress)
-        elif self.anchors:
-            k = len(self.anchors)
-            self._anchored = Attachments(np.array([a.vertex for a in self.anchors], np.int64), np.zeros((k, 3)),
-                                         np.zeros((k, 3)), np.zeros((k, 3)), np.array([a.kp for a in self.anchors]),
-                                         np.array([a.kd for a in self.anchors]))
+        elif self.anchors:                 # world points: their targets, once
+            from .body.constraints import point_targets
+            index, x, v, a, kp, kd = point_targets(self.anchors, self.model.rest)
+            self._anchored = Attachments(index, x - self.model.rest[index], v, a, kp, kd)
         self._warm_up(progress)
 
     def _anchor(self, progress) -> list:

@@ -5,6 +5,7 @@ import pytest
 
 from clusterfem_ros.body import (LevelGains, LineConstraint, PointConstraint, SkeletonDriver, bind_to_skeleton,
                                  rigid_point_motion)
+from clusterfem_ros.body.constraints import point_targets
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import State, build_model
@@ -159,6 +160,21 @@ def test_point_on_bone_matches_the_bone_target():
         np.testing.assert_allclose(getattr(a, name)[rows[0]], getattr(a, name)[rows[1]], atol=1e-12)
     with pytest.raises(ValueError, match="exactly one of bone= .* or world="):
         PointConstraint(3)
+
+
+def test_world_point_targets_need_no_skeleton_and_bone_points_say_what_is_missing():
+    """A scene without skeleton holds its anchors by their world points alone; a point on a bone without the
+    bones' poses is refused, naming its vertex."""
+    rest = MESH.vertices
+    world = [PointConstraint(4, world=(0.1, 0.2, 0.3), world_velocity=(0.0, 0.0, 1.0), kp=9.0, kd=3.0),
+             PointConstraint(7, world=tuple(rest[7]))]
+    index, x, v, a, kp, kd = point_targets(world, rest)
+    np.testing.assert_array_equal(index, [4, 7])
+    np.testing.assert_array_equal(x, [[0.1, 0.2, 0.3], rest[7]])
+    np.testing.assert_array_equal(v, [[0.0, 0.0, 1.0], [0.0, 0.0, 0.0]])
+    assert not a.any() and list(kp) == [9.0, 4.0e4] and list(kd) == [3.0, 400.0]
+    with pytest.raises(ValueError, match="vertex 5 is on a bone, but no bone poses"):
+        point_targets([*world, PointConstraint(5, bone=0)], rest)
 
 
 def _model(gravity, E=5e4, xi=1.0):

@@ -183,14 +183,19 @@ class LineConstraint:
             raise ValueError(f"line constraint on vertex {self.vertex}: kp = {self.kp}, kd = {self.kd} must be >= 0")
 
 
-def point_targets(points: Sequence[PointConstraint], rest: np.ndarray, rest_R: np.ndarray, rest_p: np.ndarray,
-                  R: np.ndarray, p: np.ndarray, twist: np.ndarray, dtwist: np.ndarray):
-    """(index, x*, v*, a*, kp, kd) of point constraints; x*, v*, a* are world (k, 3)."""
+def point_targets(points: Sequence[PointConstraint], rest: np.ndarray, bones: tuple | None = None):
+    """(index, x*, v*, a*, kp, kd) of point constraints; x*, v*, a* are world (k, 3). ``bones``: (rest_R,
+    rest_p, R, p, twist, dtwist), the bones' rest and current poses and rates, needed when a point is on a
+    bone; world points need none (a scene without skeleton)."""
     k = len(points)
     idx = np.array([c.vertex for c in points], dtype=np.int64)
     x, v, a = np.zeros((k, 3)), np.zeros((k, 3)), np.zeros((k, 3))
     on_bone = np.array([c.bone is not None for c in points], dtype=bool)
     if on_bone.any():
+        if bones is None:
+            raise ValueError(f"point constraint on vertex {points[int(np.argmax(on_bone))].vertex} is on a bone, "
+                             "but no bone poses were given")
+        rest_R, rest_p, R, p, twist, dtwist = bones
         sel = np.flatnonzero(on_bone)
         bone = np.array([points[i].bone for i in sel], dtype=np.int64)
         local = np.array([points[i].local if points[i].local is not None else

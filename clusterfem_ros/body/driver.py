@@ -172,8 +172,8 @@ class SkeletonDriver:
         k1 = self._n_held
         parts = [(self.bound[k0:k1], self.target_u[k0:k1], v[k0:k1], a[k0:k1], self._kp[k0:k1], self._kd[k0:k1])]
         if self.points:
-            parts.append(point_targets(self.points, self.rest, b.rest_rotation, b.rest_translation,
-                                       R, p, twist, dtwist))
+            parts.append(point_targets(self.points, self.rest, (b.rest_rotation, b.rest_translation,
+                                                                R, p, twist, dtwist)))
         if self._line_set is not None:
             if state is None:
                 raise ValueError("line constraints need the body's current state: call control(..., state=state)")
