@@ -115,10 +115,8 @@ class SkeletonDriver:
             np.concatenate([[c.kd for c in self.lines], self._kd[self._n_held:]]),
             rest, binding.axis_local, binding.rest_rotation, binding.rest_translation,
             np.concatenate([[c.within_bone for c in self.lines], np.ones(slide.size, bool)]))
+        self._sliding = slice(len(self.lines), None)            # the sliding levels' rows of _line_set
         self._slide_axis = np.zeros((slide.size, 3))            # world axes of the sliding vertices' bones
-        n_user = len(self.lines)
-        self._slide_range = (None if self._line_set is None else
-                             (self._line_set.slide_min[n_user:], self._line_set.slide_max[n_user:]))
 
     def reset(self) -> None:
         """Forget the twist history (after a jump in the trajectory); the next steps use lower-order differences."""
@@ -178,8 +176,8 @@ class SkeletonDriver:
             if state is None:
                 raise ValueError("line constraints need the body's current state: call control(..., state=state)")
             parts.append(line_set_targets(self._line_set, R, p, twist, dtwist, self.rest + state.u, state.v))
-            n_user = len(self.lines)
-            self._slide_axis = np.einsum("kij,kj->ki", R[self._line_set.bone[n_user:]], self._line_set.axis[n_user:])
+            sliding = self._sliding
+            self._slide_axis = np.einsum("kij,kj->ki", R[self._line_set.bone[sliding]], self._line_set.axis[sliding])
         for j in range(1, len(parts)):                      # point and line targets are world positions
             parts[j] = (parts[j][0], parts[j][1] - self.rest[parts[j][0]]) + tuple(parts[j][2:])
         if len(parts) == 1:
@@ -210,7 +208,9 @@ class SkeletonDriver:
         d = state.u[self.bound] - self.target_u
         tail, axis = d[self._n_held:], self._slide_axis
         if tail.size:
-            tail -= np.clip(np.einsum("ki,ki->k", tail, axis), *self._slide_range)[:, None] * axis
+            ls = self._line_set
+            slide = np.clip(np.einsum("ki,ki->k", tail, axis), ls.slide_min[self._sliding], ls.slide_max[self._sliding])
+            tail -= slide[:, None] * axis
         err = np.linalg.norm(d, axis=1)
         lev = self.binding.level[self.bound]
         return np.array([err[lev == k].max() if (lev == k).any() else 0.0 for k in range(self.binding.n_levels)])
