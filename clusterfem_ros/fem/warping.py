@@ -201,6 +201,18 @@ def _chunk_start(nl, F, X, how):
 
 
 @numba.njit(**SERIAL)
+def _store_iterate(dst, l, old, new):
+    """dst[:, l] <- new (a 3x3 iterate's 9 entries, row-major); returns |new - old|_F^2, the convergence
+    measure of both polar steps below. Inlined into their lane loops, which stay vectorised."""
+    e0, e1, e2 = new[0] - old[0], new[1] - old[1], new[2] - old[2]
+    e3, e4, e5 = new[3] - old[3], new[4] - old[4], new[5] - old[5]
+    e6, e7, e8 = new[6] - old[6], new[7] - old[7], new[8] - old[8]
+    for k in range(9):
+        dst[k, l] = new[k]
+    return ((e0 * e0 + e1 * e1) + (e2 * e2 + e3 * e3)) + ((e4 * e4 + e5 * e5) + (e6 * e6 + e7 * e7)) + e8 * e8
+
+
+@numba.njit(**SERIAL)
 def _newton_lanes(nl, src, dst):
     """dst <- one scaled Newton step (g X + X^-T / g) / 2 of every lane of src. Returns the number of lanes
     whose squared change is not below SCHULZ_FROM, and not below POLAR_TOL (loop kept vectorisable: counts
@@ -237,19 +249,8 @@ def _newton_lanes(nl, src, dst):
         n20 = a * x20 + s * c20
         n21 = a * x21 + s * c21
         n22 = a * x22 + s * c22
-        e0, e1, e2 = n00 - x00, n01 - x01, n02 - x02
-        e3, e4, e5 = n10 - x10, n11 - x11, n12 - x12
-        e6, e7, e8 = n20 - x20, n21 - x21, n22 - x22
-        diff = ((e0 * e0 + e1 * e1) + (e2 * e2 + e3 * e3)) + ((e4 * e4 + e5 * e5) + (e6 * e6 + e7 * e7)) + e8 * e8
-        dst[0, l] = n00
-        dst[1, l] = n01
-        dst[2, l] = n02
-        dst[3, l] = n10
-        dst[4, l] = n11
-        dst[5, l] = n12
-        dst[6, l] = n20
-        dst[7, l] = n21
-        dst[8, l] = n22
+        diff = _store_iterate(dst, l, (x00, x01, x02, x10, x11, x12, x20, x21, x22),
+                              (n00, n01, n02, n10, n11, n12, n20, n21, n22))
         if not diff < SCHULZ_FROM:
             big += 1
         if not diff < POLAR_TOL:
@@ -280,19 +281,8 @@ def _schulz_lanes(nl, src, dst):
         n20 = x20 * p00 + x21 * p01 + x22 * p02
         n21 = x20 * p01 + x21 * p11 + x22 * p12
         n22 = x20 * p02 + x21 * p12 + x22 * p22
-        e0, e1, e2 = n00 - x00, n01 - x01, n02 - x02
-        e3, e4, e5 = n10 - x10, n11 - x11, n12 - x12
-        e6, e7, e8 = n20 - x20, n21 - x21, n22 - x22
-        diff = ((e0 * e0 + e1 * e1) + (e2 * e2 + e3 * e3)) + ((e4 * e4 + e5 * e5) + (e6 * e6 + e7 * e7)) + e8 * e8
-        dst[0, l] = n00
-        dst[1, l] = n01
-        dst[2, l] = n02
-        dst[3, l] = n10
-        dst[4, l] = n11
-        dst[5, l] = n12
-        dst[6, l] = n20
-        dst[7, l] = n21
-        dst[8, l] = n22
+        diff = _store_iterate(dst, l, (x00, x01, x02, x10, x11, x12, x20, x21, x22),
+                              (n00, n01, n02, n10, n11, n12, n20, n21, n22))
         if not diff < POLAR_TOL:
             left += 1
     return left
