@@ -9,7 +9,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -27,7 +26,7 @@ from msg_adapters.pointcloud import stress_cloud_cdr
 from ..fem.stability import DivergenceError, StabilityError
 from ..scene import Scene
 from .params import declare_scene_parameters
-from .spinning import spin_until_shutdown
+from .spinning import run_node
 
 SURFACE_TOPIC, STRESS_TOPIC, DIAG_TOPIC, JOINTS_TOPIC = "clusterfem/surface", "clusterfem/stress", "/diagnostics", "joint_states"
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -245,16 +244,7 @@ class ClusterFemNode(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = ClusterFemNode()
-        spin_until_shutdown(node)
-    finally:
-        if node is not None:
-            node.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(ClusterFemNode, args)
 
 
 if __name__ == "__main__":

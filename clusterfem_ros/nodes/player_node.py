@@ -2,7 +2,6 @@
 and latches the matching URDF on robot_description, so the simulation needs no separate file."""
 from __future__ import annotations
 
-import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -12,7 +11,7 @@ from std_msgs.msg import String
 from msg_adapters.joint_state import joint_state_cdr
 
 from ..motion import load_motion
-from .spinning import spin_until_shutdown
+from .spinning import run_node
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -66,15 +65,7 @@ class MocapPlayer(Node):
 
 
 def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = MocapPlayer()
-        spin_until_shutdown(node)
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+    run_node(MocapPlayer, args)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Spinning a node until the process is asked to stop, the same way for every node's main()."""
+"""Running a node until the process is asked to stop, the same way for every node's main()."""
 from __future__ import annotations
 
 import rclpy
@@ -19,3 +19,20 @@ def spin_until_shutdown(node) -> None:
     except Exception:
         if rclpy.ok(context=node.context):
             raise
+
+
+def run_node(make_node, args=None) -> None:
+    """A node's main(): rclpy.init, ``make_node()``, spin until shutdown; on every way out (including an
+    exception while building the node) the node's ``close()`` if it has one (a recording is finalised),
+    then destroy_node and shutdown."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = make_node()
+        spin_until_shutdown(node)
+    finally:
+        if node is not None:
+            if hasattr(node, "close"):
+                node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
