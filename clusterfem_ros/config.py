@@ -71,6 +71,8 @@ PARAMS: tuple[Param, ...] = (
           "of each are held there by point constraints ([] = none)"),
     Param("anchors.bones", [], "per anchor point, the bone that carries it ('' = fixed in the world); [] = all in the "
           "world", item=str),
+    Param("anchors.sliding", [], "per anchor point, true: its vertices slide along their bone's axis between the "
+          "bone's ends (the paper's line constraint) instead of being held at the point; [] = none slide", item=bool),
     Param("anchors.radius", 0.02, "vertices within this distance of an anchor point are held [m]", 1.0e-4, 10.0),
     Param("anchors.kp", 4.0e4, "anchor position gain [1/s^2]", 0.0, 1.0e9),
     Param("anchors.kd", 400.0, "anchor velocity gain [1/s]", 0.0, 1.0e6),
@@ -115,8 +117,8 @@ def check_value(name: str, value: Any) -> Any:
                 raise TypeError
             value = float(value)
         elif isinstance(d, list):
-            if p.item is str:
-                if isinstance(value, str) or not all(isinstance(x, str) for x in value):
+            if p.item in (str, bool):
+                if isinstance(value, str) or not all(isinstance(x, p.item) for x in value):
                     raise TypeError
                 value = list(value)
             else:
@@ -177,6 +179,14 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
     if bones and len(bones) != len(points) // 3:
         raise ConfigError(f"anchors.bones has {len(bones)} names for {len(points) // 3} anchor points: give one per "
                           "point ('' for a point fixed in the world), or none")
+    sliding = out["anchors.sliding"]
+    if sliding and len(sliding) != len(points) // 3:
+        raise ConfigError(f"anchors.sliding has {len(sliding)} values for {len(points) // 3} anchor points: give one "
+                          "per point (true: slides along its bone), or none")
+    for k, slides in enumerate(sliding):
+        if slides and not (bones and bones[k]):
+            raise ConfigError(f"anchors.sliding[{k}] is true but anchor point {k} has no bone (anchors.bones): a point "
+                              "slides along a bone's axis; name its bone in anchors.bones or set sliding to false")
     if any(bones) and out["skeleton.source"] == "none":
         raise ConfigError(f"anchors.bones = {bones} names bones, but skeleton.source is 'none': give '' (fixed in the "
                           "world) or choose a skeleton")

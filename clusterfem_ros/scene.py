@@ -126,8 +126,11 @@ class Scene:
         from .body.anchors import anchor_constraints
         anchors = anchor_constraints(self.model.rest, c["anchors.points"], c["anchors.radius"], c["anchors.kp"],
                                      c["anchors.kd"], c["anchors.bones"],
-                                     self.skeleton.bone_names if self.skeleton is not None else None)
-        _say(progress, f"anchoring {len(anchors)} vertices at {len(c['anchors.points']) // 3} points")
+                                     self.skeleton.bone_names if self.skeleton is not None else None,
+                                     c["anchors.sliding"])
+        slide = sum(1 for s in c["anchors.sliding"] if s)
+        _say(progress, f"anchoring {len(anchors)} vertices at {len(c['anchors.points']) // 3} points"
+                       + (f" ({slide} sliding along their bones)" if slide else ""))
         return anchors
 
     def _warm_up(self, progress, steps: int = 40) -> None:
@@ -207,7 +210,7 @@ class Scene:
 
     def _bind(self, progress) -> None:
         from .body.binding import bind_to_skeleton
-        from .body.constraints import LevelGains
+        from .body.constraints import LevelGains, LineConstraint, PointConstraint
         from .body.driver import SkeletonDriver
         from .skeleton.joint_map import JointMap
         from .skeleton.joint_stream import JointStreamInterpolator
@@ -223,7 +226,8 @@ class Scene:
         gains = LevelGains(kp=tuple(c["binding.kp"]), kd=tuple(c["binding.kd"]))
         self.driver = SkeletonDriver(self.binding, self.model.rest, gains, kinematic=c["binding.kinematic_core"],
                                      bone_names=sk.bone_names, sliding_levels=c["binding.sliding_levels"],
-                                     points=self.anchors)
+                                     points=[a for a in self.anchors if isinstance(a, PointConstraint)],
+                                     lines=[a for a in self.anchors if isinstance(a, LineConstraint)])
         self.joints = JointMap(sk.joint_names, q0)
         self.stream = JointStreamInterpolator(sk.joint_names, revolute=sk.revolute_mask(),
                                               max_age=c["input.max_age"], max_future=c["input.max_future"],

@@ -116,3 +116,54 @@ def test_the_warm_up_steps_with_the_anchors_so_the_first_real_step_does_not_load
         seen.append(control.attachments.index.size), original(self, state, control, h))[1])
     scene = Scene.build(SceneConfig().with_values(anchors__points=CAP, anchors__radius=0.05, **HANGING))
     assert seen and all(k == len(scene.anchors) > 0 for k in seen)
+
+
+@pytest.mark.parametrize("sliding", [True, False])
+def test_a_sliding_anchor_follows_its_vertices_along_the_bone_and_holds_them_across(sliding):
+    """anchors.sliding: the vertices near the forearm's midpoint get line constraints stopped at the bone's
+    ends (the driver's lines, not its points). Slid 5 mm along the bone and pushed 5 mm across, their targets
+    move the 5 mm along and none across; held (sliding false), the targets stay at rest."""
+    name = "r_forearm"
+    cfg = dict(body__target_tets=700, anchors__bones=[name], anchors__radius=0.05, anchors__sliding=[sliding])
+    probe = Scene.build(SceneConfig().with_values(body__target_tets=700))
+    bone = probe.skeleton.bone_names.index(name)
+    starts, ends = probe.skeleton.bone_segments(probe.skeleton.neutral())
+    middle = (starts[bone] + ends[bone]) / 2.0
+    said = []
+    scene = Scene.build(SceneConfig().with_values(anchors__points=middle.tolist(), **cfg), progress=said.append)
+    idx = np.array([a.vertex for a in scene.anchors])
+    assert idx.size > 0 and all(a.bone == bone for a in scene.anchors)
+    if sliding:
+        assert scene.driver.lines == tuple(scene.anchors) and scene.driver.points == ()
+        assert all(a.within_bone for a in scene.anchors)
+        assert any("(1 sliding along their bones)" in s for s in said)
+    else:
+        assert scene.driver.points == tuple(scene.anchors) and scene.driver.lines == ()
+    scene.start(0.0)                                      # the rest pose: no joint state yet
+    axis = (ends[bone] - starts[bone]) / np.linalg.norm(ends[bone] - starts[bone])
+    across = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
+    across /= np.linalg.norm(across)
+    scene.state.u[idx] += 0.005 * axis + 0.005 * across
+    att = scene._control(scene.sim_time, scene.state).attachments
+    rows = [np.flatnonzero(att.index == i)[-1] for i in idx]                   # the anchor rows come last
+    expected = 0.005 * axis if sliding else np.zeros(3)
+    np.testing.assert_allclose(att.target_u[rows], np.broadcast_to(expected, (idx.size, 3)), atol=1e-9)
+
+
+@pytest.mark.parametrize("values, message", [
+    ({"anchors.points": [0.0, 0.1, 0.2], "anchors.bones": ["hand"], "anchors.sliding": [True, False]},
+     "anchors.sliding has 2 values for 1 anchor points"),
+    ({"anchors.points": [0.0, 0.1, 0.2], "anchors.sliding": [True]}, r"anchors.sliding\[0\] is true but anchor point 0 "
+     "has no bone"),
+    ({"anchors.sliding": [1.0]}, "expected a list of bool"),
+])
+def test_the_config_refuses_bad_sliding_anchors(values, message):
+    with pytest.raises(ConfigError, match=message):
+        SceneConfig().with_values(values)
+
+
+def test_anchor_constraints_refuse_a_sliding_point_without_a_bone():
+    with pytest.raises(ValueError, match="anchor point 0 slides .* but has no bone"):
+        anchor_constraints(SPHERE, CAP, 0.05, 4e4, 400.0, sliding=[True])
+    with pytest.raises(ValueError, match="2 values for 1 anchor points"):
+        anchor_constraints(SPHERE, CAP, 0.05, 4e4, 400.0, sliding=[True, True])
