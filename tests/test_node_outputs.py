@@ -97,14 +97,15 @@ def test_invalid_values_at_start_are_refused_naming_the_value(world):
 
 
 def test_anchors_come_in_as_ros_parameters_and_hold_the_body(world):
-    """List parameters with an empty default take doubles and strings from overrides or a file (rclpy would
-    type an empty default as bytes and refuse them): a sphere anchored at its top cap hangs there."""
+    """List parameters with an empty default take doubles, strings and booleans from overrides or a file (rclpy
+    would type an empty default as bytes and refuse them): a sphere anchored at its top cap hangs there."""
     from clusterfem_ros.fem.voxel_mesh import paper_mesh
     x = paper_mesh("sphere").vertices
     cap = [float(x[:, 0].mean()), float(x[:, 1].mean()), float(x[:, 2].max())]
-    node = _node(world, **{"anchors.points": cap, "anchors.bones": [""], "anchors.radius": 0.05,
-                           "body.fix_bottom": False})
+    node = _node(world, **{"anchors.points": cap, "anchors.bones": [""], "anchors.sliding": [False],
+                           "anchors.radius": 0.05, "body.fix_bottom": False})
     assert node.config["anchors.points"] == cap and node.config["anchors.bones"] == [""]
+    assert node.config["anchors.sliding"] == [False]
     held = np.array([a.vertex for a in node.scene.anchors])
     assert held.size > 10
     world.wait_for(lambda: node.scene.sim_time is not None and node.scene.sim_time - node.scene.start_time > 1.0,
