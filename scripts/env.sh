@@ -17,7 +17,8 @@ fi
 . "$VENV/bin/activate"
 export FASTDDS_BUILTIN_TRANSPORTS=SHM
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( ( $$ % 100 ) + 100 ))}"
-# numba's cache directory is keyed on the package's source by clusterfem_ros.fem.numba_config (key_the_cache),
+# numba's cache directory is keyed on the sources compiled code can read by clusterfem_ros.fem.numba_config
+# (key_the_cache),
 # in $VENV/numba_cache/<key>, unless NUMBA_CACHE_DIR is set.
 export PYTHONUNBUFFERED=1
 cd "$ROOT"

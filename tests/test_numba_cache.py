@@ -8,8 +8,8 @@
   had been compiled in a process that loaded its threaded callee from the cache (numba_config.PARALLEL): every
   threaded kernel is inlined into its callers, which are threaded themselves, so none makes that call.
 - Threaded kernels are cached: a process loads what another compiled, and computes the same bits.
-- The cache directory is keyed on the package's source (numba re-checks a cached kernel only against its own
-  file, so an edited callee would otherwise leave stale callers in the cache)."""
+- The cache directory is keyed on the sources compiled code can read (numba re-checks a cached kernel only
+  against its own file, so an edited callee would otherwise leave stale callers in the cache)."""
 import importlib
 import importlib.util
 import os
@@ -105,21 +105,29 @@ def test_threaded_kernels_load_from_a_cache_that_other_processes_filled(tmp_path
         assert np.array_equal(loaded[key], value) and np.array_equal(compiled_here[key], value), key
 
 
-def test_the_source_key_changes_with_any_file_of_the_package(tmp_path):
-    from clusterfem_ros.fem.numba_config import source_key
+def test_the_source_key_follows_every_file_compiled_code_can_read_and_no_other(tmp_path):
+    """A kernel module, the modules it imports (at any depth, relative or absolute) and their packages'
+    __init__.py are keyed; a module that only imports a kernel (a node, the scene) is not, so editing it keeps
+    the cache, and one that starts using numba joins the key."""
+    from clusterfem_ros.fem.numba_config import kernel_sources, source_key
     pkg = tmp_path / "pkg"
     (pkg / "sub").mkdir(parents=True)
-    (pkg / "a.py").write_text("x = 1\n")
-    (pkg / "sub" / "b.py").write_text("y = 2\n")
-    (pkg / "notes.txt").write_text("not code\n")
+    files = {"__init__.py": "", "kern.py": "import numba\nfrom .consts import C\n",
+             "consts.py": "from pkg.sub import deeper\nC = 1\n", "sub/__init__.py": "", "sub/deeper.py": "D = 2\n",
+             "node.py": "from .kern import C\n", "sub/other.py": "x = 1\n", "notes.txt": "not code\n"}
+    for name, text in files.items():
+        (pkg / name).write_text(text)
+    assert [str(f.relative_to(pkg)) for f in kernel_sources(pkg)] == [
+        "__init__.py", "consts.py", "kern.py", "sub/__init__.py", "sub/deeper.py"]
     first = source_key(pkg)
     assert len(first) == 12 and source_key(pkg) == first
-    (pkg / "notes.txt").write_text("changed\n")
-    assert source_key(pkg) == first                     # only .py files count
-    (pkg / "sub" / "b.py").write_text("y = 3\n")
+    for name in ("node.py", "sub/other.py", "notes.txt"):         # outside: edits keep the cache
+        (pkg / name).write_text(files[name] + "# edited\n")
+        assert source_key(pkg) == first, name
+    (pkg / "sub" / "deeper.py").write_text("D = 3\n")             # a constant two imports away
     second = source_key(pkg)
     assert second != first
-    (pkg / "sub" / "b.py").rename(pkg / "sub" / "c.py")
+    (pkg / "node.py").write_text("from numba import njit\n")     # a new kernel module
     assert source_key(pkg) not in (first, second)
 
 
