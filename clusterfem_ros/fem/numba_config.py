@@ -153,7 +153,7 @@ def compiled(fn, suffix: str = "", flags: dict = SERIAL, **names):
     keeps each binding's cache entries apart (the cache keys by qualified name, signature and code, not by
     the globals). Bind after every global ``fn`` uses is defined: the copy sees the module's globals as they
     are at the call. Like any cached numba function that calls another, a build is not recompiled when only
-    its callee's file changes: key_the_cache keys the cache directory by the whole package's source for that.
+    its callee's file changes: key_the_cache keys the cache directory by every source compiled code can read for that.
     A build is threaded if ``flags`` say parallel or it binds a threaded build; a threaded build is parallel
     and inlined into its callers (see PARALLEL), so call it only from threaded builds or from Python."""
     threaded = bool(flags.get("parallel")) or any(contains_threads(obj) for obj in names.values())
