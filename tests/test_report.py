@@ -1,6 +1,7 @@
 """Speed-vs-error report: the error metric, its convergence, and the files the report writes."""
 import csv
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -59,6 +60,36 @@ def test_clustered_equals_standard_explicit_and_beats_implicit(small):
     for m in METRICS:
         assert e["clustered"][m] == pytest.approx(e["standard_explicit"][m], rel=1e-8, abs=1e-15)
     assert e["clustered"]["rel_l2"] < e["implicit_direct"]["rel_l2"]
+
+
+def test_runs_taking_turns_give_the_states_of_runs_one_after_the_other(small):
+    """interleaved_runs: every run has its own integrator and state, so taking turns changes only when steps
+    are timed. The samples equal those of a run start to end bit for bit; every step is timed but the first of
+    each turn; a run that fails is reported by its error and the others finish."""
+    sc, _ = small
+    plan = {("clustered", 2e-3): ("clustered", {}), ("implicit_direct", 1e-3): ("implicit_direct", {}),
+            ("modal_10", 4e-3): ("modal", {"k": 10})}
+    runs = {key: R.RunInProgress(sc, make_integrator(m, sc.model, **o), key[1]) for key, (m, o) in plan.items()}
+
+    class Failing:                                   # holds still, then diverges at its 8th step
+        steps = 0
+
+        def step(self, state, control, h):
+            self.steps += 1
+            if self.steps == 8:
+                raise R.DivergenceError("the state has diverged at t = 0.03 s: lower h")
+            return SimpleNamespace(substeps=1)
+    runs["failing", 4e-3] = R.RunInProgress(sc, Failing(), 4e-3, timed=False)
+    said = []
+    out = R.interleaved_runs(runs, said.append)
+    assert out["failing", 4e-3].startswith("DivergenceError: the state has diverged at t = 0.03 s")
+    assert any("sample" in s and "runs in turn" in s for s in said)
+    for key, (m, o) in plan.items():
+        alone = R.simulate(sc, make_integrator(m, sc.model, **o), key[1], timed=False)
+        assert np.array_equal(out[key].u, alone.u), key
+        steps = sc.n_samples * runs[key].per
+        turns = -(-sc.n_samples // -(-R.TURN_STEPS // runs[key].per))
+        assert len(runs[key].times) == steps - turns and out[key].ms_per_step > 0
 
 
 def test_step_must_divide_the_sample_interval(small):

@@ -14,7 +14,10 @@ sub-step inside it below their critical step (safety 0.8), as the node does.
 
 Timing: the median wall time of one physics step (inputs excluded) over the run, after three warm-up
 steps on a throw-away copy of the state (numba compiled, the implicit factor and modal basis built);
-set-up (factorization, eigen-solve) is reported separately. Cost across different steps is compared
+set-up (factorization, eigen-solve) is reported separately. A scene's runs (every method and step, each
+with its own integrator) take turns of 10 steps or more (``interleaved_runs``), so a slow spell of the
+host falls on all of them; the first step of a turn, whose caches the other runs have emptied, is not
+timed. Cost across different steps is compared
 per simulated second, ms/step / h: a step twice as long covers twice the time.
 
 Reference: the same model stepped by symplectic Euler (the clustered kernel, linear or warped as the
@@ -159,27 +162,92 @@ def steps_per_sample(sc: Scenario, h: float) -> int:
     return int(round(r))
 
 
-def simulate(sc: Scenario, integ, h: float, input_step: float | None = None, timed: bool = True) -> Run:
-    """Run the scenario with ``integ`` at step h; inputs refresh every ``input_step`` (default h)."""
-    per = steps_per_sample(sc, h)
-    inputs = sc.inputs(h)
-    if timed:                                   # warm-up: compile, factorize, on a throw-away state
-        scratch, warm = sc.start(), sc.inputs(h)
-        for k in range(3):
-            integ.step(scratch, warm(k * h), h)
-    state = sc.start()
-    u = np.empty((sc.n_samples, sc.model.n_vertices, 3))
-    times, subs = [], 1
-    for j in range(sc.n_samples):
-        for s in range(per):
-            t = (j * per + s) * h
-            control = inputs(t)
-            t0 = time.perf_counter()
-            info = integ.step(state, control, h)
-            times.append(time.perf_counter() - t0)
-            subs = max(subs, info.substeps)
-        u[j] = state.u
-    return Run(u, float(np.median(times)) * 1e3 if timed else math.nan, subs)
+class RunInProgress:
+    """One run of the scenario with ``integ`` at step h, advanced a few samples at a time (``advance``), so the
+    report can take turns between its runs (``interleaved_runs``). Timed: three warm-up steps on a throw-away
+    state first (compile, factorize), then the wall time of every step (inputs excluded)."""
+
+    def __init__(self, sc: Scenario, integ, h: float, timed: bool = True):
+        self.sc, self.integ, self.h, self.timed = sc, integ, h, timed
+        self.per = steps_per_sample(sc, h)
+        self._inputs = sc.inputs(h)
+        if timed:
+            scratch, warm = sc.start(), sc.inputs(h)
+            for k in range(3):
+                integ.step(scratch, warm(k * h), h)
+        self.state = sc.start()
+        self.u = np.empty((sc.n_samples, sc.model.n_vertices, 3))
+        self.samples_done = 0
+        self.times: list[float] = []
+        self.substeps = 1
+
+    @property
+    def done(self) -> bool:
+        return self.samples_done >= self.sc.n_samples
+
+    def advance(self, samples: int, time_first: bool = True) -> None:
+        """Up to ``samples`` more samples; ``time_first=False`` leaves the first step out of the times (its
+        caches are cold after another run's turn)."""
+        timed = time_first
+        for _ in range(min(samples, self.sc.n_samples - self.samples_done)):
+            j = self.samples_done
+            for s in range(self.per):
+                control = self._inputs((j * self.per + s) * self.h)
+                t0 = time.perf_counter()
+                info = self.integ.step(self.state, control, self.h)
+                if timed:
+                    self.times.append(time.perf_counter() - t0)
+                timed = True
+                self.substeps = max(self.substeps, info.substeps)
+            self.u[j] = self.state.u
+            self.samples_done += 1
+
+    def result(self) -> Run:
+        return Run(self.u, float(np.median(self.times)) * 1e3 if self.timed else math.nan, self.substeps)
+
+
+def simulate(sc: Scenario, integ, h: float, timed: bool = True) -> Run:
+    """Run the scenario with ``integ`` at step h, start to end."""
+    run = RunInProgress(sc, integ, h, timed)
+    run.advance(sc.n_samples)
+    return run.result()
+
+
+# Each run's turn lasts at least this many steps; its first step is not timed (cold caches after the others').
+TURN_STEPS = 10
+FAILURES = (DivergenceError, RuntimeError, ValueError, FloatingPointError)
+
+
+def failure_status(e: Exception) -> str:
+    return f"{type(e).__name__}: {str(e).splitlines()[0][:120]}"
+
+
+def interleaved_runs(runs: dict, progress: Callable[[str], None] = lambda s: None) -> dict:
+    """Advance every RunInProgress of ``runs`` by turns of TURN_STEPS steps or more until all are done, so a
+    slow spell of the host (this 2-core VM has spells of 1.5-2x lasting seconds) falls on all of them alike
+    instead of on whichever was running: timed one after the other, one run read modal_10's step (whose cost
+    does not depend on h) 1.7x its neighbours' and implicit CG's at 1 ms above its cost at 2 ms. Returns, per
+    key, the run's Run or the failure's status; ``progress`` hears every quarter of the samples."""
+    out: dict = {}
+    live = dict(runs)
+    total = max((r.sc.n_samples for r in runs.values()), default=0)
+    told = 0
+    while live:
+        for key, r in list(live.items()):
+            try:
+                r.advance(-(-TURN_STEPS // r.per), time_first=False)
+            except FAILURES as e:
+                out[key] = failure_status(e)
+                del live[key]
+                continue
+            if r.done:
+                out[key] = r.result()
+                del live[key]
+        reached = max((r.samples_done for r in live.values()), default=total)
+        if total and reached * 4 // total > told and live:
+            told = reached * 4 // total
+            progress(f"sample {reached}/{total} of every run, {len(live)} runs in turn")
+    return out
 
 
 def reference(sc: Scenario, kind: str) -> Run:
@@ -249,39 +317,48 @@ def run_report(cfg: dict, methods=tuple(METHODS), progress: Callable[[str], None
             refs[kind] = reference_data(sc, run, kind == "corotated")
             say(f"[{time.perf_counter() - t_start:6.1f} s] {name}: {kind} reference "
                 f"({sc.model.n_vertices} vertices, {sc.model.mesh.n_tets} tets) in {time.perf_counter() - t0:.1f} s")
+        steps = cfg["walk_steps"] if name == "jelly_man" else cfg["steps"]
+        runs, status, setup = {}, {}, {}
+        for label in methods:                           # one integrator per step: an implicit one keeps its
+            method, opts, kind = METHODS[label]          # factor for one h
+            for h in steps:
+                t0 = time.perf_counter()
+                try:
+                    integ = make_integrator(method, sc.model, **opts)
+                except Exception as e:                  # e.g. more modes than free DOFs
+                    setup[label, h], status[label, h] = math.nan, f"set-up failed: {e}"
+                    continue
+                setup[label, h] = time.perf_counter() - t0
+                try:
+                    runs[label, h] = RunInProgress(sc, integ, h)       # its warm-up steps
+                except FAILURES as e:
+                    status[label, h] = failure_status(e)
+        say(f"[{time.perf_counter() - t_start:6.1f} s] {name}: {len(runs)} runs set up, stepping them in turns")
+        finished = interleaved_runs(runs, lambda s: say(f"[{time.perf_counter() - t_start:6.1f} s] {name}: {s}"))
         for label in methods:
             method, opts, kind = METHODS[label]
-            t0 = time.perf_counter()
-            try:
-                integ = make_integrator(method, sc.model, **opts)
-                setup, failure = time.perf_counter() - t0, None
-            except Exception as e:                      # e.g. more modes than free DOFs
-                integ, setup, failure = None, math.nan, f"set-up failed: {e}"
-            for h in (cfg["walk_steps"] if name == "jelly_man" else cfg["steps"]):
+            for h in steps:
                 done += 1
-                run, status = None, "ok"
-                if integ is None:
-                    status = failure
-                else:
-                    try:
-                        run = simulate(sc, integ, h)
-                    except (DivergenceError, RuntimeError, ValueError, FloatingPointError) as e:
-                        status = f"{type(e).__name__}: {str(e).splitlines()[0][:120]}"
+                run = finished.get((label, h))
+                if not isinstance(run, Run):
+                    status.setdefault((label, h), run)
+                    run = None
                 err = errors(sc, run.u, refs[kind], kind == "corotated") if run is not None \
                     else {m: math.nan for m in METRICS}
+                st = status.get((label, h), "ok")
                 if run is not None and not np.isfinite(run.u).all():
-                    status = "diverged (non-finite state)"
+                    st = "diverged (non-finite state)"
                 ms = run.ms_per_step if run is not None else math.nan
                 p = MeasuredPoint(name, label, h, int(opts.get("k", 0)), ms, err,
-                                  {"model": kind, "substeps": run.substeps if run else "", "status": status,
-                                   "setup_s": f"{setup:.3g}", "vertices": sc.model.n_vertices,
+                                  {"model": kind, "substeps": run.substeps if run else "", "status": st,
+                                   "setup_s": f"{setup[label, h]:.3g}", "vertices": sc.model.n_vertices,
                                    "tets": sc.model.mesh.n_tets})
                 points.append(p)
                 if run is not None and label in ("clustered", "modal_30"):
                     last_u[(name, label, h)] = run.u[-1]
                 say(f"[{time.perf_counter() - t_start:6.1f} s] {done:3d}/{total} {name:9s} {label:17s} h={h:<7g} "
                     + (f"{ms:8.3f} ms/step  max err {err['max_mm']:.3g} mm  rel L2 {err['rel_l2']:.2e}"
-                       if status == "ok" else status))
+                       if st == "ok" else st))
         for kind, r in refs.items():
             last_u[(name, f"reference_{kind}")] = r.run.u[-1]
     return points, {"last_u": last_u, "scenes": scenes, "seconds": time.perf_counter() - t_start}
