@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 
-from tests.ros_harness import RosWorld
+from clusterfem_ros.nodes.testing import RosWorld
 
 pytestmark = pytest.mark.ros
 
@@ -17,22 +17,13 @@ def _overrides(values):
 
 @pytest.fixture
 def world():
-    w = RosWorld()
-    yield w
-    w.close()
+    with RosWorld() as w:
+        yield w
 
 
 def _node(world, **values):
     from clusterfem_ros.nodes.clusterfem_node import ClusterFemNode
     return world.add(ClusterFemNode(context=world.context, parameter_overrides=_overrides({**SPHERE, **values})))
-
-
-def _collect(world, msg_type, topic):
-    """Serialized messages on topic (decoding every big Marker in Python would starve the executor)."""
-    got = []
-    sub_node = world.node(f"probe_{abs(hash(topic)) % 10000}")
-    sub_node.create_subscription(msg_type, topic, got.append, 10, raw=True)
-    return got
 
 
 def _last(got, msg_type):
@@ -48,9 +39,9 @@ def test_marker_stress_and_diagnostics_arrive_and_are_finite(world):
     from msg_adapters.diagnostics import diagnostic_values
     from msg_adapters.pointcloud import read_points
     node = _node(world)
-    markers = _collect(world, Marker, "clusterfem/surface")
-    clouds = _collect(world, PointCloud2, "clusterfem/stress")
-    diags = _collect(world, DiagnosticArray, "/diagnostics")
+    markers = world.collect(Marker, "clusterfem/surface")
+    clouds = world.collect(PointCloud2, "clusterfem/stress")
+    diags = world.collect(DiagnosticArray, "/diagnostics")
     world.wait_for(lambda: len(markers) >= 3 and len(clouds) >= 3 and len(diags) >= 2, 20, "outputs")
     m = _last(markers, Marker)
     assert m.type == Marker.TRIANGLE_LIST and m.header.frame_id == "world" and m.ns == "clusterfem"

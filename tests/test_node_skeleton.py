@@ -6,7 +6,7 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 
-from tests.ros_harness import RosWorld
+from clusterfem_ros.nodes.testing import RosWorld
 from tests.shared_data import CMU_WALK
 
 pytestmark = pytest.mark.ros
@@ -17,9 +17,8 @@ SMALL_MAN = {"body.kind": "jelly_man", "body.target_tets": 700, "skeleton.source
 
 @pytest.fixture
 def world():
-    w = RosWorld()
-    yield w
-    w.close()
+    with RosWorld() as w:
+        yield w
 
 
 def _params(values):
@@ -36,12 +35,6 @@ def _player(world, **values):
     return world.add(MocapPlayer(context=world.context, parameter_overrides=_params({"rate_hz": 100.0, **values})))
 
 
-def _raw(world, msg_type, topic):
-    got = []
-    world.node(f"probe_{abs(hash(topic)) % 10000}").create_subscription(msg_type, topic, got.append, 10, raw=True)
-    return got
-
-
 def _points(raw):
     from visualization_msgs.msg import Marker
     m = deserialize_message(raw, Marker)
@@ -51,7 +44,7 @@ def _points(raw):
 def test_markers_arrive_and_deform_as_the_skeleton_walks(world):
     from visualization_msgs.msg import Marker
     sim = _sim(world)
-    markers = _raw(world, Marker, "clusterfem/surface")
+    markers = world.collect(Marker, "clusterfem/surface")
     _player(world)
     world.wait_for(lambda: sim.scene.inputs.accepted > 5 and len(markers) > 0, 30, "first joint states and marker")
     n0 = len(markers)
@@ -72,7 +65,7 @@ def test_every_bad_input_is_counted_and_outputs_stay_finite(world):
     from sensor_msgs.msg import JointState
     from visualization_msgs.msg import Marker
     sim = _sim(world)
-    markers = _raw(world, Marker, "clusterfem/surface")
+    markers = world.collect(Marker, "clusterfem/surface")
     pub_node = world.node("bad_publisher")
     pub = pub_node.create_publisher(JointState, "joint_states", 10)
     names = sim.scene.skeleton.joint_names
@@ -174,7 +167,7 @@ def test_replaying_the_recorded_joint_states_reproduces_the_recorded_surfaces(wo
 @pytest.mark.skipif(not CMU_WALK.exists(), reason=f"{CMU_WALK} not present (../shared beside the checkout)")
 def test_bvh_player_latches_its_urdf_and_the_node_builds_a_jelly_body_on_it(world):
     from visualization_msgs.msg import Marker
-    markers = _raw(world, Marker, "clusterfem/surface")
+    markers = world.collect(Marker, "clusterfem/surface")
     player = _player(world, source="bvh", file=str(CMU_WALK))
     sim = _sim(world, **{"skeleton.source": "robot_description", "body.bone_radius": 0.04})
     world.wait_for(lambda: sim.scene is not None, 60, "the scene built from robot_description")

@@ -1,7 +1,17 @@
-"""Launch-free rclpy test harness: each test gets its own Context, ROS_DOMAIN_ID and executor thread.
+"""Launch-free rclpy integration tests: nodes spinning in a background thread of the test's own process.
 
-DDS stays in shared memory (FASTDDS_BUILTIN_TRANSPORTS=SHM, set before rclpy loads). Teardown order
-matters (../shared/notes): shut the executor down, join its thread, destroy nodes, shut the context.
+    from clusterfem_ros.nodes.testing import RosWorld
+
+    with RosWorld() as world:
+        sim = world.add(ClusterFemNode(context=world.context, parameter_overrides=[...]))
+        markers = world.collect(Marker, "clusterfem/surface")
+        world.wait_for(lambda: len(markers) >= 3, 30, "three surface markers")
+
+Each RosWorld has its own rclpy Context, ROS_DOMAIN_ID and single-threaded executor, so tests do not hear
+each other. DDS stays in shared memory: importing this module sets FASTDDS_BUILTIN_TRANSPORTS=SHM unless it
+is set (import it before the first rclpy.init of the process, or set the variable yourself). Teardown order matters
+(../shared/notes): shut the executor down, join its thread, close and destroy the nodes (a node's
+``close()`` finalises its recording), shut the context down. Used by this package's own node tests.
 """
 from __future__ import annotations
 
@@ -21,7 +31,7 @@ _domains = itertools.count((os.getpid() % 50) * 4 + 20)
 
 
 class RosWorld:
-    """Nodes spinning in a background thread, in a private context and domain."""
+    """Nodes spinning in a background thread, in a private context and domain (1-200, by process id)."""
 
     def __init__(self):
         self.domain_id = next(_domains) % 200 + 1
@@ -31,7 +41,14 @@ class RosWorld:
         self.nodes = []
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._started = False
+        self._probes = itertools.count()
         self.error: BaseException | None = None
+
+    def __enter__(self) -> "RosWorld":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def _spin(self):
         try:
@@ -41,6 +58,7 @@ class RosWorld:
                 self.error = exc
 
     def add(self, node):
+        """Spin ``node`` (made with ``context=world.context``) from now on; returns it."""
         self.nodes.append(node)
         self.executor.add_node(node)
         if not self._started:
@@ -49,9 +67,19 @@ class RosWorld:
         return node
 
     def node(self, name: str):
+        """A plain node of this world, spinning (for probes and test publishers)."""
         return self.add(rclpy.create_node(name, context=self.context))
 
+    def collect(self, msg_type, topic: str, qos: int = 10, raw: bool = True) -> list:
+        """A list that every message on ``topic`` is appended to, serialized (``raw``: decoding every big Marker
+        in Python would starve the executor; rclpy.serialization.deserialize_message the ones you check)."""
+        got: list = []
+        self.node(f"probe_{next(self._probes)}").create_subscription(msg_type, topic, got.append, qos, raw=raw)
+        return got
+
     def wait_for(self, predicate: Callable[[], bool], timeout: float = 10.0, what: str = "condition") -> None:
+        """Return once ``predicate()`` holds; AssertionError naming ``what`` after ``timeout`` s, or at once
+        (chained) when a node's callback raised."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.error is not None:
