@@ -22,6 +22,7 @@ Arrays: q, v (n,) float64 [rad, m, rad/s, m/s]; stamps float seconds. The buffer
 """
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections import deque
 from typing import Sequence
 
@@ -182,7 +183,7 @@ class JointStreamInterpolator:
             return q_last + self.horizon * v_last, np.zeros_like(q_last)
         if t <= times[0]:
             return self._q[0].copy(), np.zeros_like(self._q[0])
-        k = int(np.searchsorted(np.fromiter(times, float, n), t, side="right")) - 1
+        k = bisect_right(times, t) - 1        # on the deque itself: copying its 256 stamps cost 10 us a step
         t0, t1 = times[k], times[k + 1]
         s = (t - t0) / (t1 - t0)
         q0, q1 = self._q[k], self._q[k + 1]
