@@ -17,8 +17,8 @@ steps on a throw-away copy of the state (numba compiled, the implicit factor and
 set-up (factorization, eigen-solve) is reported separately. A scene's runs (every method and step, each
 with its own integrator) take turns of 10 steps or more (``interleaved_runs``), so a slow spell of the
 host falls on all of them; the first step of a turn, whose caches the other runs have emptied, is not
-timed. Cost across different steps is compared
-per simulated second, ms/step / h: a step twice as long covers twice the time.
+timed. Cost across different steps is compared per simulated second, ms/step / h: a step twice as long
+covers twice the time.
 
 Reference: the same model stepped by symplectic Euler (the clustered kernel, linear or warped as the
 method under test) with sub-steps of 0.02 of the critical step, 40 times finer than the methods' own
