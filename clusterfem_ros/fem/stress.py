@@ -54,7 +54,7 @@ def von_mises(sigma, u: np.ndarray | None = None, corotated: bool = True) -> np.
     """
     if isinstance(sigma, FemModel):
         return compute_stress(sigma, u, corotated=corotated).element_von_mises
-    return von_mises_of(np.asarray(sigma, dtype=np.float64))
+    return von_mises_of(sigma)
 
 
 def element_von_mises(model: FemModel, u: np.ndarray, corotated: bool = True) -> np.ndarray:
@@ -63,10 +63,14 @@ def element_von_mises(model: FemModel, u: np.ndarray, corotated: bool = True) ->
 
 
 def von_mises_of(sigma: np.ndarray) -> np.ndarray:
-    """sqrt(3/2 s:s), s = dev(sigma), for a stack (..., 3, 3)."""
-    tr = np.trace(sigma, axis1=-2, axis2=-1)
-    s = sigma - tr[..., None, None] / 3.0 * np.eye(3)
-    return np.sqrt(1.5 * np.einsum("...ij,...ij->...", s, s))
+    """sqrt(3/2 s:s), s = dev(sigma), for a stack (..., 3, 3): the compiled stress pass's own formula."""
+    sigma = np.asarray(sigma, dtype=np.float64)
+    if sigma.shape[-2:] != (3, 3):
+        raise ValueError(f"von Mises needs a stack of 3x3 tensors (..., 3, 3), got shape {sigma.shape}")
+    flat = np.ascontiguousarray(sigma.reshape(-1, 3, 3))
+    out = np.empty(flat.shape[0])
+    _von_mises(flat, out)
+    return out.reshape(sigma.shape[:-2])[()]          # a scalar for one tensor
 
 
 # gradients of each model's rest mesh, kept while the model lives (the node asks at 10 Hz)
