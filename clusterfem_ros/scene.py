@@ -119,7 +119,8 @@ class Scene:
         self._warm_up(progress)
 
     def _anchor(self, progress) -> list:
-        """The point constraints of the scene's anchors (none unless anchors.points lists some)."""
+        """The constraints of the scene's anchors: point, or line where anchors.sliding says so (none unless
+        anchors.points lists some)."""
         c = self.config
         if not c["anchors.points"]:
             return []
