@@ -9,8 +9,8 @@
 
 Each RosWorld has its own rclpy Context, ROS_DOMAIN_ID and single-threaded executor, so tests do not hear
 each other. DDS stays in shared memory: importing this module sets FASTDDS_BUILTIN_TRANSPORTS=SHM unless it
-is set (import it before the first rclpy.init of the process, or set the variable yourself). Teardown order matters
-(../shared/notes): shut the executor down, join its thread, close and destroy the nodes (a node's
+is set (import it before the first rclpy.init of the process, or set the variable yourself). Teardown order
+matters (../shared/notes): shut the executor down, join its thread, close and destroy the nodes (a node's
 ``close()`` finalises its recording), shut the context down. Used by this package's own node tests.
 """
 from __future__ import annotations
