@@ -115,7 +115,7 @@ def test_the_benchmarks_held_w_control_is_the_sweep_of_a_uniform_w(lanes):
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
     sl = slice_clusters(cl, lanes)
     w, held = scratch(sl)
-    w[:, :3] = np.random.default_rng(3).normal(size=(mesh.n_vertices, 3))
+    w[:mesh.n_vertices] = np.random.default_rng(3).normal(size=(mesh.n_vertices, 3))
     stiffness_held_w_serial(*cluster_args(sl), w, held)
     uniform, swept = scratch(sl)
     uniform[:] = w[0]

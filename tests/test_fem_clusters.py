@@ -84,13 +84,17 @@ def test_bad_state_shape_is_named():
 
 
 
-def test_slice_kernel_refuses_a_workspace_without_the_padding_column():
-    """The slice kernel loads w[j] as 32 bytes: a 3-column w would read past the array's end."""
+def test_slice_kernel_refuses_a_workspace_without_the_row_after_the_last():
+    """The slice kernel loads w[j] as 4 doubles, one past the row: a w of just the vertices' rows would read past
+    the array's end at the last vertex, and rows padded to 4 would be read at the wrong places."""
     mesh = paper_mesh("cube")
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
-    _, kw = scratch(cl.slices)
-    with pytest.raises(ValueError, match="4 columns"):
-        stiffness_slices_serial(*cluster_args(cl.slices), np.zeros((mesh.n_vertices, 3)), kw)
+    w, kw = scratch(cl.slices)
+    assert w.shape == (len(cl.slices.owner) + 1, 3)
+    for bad in (np.zeros((mesh.n_vertices, 3)), np.zeros((len(cl.slices.owner), 3)), np.zeros((mesh.n_vertices + 8, 4))):
+        with pytest.raises(ValueError, match="rows of 3 .* a row per lane of the slices and one more"):
+            stiffness_slices_serial(*cluster_args(cl.slices), bad, kw)
+    stiffness_slices_serial(*cluster_args(cl.slices), w, kw)
 
 
 def test_slice_kernel_refuses_an_output_without_a_row_per_lane():

@@ -26,8 +26,8 @@ def _sweep(model, lanes, R, u, v, sweep=warped_sweep_serial):
     n = model.n_vertices
     sl = slice_clusters(model.clusters, lanes)
     sh_d, bd_d = rest_offsets(sl, model.rest)
-    w = aligned_zeros((n, 4))
-    w[:, :3] = model.rest + u + MAT.zeta * v
+    w = aligned_zeros((len(sl.owner) + 1, 3))             # a row per lane and one more (scratch)
+    w[:n] = model.rest + u + MAT.zeta * v
     rot4 = aligned_zeros((n, ROT_ROW))
     rot4.reshape(n, 3, 4)[:, :, :3] = R
     e = np.full((len(sl.owner), 3), np.nan)
@@ -90,10 +90,10 @@ def test_the_gradient_sweep_gives_each_vertex_its_least_squares_deformation_grad
     frames = VertexFrames.from_model(model, slice_clusters(model.clusters, lanes))
     sh_ptr, shared, boundary, lane_vertex, owner = frames.gradients
     u = 0.1 * np.ptp(model.rest, axis=0).max() * np.random.default_rng(lanes).standard_normal((n, 3))
-    u4 = aligned_zeros((n, 4))
-    u4[:, :3] = u
+    u_rows = aligned_zeros((len(owner) + 1, 3))
+    u_rows[:n] = u
     F = np.full((9, len(owner)), np.nan)
-    gradient_sweep_serial(sh_ptr, shared, boundary, (u4, lane_vertex, F))
+    gradient_sweep_serial(sh_ptr, shared, boundary, (u_rows, lane_vertex, F))
     twin = naive.BlockTwin(model.K, model.rest)
     x = model.rest + u
     e = x[twin.j] - x[twin.i]
@@ -104,5 +104,5 @@ def test_the_gradient_sweep_gives_each_vertex_its_least_squares_deformation_grad
     assert np.abs(got - ref).max() <= 1e-12 * np.abs(ref).max()
     assert np.all(F[:, ~real] == np.eye(3).reshape(9, 1))
     F_threaded = np.full_like(F, np.nan)
-    gradient_sweep_parallel(sh_ptr, shared, boundary, (u4, lane_vertex, F_threaded))
+    gradient_sweep_parallel(sh_ptr, shared, boundary, (u_rows, lane_vertex, F_threaded))
     assert np.array_equal(F, F_threaded)

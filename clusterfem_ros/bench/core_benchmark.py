@@ -53,6 +53,26 @@ History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions 
   blocks, 1.35-1.4 at 2.2 MB, 1.08 at 16 MB (the second table).
 - What is left between the sweep and the whole force is per vertex: the w pass (~0.3 us) and the flat
   finish (~0.15 us).
+
+On the AMD EPYC VM of 2026-11-24 (Zen 3, AVX2: 4 lanes; 512 KB L2 per core) the sweep read 1.25-1.45x the floor,
+the step's compiled part 1.8-2.1x. The floor streams the sphere's 0.3 MB of blocks at ~100 GB/s, the L2's
+bandwidth. A C prototype (gcc -O3 -march=native, AVX2 intrinsics, the same slices) took the sweep apart:
+- without the transpose it is as fast: the shuffles cost nothing;
+- with the index loads but each lane's rows of w at a fixed place it reads 1.15-1.2x, with the rows at their
+  vertices 1.3-1.4x: the gathered rows miss L1 (the blocks streaming through it evict them) more than the
+  index loads cost. Rows of w sorted within windows of 64 instead of 1024 (the voxel order's locality kept)
+  took ~0.05 off in C and nothing measurable in numba's step; 16- or 32-bit offsets make the sweep and the
+  floor faster alike.
+- the flat update pass moves seven arrays of 3n doubles, in L2 once the blocks have passed through L1: 0.7-0.8 us
+  in numba, 0.63 us in C (restrict pointers), close to that bandwidth. Rows of 3 in w (cluster_slices.py) made
+  the w pass flat, 0.42 -> 0.20 us, the step 3-5 % faster (four alternating process pairs).
+- a fused step (each slice's update right after its sums, vertices renumbered so that a slice's lanes are
+  consecutive vertices, w double-buffered, so no K w rows and no separate w pass) ran 1.51-1.71x the floor
+  against 1.60-1.81x for the unfused C step in the same runs. The state a step reads and writes (u, v, the
+  constant forces, the masses, w: ~90 KB on the sphere beside 0.3 MB of blocks) stays, so a step's own floor is
+  about 1.3x the blocks' stream (an estimate from the bytes), and the gather adds 0.25-0.4 on top: 1.5x for
+  the whole step is at the edge of this layout on these hosts (the fused C step's best run read 1.51). Not
+  kept: the renumbering would reach every user of vertex indices, for ~0.1.
 """
 from __future__ import annotations
 

@@ -81,7 +81,7 @@ def accumulating_loop(builder, start, stop, step, zeros, body):
 
 
 def _transpose(builder, rows):
-    """C rows (x, y, z, pad) of <4 x double> -> the C x's, y's and z's as three <C x double>."""
+    """C rows (x, y, z, anything) of <4 x double> -> the C x's, y's and z's as three <C x double>."""
     level = rows
     while len(level) > 1:                      # concatenate pairwise: one <4C x double>
         n = level[0].type.count
@@ -99,8 +99,9 @@ def lane_values(builder, ptr, first, lanes):
 
 
 def gathered_rows(builder, data, offsets):
-    """The rows of 4 doubles that start at ``offsets`` in ``data`` (one per lane), transposed (_transpose):
-    their x's, y's and z's as three C-wide vectors. How every slice kernel gathers a per-vertex array."""
+    """The rows (x, y, z) that start at ``offsets`` in ``data`` (one per lane), each loaded as 4 doubles (the
+    fourth is unused: a row of 3 and the next row's first, or a row's padding) and transposed (_transpose): their
+    x's, y's and z's as three C-wide vectors. How every slice kernel gathers a per-vertex array."""
     return _transpose(builder, [builder.load(_vector_at(builder, data, at, _V4), align=8) for at in offsets])
 
 
@@ -174,12 +175,12 @@ def _slice_force_intrinsic(gather: bool):
         per_position = (w_at, blocks), common = (w, owner, out).
 
         ``lanes`` (C, a literal) rows at once, lane l for row l: per position, C rows of w (32-byte loads at
-        the offsets w_at = 4 j: w rows are padded to 4) transposed into three C-wide vectors, then nine C-wide
+        the offsets w_at = 3 j: x, y, z and one double past) transposed into three C-wide vectors, then nine C-wide
         loads of block entries and nine FMAs into three accumulators (x, y, z), one rounding each, in position
         order, so serial and threaded builds give the same bits. Written in LLVM IR because numba's pipeline
         runs no SLP vectorizer. The C sums are stored as rows of out, in vertex order. w_at (P, C) int64,
-        blocks (P, 9, C), w (n, 4), owner (S C,) int64, out (S C, 3) float64, C-contiguous (checked at
-        typing); callers check w.shape[1] == 4 and out.shape == (S C, 3).
+        blocks (P, 9, C), w (S C + 1, 3) (scratch), owner (S C,) int64, out (S C, 3) float64, C-contiguous
+        (checked at typing); callers check the shapes of w and out.
         """
         return _slice_force_typing(gather, lanes, s, p0, p1, per_position, common)
     return _slice_force
@@ -251,10 +252,11 @@ def slice_sweep(slice_fn, name: str):
 def _stiffness_slices(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
     """kw[i] <- (K w)_i for every vertex i (rows past n: the padding lanes', zero), by the global ``sweep``
     (bound per build: serial or threaded, or the benchmark's control that holds w)."""
-    if w.shape[1] != W_ROW:
-        raise ValueError("the cluster force kernel needs w with 4 columns (x, y, z, padding)")
     if kw.shape[0] != owner.shape[0] or kw.shape[1] != 3:
         raise ValueError("the cluster force kernel needs kw with a row of 3 per lane of the slices (scratch())")
+    if w.shape[1] != W_ROW or w.shape[0] <= owner.shape[0]:
+        raise ValueError("the cluster force kernel needs w with rows of 3 (x, y, z), a row per lane of the slices "
+                         "and one more: it loads 4 doubles from a row (scratch())")
     sweep(sh_ptr, (sh_w_at, sh_blocks), (bd_w_at, bd_blocks), (w, owner, kw))  # noqa: F821 (bound)
 
 
@@ -279,19 +281,28 @@ finish_serial, finish_parallel = serial_and_parallel(_finish_kernel)
 
 
 def _kernel_input(n, zeta, rest, u, v, w, warped):
-    """w[:n, :3] <- the force kernels' input: u + zeta v (linear), x0 + u + zeta v (warped; ``rest`` is x0,
-    unread when not warped). One source for the force kernels here and in warping.py and the clustered
-    integrator's passes."""
-    for i in prange(n):
-        for c in range(3):
-            w[i, c] = (rest[i, c] + u[i, c] if warped else u[i, c]) + zeta * v[i, c]
+    """w[:n] <- the force kernels' input: u + zeta v (linear), x0 + u + zeta v (warped; ``rest`` is x0,
+    unread when not warped), element by element over the flat arrays (w's rows are x, y, z like u's), so the
+    loops vectorize. One source for the force kernels here and in warping.py and the clustered integrator's
+    passes."""
+    # one view per statement: unpacked from one tuple, the threaded build of numba 0.68 lost every store to w
+    wf = w.reshape(-1)
+    rf = rest.reshape(-1)
+    uf = u.reshape(-1)
+    vf = v.reshape(-1)
+    if warped:
+        for k in prange(3 * n):
+            wf[k] = (rf[k] + uf[k]) + zeta * vf[k]
+    else:
+        for k in prange(3 * n):
+            wf[k] = uf[k] + zeta * vf[k]
 
 
 kernel_input_serial, kernel_input_parallel = serial_and_parallel(_kernel_input)
 
 
 def _force_kernel(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, u, v, mass3, zeta, xi, w, kw, out):
-    """w[:, :3] <- u + zeta v (w: (n, 4)), the slice sweep, then the finish: f = -K w - xi M v (mass3: the
+    """w[:n] <- u + zeta v (w: scratch()), the slice sweep, then the finish: f = -K w - xi M v (mass3: the
     lumped mass per coordinate; the clustered integrator runs the same sweep, with the finish inside its
     update; the core benchmark times this). ``kernel_input``, ``stiffness`` and ``finish``: globals bound per
     build."""
@@ -313,9 +324,11 @@ def cluster_args(sl: ClusterSlices) -> tuple:
 
 
 def scratch(sl: ClusterSlices) -> tuple[np.ndarray, np.ndarray]:
-    """(w, kw): the (n, 4) input rows, 64-byte aligned, and the sweep's (n_slices * C, 3) output rows (vertex i's
-    K w in row i; the padding lanes' rows after the n vertices')."""
-    return aligned_zeros((sl.n_vertices, W_ROW)), np.zeros((len(sl.owner), 3))
+    """(w, kw): the input rows, (n_slices * C + 1, 3), 64-byte aligned (vertex j's x, y, z in row j, the rows
+    past the n vertices' zero; the kernel loads 4 doubles from a row, so the last vertex's load needs a row
+    after it), and the sweep's (n_slices * C, 3) output rows (vertex i's K w in row i; the padding lanes' rows
+    after the n vertices')."""
+    return aligned_zeros((len(sl.owner) + 1, W_ROW)), np.zeros((len(sl.owner), 3))
 
 
 def pick_kernel(n_vertices: int, threads: bool | None = None):

@@ -11,14 +11,16 @@ rotated once per row after the loop, the R_j half is sum_j R_j K_ij R_j^T t.
 
 The pass walks the same slices as the linear kernel (cluster_slices.py: C rows per slice, lane l for row l),
 with d_ij stored per block beside K_ij (``rest_offsets``) and the rotations as rows of 4 (x, y, z, padding)
-per matrix row, so that R_j is gathered like w_j: C row loads and one transpose per matrix row. The row kernel
-it replaced did the 54 products of a block one lane at a time: 12-18 ns per block on the jelly man on an AMD
-EPYC VM (Zen 4), where this sweep takes ~4 ns (tests/test_warped_force_kernel.py checks it against the twin).
+per matrix row, so that R_j is gathered like w_j: C row loads and one transpose per matrix row (R_j's rows
+start at ROT_ROW j = 4 w_at). The row kernel it replaced did the 54 products of a block one lane at a time:
+12-18 ns per block on the jelly man on an AMD EPYC VM (Zen 4), where this sweep takes ~4 ns
+(tests/test_warped_force_kernel.py checks it against the twin).
 
 The deformation gradients, F_i = I + sum_j (u_j - u_i) g_ij^T with the constant g_ij = S_i^-1 d_ij (fem/warping.py),
-walk the same slices with g stored per block (P, 3, C) and u as rows of 4: nine C-wide FMAs per position. Lane l
-of slice s writes column C s + l of F (9, S C), so the polar iteration that follows runs over contiguous lanes
-in slice order. The row loop it replaced took 5.6 ns per block, most of the rotations' time.
+walk the same slices with g stored per block (P, 3, C) and u copied into rows like w's (``copy_rows``: a row
+per lane and one more): nine C-wide FMAs per position. Lane l of slice s writes column C s + l of F (9, S C), so
+the polar iteration that follows runs over contiguous lanes in slice order. The row loop it replaced took
+5.6 ns per block, most of the rotations' time.
 """
 from __future__ import annotations
 
@@ -30,9 +32,11 @@ from numba.extending import intrinsic
 from .cluster_force_kernel import (_F64, _fma, _k, _vector_at, accumulating_loop, double_data, gathered_rows,
                                    lane_values, position_entries, slice_kernel_args, slice_kernel_typing, slice_sweep,
                                    store_lane_rows)
+from .cluster_slices import W_ROW
 from .numba_config import serial_and_parallel
 
-# Doubles per vertex in the rotations' kernel copy: three rows of (R_a0, R_a1, R_a2, padding).
+# Doubles per vertex in the rotations' kernel copy: three rows of (R_a0, R_a1, R_a2, padding); a multiple of
+# W_ROW, so R_j's rows start at (ROT_ROW / W_ROW) w_at.
 ROT_ROW = 12
 
 
@@ -48,10 +52,11 @@ def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
 
     ``lanes`` (C, a literal) rows at once. Per slice: the C rows' own w_i and R_i (lane_vertex[C s + l]; for a
     padding lane any vertex: its blocks and offsets are zero). Per position: w_j and the three rows of R_j
-    gathered (rows of 4 at w_at = 4 j and 3 w_at) and transposed into C-wide vectors, then the block's nine
-    entries and three offsets as C-wide loads; FMAs in a fixed order, so serial and threaded builds agree to
-    the bit. w_at (P, C) int64, blocks (P, 9, C), offsets (P, 3, C), w (n, 4), rot4 (n, 12), lane_vertex and
-    owner (S C,) int64, out (S C, 3), all C-contiguous (checked at typing); the caller checks the shapes.
+    gathered (w at w_at = 3 j, the rotation's rows of 4 at 4 w_at) and transposed into C-wide vectors, then the
+    block's nine entries and three offsets as C-wide loads; FMAs in a fixed order, so serial and threaded
+    builds agree to the bit. w_at (P, C) int64, blocks (P, 9, C), offsets (P, 3, C), w (S C + 1, 3) (as the
+    linear kernel's), rot4 (n, 12), lane_vertex and owner (S C,) int64, out (S C, 3), all C-contiguous
+    (checked at typing); the caller checks the shapes.
     """
     C, sig = slice_kernel_typing("_warped_slice", lanes, s, p0, p1, per_position, common, _WARPED_SPECS)
     VC = ir.VectorType(_F64, C)
@@ -66,13 +71,13 @@ def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
             return _fma(builder, a, b, c)
 
         def gathered(w_offsets):
-            """w_j (3 vectors) and R_j (3 x 3 vectors, [a][b] = R[a, b]) of the lanes' w offsets 4 j."""
-            r_at = [builder.mul(at, _k(3)) for at in w_offsets]
+            """w_j (3 vectors) and R_j (3 x 3 vectors, [a][b] = R[a, b]) of the lanes' w offsets W_ROW j."""
+            r_at = [builder.mul(at, _k(ROT_ROW // W_ROW)) for at in w_offsets]
             return (gathered_rows(builder, wp, w_offsets),
                     [gathered_rows(builder, rp, [builder.add(at, _k(4 * a)) for at in r_at]) for a in range(3)])
 
         first_lane = builder.mul(sv, _k(C))
-        wi, ri = gathered([builder.mul(i, _k(4)) for i in lane_values(builder, lvp, first_lane, C)])
+        wi, ri = gathered([builder.mul(i, _k(W_ROW)) for i in lane_values(builder, lvp, first_lane, C)])
         zero = ir.Constant(VC, [0.0] * C)
 
         def position(p, acc):
@@ -104,17 +109,17 @@ def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
 warped_sweep_serial, warped_sweep_parallel = slice_sweep(_warped_slice, "warped")
 
 
-_GRADIENT_SPECS = (("w_at", 2, types.int64), ("grads", 3, types.float64), ("u4", 2, types.float64),
+_GRADIENT_SPECS = (("w_at", 2, types.int64), ("grads", 3, types.float64), ("u_rows", 2, types.float64),
                    ("lane_vertex", 1, types.int64), ("F", 2, types.float64))
 
 
 @intrinsic(prefer_literal=True)
 def _gradient_slice(typingctx, lanes, s, p0, p1, per_position, common):
     """F[:, C s + l] <- F_i of lane l's vertex i (module docstring) over positions p0..p1 of slice s;
-    per_position = (w_at, grads), common = (u4, lane_vertex, F). Its own u_i (lane_vertex), per position C rows
-    of u4 gathered at w_at = 4 j and transposed, three C-wide loads of g and nine FMAs in position order.
-    w_at (P, C) int64, grads (P, 3, C), u4 (n, 4), lane_vertex (S C,) int64, F (9, S C), C-contiguous (checked
-    at typing); the caller checks the shapes."""
+    per_position = (w_at, grads), common = (u_rows, lane_vertex, F). Its own u_i (lane_vertex), per position C
+    rows of u_rows gathered at w_at = 3 j and transposed, three C-wide loads of g and nine FMAs in position
+    order. w_at (P, C) int64, grads (P, 3, C), u_rows (S C + 1, 3) (copy_rows), lane_vertex (S C,) int64,
+    F (9, S C), C-contiguous (checked at typing); the caller checks the shapes."""
     C, sig = slice_kernel_typing("_gradient_slice", lanes, s, p0, p1, per_position, common, _GRADIENT_SPECS)
     VC = ir.VectorType(_F64, C)
 
@@ -125,7 +130,7 @@ def _gradient_slice(typingctx, lanes, s, p0, p1, per_position, common):
         columns = cgutils.unpack_tuple(builder, arrays[4].shape, 2)[1]
 
         first_lane = builder.mul(sv, _k(C))
-        ui = gathered_rows(builder, up, [builder.mul(i, _k(4)) for i in lane_values(builder, lvp, first_lane, C)])
+        ui = gathered_rows(builder, up, [builder.mul(i, _k(W_ROW)) for i in lane_values(builder, lvp, first_lane, C)])
 
         def position(p, acc):
             uj = gathered_rows(builder, up, lane_values(builder, atp, builder.mul(p, _k(C)), C))
@@ -144,16 +149,18 @@ def _gradient_slice(typingctx, lanes, s, p0, p1, per_position, common):
     return sig, codegen
 
 
-# gradient_sweep(sh_ptr, (sh_w_at, sh_grads), (bd_w_at, bd_grads), (u4, lane_vertex, F)): F[:, k] <- the
+# gradient_sweep(sh_ptr, (sh_w_at, sh_grads), (bd_w_at, bd_grads), (u_rows, lane_vertex, F)): F[:, k] <- the
 # deformation gradient of lane k's vertex (the identity in padding lanes)
 gradient_sweep_serial, gradient_sweep_parallel = slice_sweep(_gradient_slice, "gradient")
 
 
-def _rows_of_4(u, u4):
-    """u4[:, :3] <- u (n, 3): rows the sweeps load at once."""
-    for i in prange(u.shape[0]):
-        for c in range(3):
-            u4[i, c] = u[i, c]
+def _copy_rows(u, u_rows):
+    """u_rows[:n] <- u (n, 3), element by element: u_rows has the rows after the last vertex's that the
+    sweeps' 4-wide row loads need (they read one double past a row); u itself has none."""
+    uf = u.reshape(-1)              # one view per statement (see cluster_force_kernel._kernel_input)
+    rf = u_rows.reshape(-1)
+    for k in prange(uf.shape[0]):
+        rf[k] = uf[k]
 
 
-rows_of_4_serial, rows_of_4_parallel = serial_and_parallel(_rows_of_4)
+copy_rows_serial, copy_rows_parallel = serial_and_parallel(_copy_rows)

@@ -55,11 +55,11 @@ import scipy.sparse as sp
 from numba import prange
 
 from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
-from .cluster_slices import ClusterSlices, aligned_zeros, lane_vertices, position_lanes, rest_offsets
+from .cluster_slices import W_ROW, ClusterSlices, aligned_zeros, lane_vertices, position_lanes, rest_offsets
 from .model import FemModel
 from .numba_config import PARALLEL_MIN_VERTICES, SERIAL, compiled, serial_and_parallel
-from .warped_force_kernel import (ROT_ROW, gradient_sweep_parallel, gradient_sweep_serial, rows_of_4_parallel,
-                                  rows_of_4_serial, warped_sweep_parallel, warped_sweep_serial)
+from .warped_force_kernel import (ROT_ROW, copy_rows_parallel, copy_rows_serial, gradient_sweep_parallel,
+                                  gradient_sweep_serial, warped_sweep_parallel, warped_sweep_serial)
 
 NEWTON_MAXIT = 40
 MUELLER_MAXIT = 200
@@ -369,17 +369,17 @@ def _rotate_chunk(c, owner, F, rot, rot4, scratch, how, tmp):
 
 
 # The warped kernels, one source each, serial and threaded builds. The globals ``gradient_sweep``,
-# ``rows_of_4``, ``rotations``, ``sweep``, ``kernel_input``, ``warped_e`` and ``finish`` are bound per build
+# ``copy_rows``, ``rotations``, ``sweep``, ``kernel_input``, ``warped_e`` and ``finish`` are bound per build
 # (numba_config.compiled).
 # Argument groups (VertexFrames): ``gradients`` and ``slices``, the two sweeps' slice arrays; ``work``, the
-# workspace (rot, rot4, u4, F, scratch, how, tmp, e).
+# workspace (rot, rot4, u_rows, F, scratch, how, tmp, e).
 
 def _rotations(gradients, u, work):
     """rot, rot4 <- the vertex rotations of u: the gradient sweep, then the polar iteration by chunks."""
-    rot, rot4, u4, F, scratch, how, tmp, _ = work
+    rot, rot4, u_rows, F, scratch, how, tmp, _ = work
     sh_ptr, shared, boundary, lane_vertex, owner = gradients
-    rows_of_4(u, u4)  # noqa: F821 (bound)
-    gradient_sweep(sh_ptr, shared, boundary, (u4, lane_vertex, F))  # noqa: F821
+    copy_rows(u, u_rows)  # noqa: F821 (bound)
+    gradient_sweep(sh_ptr, shared, boundary, (u_rows, lane_vertex, F))  # noqa: F821
     for c in prange(scratch.shape[0]):
         _rotate_chunk(c, owner, F, rot, rot4, scratch, how, tmp)
 
@@ -401,8 +401,8 @@ def _warped_force(gradients, slices, rest, u, v, w, mass3, zeta, xi, work, out):
 
 
 rotation_kernel_serial, rotation_kernel_parallel = serial_and_parallel(
-    _rotations, serial={"gradient_sweep": gradient_sweep_serial, "rows_of_4": rows_of_4_serial},
-    parallel={"gradient_sweep": gradient_sweep_parallel, "rows_of_4": rows_of_4_parallel})
+    _rotations, serial={"gradient_sweep": gradient_sweep_serial, "copy_rows": copy_rows_serial},
+    parallel={"gradient_sweep": gradient_sweep_parallel, "copy_rows": copy_rows_parallel})
 # no loop of their own: their callees carry the threads
 warped_e_serial = compiled(_warped_e, rotations=rotation_kernel_serial, sweep=warped_sweep_serial)
 warped_e_parallel = compiled(_warped_e, "_parallel", rotations=rotation_kernel_parallel, sweep=warped_sweep_parallel)
@@ -439,9 +439,9 @@ class VertexFrames:
                             #   owner); g = S_i^-1 (x0_j - x0_i) per block, (P, 3, C)
     slices: tuple           # the force sweep's: (sh_ptr, (sh_w_at, sh_blocks, sh_offsets), (bd_w_at, bd_blocks,
                             #   bd_offsets), lane_vertex, owner); offsets d = x0_j - x0_i per block, (P, 3, C)
-    w: np.ndarray           # (n, 4) workspace: x + zeta v, rows padded to 4
+    w: np.ndarray           # (lanes + 1, 3) workspace: x + zeta v in the first n rows (cluster_force_kernel.scratch)
     rot4: np.ndarray        # (n, 12) workspace: the rotations' rows padded to 4
-    u4: np.ndarray          # (n, 4) workspace: u, rows padded to 4
+    u_rows: np.ndarray      # (lanes + 1, 3) workspace: u in the first n rows, as w
     F: np.ndarray           # (9, n_slices * C) workspace: deformation gradient per lane, slice order
     scratch: np.ndarray     # (chunks, 2, 9, LANES) workspace: polar iterates
     how: np.ndarray         # (chunks, LANES) workspace: 0 polar, 1 inverted/flat
@@ -468,14 +468,15 @@ class VertexFrames:
         slices = (sl.shared_ptr, (sl.shared_w_at, sl.shared_blocks, offsets[0]),
                   (sl.boundary_w_at, sl.boundary_blocks, offsets[1]), lane_vertex, sl.owner)
         return cls(rest, s0inv, np.repeat(np.eye(3)[None], n, axis=0), gradients, slices,
-                   aligned_zeros((n, 4)), aligned_zeros((n, ROT_ROW)), aligned_zeros((n, 4)), aligned_zeros((9, lanes)),
+                   aligned_zeros((lanes + 1, W_ROW)), aligned_zeros((n, ROT_ROW)), aligned_zeros((lanes + 1, W_ROW)),
+                   aligned_zeros((9, lanes)),
                    np.zeros((chunks, 2, 9, LANES)), np.zeros((chunks, LANES), dtype=np.int8),
                    np.zeros((chunks, 2, 3, 3)), np.zeros((lanes, 3)))
 
     @property
     def work(self) -> tuple:
-        """The kernels' workspace group: (rot, rot4, u4, F, scratch, how, tmp, e)."""
-        return self.rot, self.rot4, self.u4, self.F, self.scratch, self.how, self.tmp, self.e
+        """The kernels' workspace group: (rot, rot4, u_rows, F, scratch, how, tmp, e)."""
+        return self.rot, self.rot4, self.u_rows, self.F, self.scratch, self.how, self.tmp, self.e
 
 
 class AssembledWarp:

@@ -242,10 +242,10 @@ class ClusteredExplicit:
             frames = self.frames = VertexFrames.from_model(model)
             self._model_args = (frames.gradients, frames.slices, frames.rest, frames.work)
             self._builds = (_warped_step_serial, _warped_step_parallel)
-            self._w, self._f = frames.w, frames.e     # w rows padded to 4; e: the sweep's rows, as K w's
+            self._w, self._f = frames.w, frames.e     # w: rows of 3 and one more; e: the sweep's rows, as K w's
         else:
             slices = model.clusters.slices
-            self._w, self._f = scratch(slices)  # w rows padded to 4 (one 32-byte load); f: the sweep's K w rows
+            self._w, self._f = scratch(slices)  # w: rows of 3 and one more (4-wide loads); f: the sweep's K w rows
             self._model_args = cluster_args(slices)
             self._builds = (_step_serial, _step_parallel)
         self._step = self._builds[self.threads]
