@@ -63,9 +63,9 @@ bandwidth. A C prototype (gcc -O3 -march=native, AVX2 intrinsics, the same slice
   index loads cost. Rows of w sorted within windows of 64 instead of 1024 (the voxel order's locality kept)
   took ~0.05 off in C and nothing measurable in numba's step; 16- or 32-bit offsets make the sweep and the
   floor faster alike.
-- the flat update pass moves seven arrays of 3n doubles, in L2 once the blocks have passed through L1: 0.7-0.8 us
-  in numba, 0.63 us in C (restrict pointers), close to that bandwidth. Rows of 3 in w (cluster_slices.py) made
-  the w pass flat, 0.42 -> 0.20 us, the step 3-5 % faster (four alternating process pairs).
+- the flat update pass moves seven arrays of 3n doubles (~60 KB on the sphere, more than L1 holds): 0.8-0.9 us
+  in numba, 0.63 us in C (restrict pointers). Rows of 3 in w (cluster_slices.py) made the w pass flat,
+  0.42 -> 0.20 us, and the step faster in 11 of 12 alternating process pairs (5-7 % on the means).
 - a fused step (each slice's update right after its sums, vertices renumbered so that a slice's lanes are
   consecutive vertices, w double-buffered, so no K w rows and no separate w pass) ran 1.51-1.71x the floor
   against 1.60-1.81x for the unfused C step in the same runs. The state a step reads and writes (u, v, the
