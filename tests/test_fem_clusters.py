@@ -90,8 +90,9 @@ def test_slice_kernel_refuses_a_workspace_without_the_row_after_the_last():
     mesh = paper_mesh("cube")
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
     w, kw = scratch(cl.slices)
-    assert w.shape == (len(cl.slices.owner) + 1, 3)
-    for bad in (np.zeros((mesh.n_vertices, 3)), np.zeros((len(cl.slices.owner), 3)), np.zeros((mesh.n_vertices + 8, 4))):
+    lanes = len(cl.slices.owner)
+    assert w.shape == (lanes + 1, 3)
+    for bad in (np.zeros((mesh.n_vertices, 3)), np.zeros((lanes, 3)), np.zeros((mesh.n_vertices + 8, 4))):
         with pytest.raises(ValueError, match="rows of 3 .* a row per lane of the slices and one more"):
             stiffness_slices_serial(*cluster_args(cl.slices), bad, kw)
     stiffness_slices_serial(*cluster_args(cl.slices), w, kw)
