@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clusterfem_ros.fem.cluster_force_kernel import finish_serial
+from clusterfem_ros.fem.cluster_force_kernel import finish_serial, input_rows
 from clusterfem_ros.fem.cluster_slices import aligned_zeros, lane_vertices, rest_offsets, slice_clusters
 from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import build_model
@@ -26,7 +26,7 @@ def _sweep(model, lanes, R, u, v, sweep=warped_sweep_serial):
     n = model.n_vertices
     sl = slice_clusters(model.clusters, lanes)
     sh_d, bd_d = rest_offsets(sl, model.rest)
-    w = aligned_zeros((len(sl.owner) + 1, 3))             # a row per lane and one more (scratch)
+    w = input_rows(sl)
     w[:n] = model.rest + u + MAT.zeta * v
     rot4 = aligned_zeros((n, ROT_ROW))
     rot4.reshape(n, 3, 4)[:, :, :3] = R
@@ -87,10 +87,11 @@ def test_the_gradient_sweep_gives_each_vertex_its_least_squares_deformation_grad
     vertex owner[k]; the padding lanes hold the identity; the threaded sweep gives the same bits."""
     model = build_model(MESHES[name](), MAT)
     n = model.n_vertices
-    frames = VertexFrames.from_model(model, slice_clusters(model.clusters, lanes))
+    sl = slice_clusters(model.clusters, lanes)
+    frames = VertexFrames.from_model(model, sl)
     sh_ptr, shared, boundary, lane_vertex, owner = frames.gradients
     u = 0.1 * np.ptp(model.rest, axis=0).max() * np.random.default_rng(lanes).standard_normal((n, 3))
-    u_rows = aligned_zeros((len(owner) + 1, 3))
+    u_rows = input_rows(sl)
     u_rows[:n] = u
     F = np.full((9, len(owner)), np.nan)
     gradient_sweep_serial(sh_ptr, shared, boundary, (u_rows, lane_vertex, F))

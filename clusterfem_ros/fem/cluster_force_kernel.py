@@ -323,12 +323,17 @@ def cluster_args(sl: ClusterSlices) -> tuple:
     return (sl.shared_ptr, sl.shared_w_at, sl.shared_blocks, sl.boundary_w_at, sl.boundary_blocks, sl.owner)
 
 
+def input_rows(sl: ClusterSlices) -> np.ndarray:
+    """Zeros for a per-vertex array the slice kernels gather (w, or the warped path's copy of u): (n_slices * C
+    + 1, 3), 64-byte aligned, vertex j's x, y, z to go in row j. A kernel loads 4 doubles from a row, so the last
+    vertex's load needs a row after it; the rows past the n vertices' stay zero."""
+    return aligned_zeros((len(sl.owner) + 1, W_ROW))
+
+
 def scratch(sl: ClusterSlices) -> tuple[np.ndarray, np.ndarray]:
-    """(w, kw): the input rows, (n_slices * C + 1, 3), 64-byte aligned (vertex j's x, y, z in row j, the rows
-    past the n vertices' zero; the kernel loads 4 doubles from a row, so the last vertex's load needs a row
-    after it), and the sweep's (n_slices * C, 3) output rows (vertex i's K w in row i; the padding lanes' rows
-    after the n vertices')."""
-    return aligned_zeros((len(sl.owner) + 1, W_ROW)), np.zeros((len(sl.owner), 3))
+    """(w, kw): the kernel's input rows (input_rows) and the sweep's (n_slices * C, 3) output rows (vertex i's
+    K w in row i; the padding lanes' rows after the n vertices')."""
+    return input_rows(sl), np.zeros((len(sl.owner), 3))
 
 
 def pick_kernel(n_vertices: int, threads: bool | None = None):

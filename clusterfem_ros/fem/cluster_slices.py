@@ -17,7 +17,7 @@ sum and no per-row loop exit.
 - A neighbour j is stored as where its row of w starts, 3 j (w's rows are x, y, z), so the kernel loads it
   without a multiply: 7-10 % off the sweep on the paper's shapes against storing j. The kernel loads four
   doubles there (the row and the next row's x, unused), so w has a row per lane and one more
-  (``cluster_force_kernel.scratch``): the last vertex's load ends inside it. Rows of 3 instead of rows padded
+  (``cluster_force_kernel.input_rows``): the last vertex's load ends inside it. Rows of 3 instead of rows padded
   to 4 let the passes that write w run over flat arrays (u + zeta v, element by element), vectorized: 0.20
   instead of 0.42 us per pass on the paper's sphere (AMD EPYC, Zen 3), the same bits.
 

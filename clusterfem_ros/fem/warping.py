@@ -54,8 +54,9 @@ import numpy as np
 import scipy.sparse as sp
 from numba import prange
 
-from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
-from .cluster_slices import W_ROW, ClusterSlices, aligned_zeros, lane_vertices, position_lanes, rest_offsets
+from .cluster_force_kernel import (finish_parallel, finish_serial, input_rows, kernel_input_parallel,
+                                   kernel_input_serial)
+from .cluster_slices import ClusterSlices, aligned_zeros, lane_vertices, position_lanes, rest_offsets
 from .model import FemModel
 from .numba_config import PARALLEL_MIN_VERTICES, SERIAL, compiled, serial_and_parallel
 from .warped_force_kernel import (ROT_ROW, copy_rows_parallel, copy_rows_serial, gradient_sweep_parallel,
@@ -439,9 +440,9 @@ class VertexFrames:
                             #   owner); g = S_i^-1 (x0_j - x0_i) per block, (P, 3, C)
     slices: tuple           # the force sweep's: (sh_ptr, (sh_w_at, sh_blocks, sh_offsets), (bd_w_at, bd_blocks,
                             #   bd_offsets), lane_vertex, owner); offsets d = x0_j - x0_i per block, (P, 3, C)
-    w: np.ndarray           # (lanes + 1, 3) workspace: x + zeta v in the first n rows (cluster_force_kernel.scratch)
+    w: np.ndarray           # (lanes + 1, 3) workspace: x + zeta v in the first n rows (input_rows)
     rot4: np.ndarray        # (n, 12) workspace: the rotations' rows padded to 4
-    u_rows: np.ndarray      # (lanes + 1, 3) workspace: u in the first n rows, as w
+    u_rows: np.ndarray      # (lanes + 1, 3) workspace: u in the first n rows (input_rows)
     F: np.ndarray           # (9, n_slices * C) workspace: deformation gradient per lane, slice order
     scratch: np.ndarray     # (chunks, 2, 9, LANES) workspace: polar iterates
     how: np.ndarray         # (chunks, LANES) workspace: 0 polar, 1 inverted/flat
@@ -468,8 +469,7 @@ class VertexFrames:
         slices = (sl.shared_ptr, (sl.shared_w_at, sl.shared_blocks, offsets[0]),
                   (sl.boundary_w_at, sl.boundary_blocks, offsets[1]), lane_vertex, sl.owner)
         return cls(rest, s0inv, np.repeat(np.eye(3)[None], n, axis=0), gradients, slices,
-                   aligned_zeros((lanes + 1, W_ROW)), aligned_zeros((n, ROT_ROW)), aligned_zeros((lanes + 1, W_ROW)),
-                   aligned_zeros((9, lanes)),
+                   input_rows(sl), aligned_zeros((n, ROT_ROW)), input_rows(sl), aligned_zeros((9, lanes)),
                    np.zeros((chunks, 2, 9, LANES)), np.zeros((chunks, LANES), dtype=np.int8),
                    np.zeros((chunks, 2, 3, 3)), np.zeros((lanes, 3)))
 
