@@ -140,7 +140,7 @@ class Scene:
         from .fem.numba_config import is_cached
         if any(is_cached(k) is False for k in getattr(self.integrator, "kernels", ())):
             _say(progress, "compiling the step's kernels into numba's cache (the first start of this code on this "
-                           "machine: 10-25 s on 2 cores, once; later starts load them in about a second)")
+                           "machine: 15-30 s on 2 cores, once; later starts load them in about a second)")
         else:
             _say(progress, "loading compiled kernels")
         state = State.rest(self.model)

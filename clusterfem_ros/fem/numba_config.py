@@ -81,7 +81,7 @@ def key_the_cache(package: Path = Path(__file__).resolve().parents[1], root: Pat
     sweep (and, inlined, the old threaded code) with no warning. Keyed on every source compiled code can
     read (source_key), an edit to one of them or a pull starts a fresh cache, for the README's commands and
     for a bare ``pytest`` alike; an edit elsewhere (the node, the scene, the config, recording) keeps it,
-    instead of 10-25 s of compiling at the next start. The variable is set too, so child processes share
+    instead of 15-30 s of compiling at the next start. The variable is set too, so child processes share
     the directory."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return None
@@ -105,7 +105,7 @@ key_the_cache()               # before any kernel below or in the modules that i
 
 def is_cached(build) -> bool | None:
     """Whether numba's on-disk cache holds a compiled version of ``build`` (a numba dispatcher): False means
-    its first call compiles it (after an install or an update of this source: 10-25 s for a step with its
+    its first call compiles it (after an install or an update of this source: 15-30 s for a step with its
     kernels). None when it cannot tell (not a cached build, or numba's internals changed)."""
     try:
         return bool(build._cache._cache_file._load_index())
