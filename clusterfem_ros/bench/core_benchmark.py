@@ -56,7 +56,8 @@ History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions 
 
 On the AMD EPYC VM of 2026-11-24 (Zen 3, AVX2: 4 lanes; 512 KB L2 per core) the sweep read 1.25-1.44x the floor,
 the step's compiled part 1.72-2.14x (six runs, all three shapes). The floor streams the sphere's 0.3 MB of blocks
-at ~100 GB/s, about what Zen 3's L2 delivers (32 bytes a cycle). A C prototype (gcc -O3 -march=native, AVX2 intrinsics, the same slices) took the sweep apart:
+at ~100 GB/s, about what Zen 3's L2 delivers (32 bytes a cycle). A C prototype (gcc -O3 -march=native, AVX2
+intrinsics, the same slices) took the sweep apart:
 - without the transpose it is as fast: the shuffles cost nothing;
 - with the index loads but each lane's rows of w at a fixed place it reads 1.15-1.2x, with the rows at their
   vertices 1.3-1.4x: the gathered rows miss L1 (the blocks streaming through it evict them) more than the
