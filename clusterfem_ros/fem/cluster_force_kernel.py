@@ -272,7 +272,9 @@ stiffness_held_w_serial = compiled(_stiffness_slices, "_held_w",
 def _finish_kernel(kw, v, mass3, xi, out):
     """out <- -K w - xi M v over flat arrays (mass3: the lumped mass per coordinate, 3n), K w read from the
     sweep's first n rows (vertex order)."""
-    kf, vf, of = kw.reshape(-1), v.reshape(-1), out.reshape(-1)
+    kf = kw.reshape(-1)             # one view per statement (see _kernel_input)
+    vf = v.reshape(-1)
+    of = out.reshape(-1)
     for k in prange(of.shape[0]):
         of[k] = -kf[k] - (xi * mass3[k]) * vf[k]
 
