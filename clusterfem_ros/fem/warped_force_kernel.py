@@ -17,8 +17,8 @@ start at ROT_ROW j = 4 w_at). The row kernel it replaced did the 54 products of 
 (tests/test_warped_force_kernel.py checks it against the twin).
 
 The deformation gradients, F_i = I + sum_j (u_j - u_i) g_ij^T with the constant g_ij = S_i^-1 d_ij (fem/warping.py),
-walk the same slices with g stored per block (P, 3, C) and u copied into rows like w's (``copy_rows``: a row
-per lane and one more): nine C-wide FMAs per position. Lane l of slice s writes column C s + l of F (9, S C), so
+walk the same slices with g stored per block (P, 3, C) and u copied (``copy_rows``) into rows like w's (a row
+per lane and one more: cluster_force_kernel.input_rows): nine C-wide FMAs per position. Lane l of slice s writes column C s + l of F (9, S C), so
 the polar iteration that follows runs over contiguous lanes in slice order. The row loop it replaced took
 5.6 ns per block, most of the rotations' time.
 """
@@ -54,8 +54,8 @@ def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
     padding lane any vertex: its blocks and offsets are zero). Per position: w_j and the three rows of R_j
     gathered (w at w_at = 3 j, the rotation's rows of 4 at 4 w_at) and transposed into C-wide vectors, then the
     block's nine entries and three offsets as C-wide loads; FMAs in a fixed order, so serial and threaded
-    builds agree to the bit. w_at (P, C) int64, blocks (P, 9, C), offsets (P, 3, C), w (S C + 1, 3) (as the
-    linear kernel's), rot4 (n, 12), lane_vertex and owner (S C,) int64, out (S C, 3), all C-contiguous
+    builds agree to the bit. w_at (P, C) int64, blocks (P, 9, C), offsets (P, 3, C), w (S C + 1, 3)
+    (input_rows), rot4 (n, 12), lane_vertex and owner (S C,) int64, out (S C, 3), all C-contiguous
     (checked at typing); the caller checks the shapes.
     """
     C, sig = slice_kernel_typing("_warped_slice", lanes, s, p0, p1, per_position, common, _WARPED_SPECS)
@@ -118,7 +118,7 @@ def _gradient_slice(typingctx, lanes, s, p0, p1, per_position, common):
     """F[:, C s + l] <- F_i of lane l's vertex i (module docstring) over positions p0..p1 of slice s;
     per_position = (w_at, grads), common = (u_rows, lane_vertex, F). Its own u_i (lane_vertex), per position C
     rows of u_rows gathered at w_at = 3 j and transposed, three C-wide loads of g and nine FMAs in position
-    order. w_at (P, C) int64, grads (P, 3, C), u_rows (S C + 1, 3) (copy_rows), lane_vertex (S C,) int64,
+    order. w_at (P, C) int64, grads (P, 3, C), u_rows (S C + 1, 3) (input_rows), lane_vertex (S C,) int64,
     F (9, S C), C-contiguous (checked at typing); the caller checks the shapes."""
     C, sig = slice_kernel_typing("_gradient_slice", lanes, s, p0, p1, per_position, common, _GRADIENT_SPECS)
     VC = ir.VectorType(_F64, C)
