@@ -18,9 +18,9 @@ start at ROT_ROW j = 4 w_at). The row kernel it replaced did the 54 products of 
 
 The deformation gradients, F_i = I + sum_j (u_j - u_i) g_ij^T with the constant g_ij = S_i^-1 d_ij (fem/warping.py),
 walk the same slices with g stored per block (P, 3, C) and u copied (``copy_rows``) into rows like w's (a row
-per lane and one more: cluster_force_kernel.input_rows): nine C-wide FMAs per position. Lane l of slice s writes column C s + l of F (9, S C), so
-the polar iteration that follows runs over contiguous lanes in slice order. The row loop it replaced took
-5.6 ns per block, most of the rotations' time.
+per lane and one more: cluster_force_kernel.input_rows): nine C-wide FMAs per position. Lane l of slice s
+writes column C s + l of F (9, S C), so the polar iteration that follows runs over contiguous lanes in slice
+order. The row loop it replaced took 5.6 ns per block, most of the rotations' time.
 """
 from __future__ import annotations
 
