@@ -14,7 +14,9 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*")),
     ],
-    package_data={"clusterfem_ros": ["data/*"]},
+    # runtime data read through the package's own path (so a wheel works from any directory): the measured
+    # points of the error budget and the example key frames; benchmarks/ stays in the source tree
+    package_data={"clusterfem_ros": ["data/*.csv"], "clusterfem_ros.skeleton": ["data/*.yaml"]},
     # Only what pip should really fetch: rclpy and the message packages come from the ROS install
     # (wheels or apt), and listing them here would pull a second copy.
     install_requires=["numpy", "scipy", "numba", "pin", "mcap", "meshio", "pyyaml", "matplotlib"],
@@ -29,7 +31,6 @@ setup(
             "clusterfem_demo = clusterfem_ros.nodes.demo:main",
             "clusterfem_node = clusterfem_ros.nodes.clusterfem_node:main",
             "mocap_player = clusterfem_ros.nodes.player_node:main",
-            "clusterfem_bench = clusterfem_ros.bench.core_benchmark:main",
         ],
     },
 )

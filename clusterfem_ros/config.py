@@ -48,7 +48,7 @@ PARAMS: tuple[Param, ...] = (
     Param("material.stiffness_damping", 1.0e-4, "Rayleigh zeta [s]", 0.0, 1.0),
     Param("method", "clustered", "integrator", choices=METHODS),
     Param("budget.max_error_mm", 0.0, "if > 0: method, physics.step, warping and modal.k become the cheapest measured point whose max vertex error is within this budget [mm] (0 = off)", 0.0, 1000.0),
-    Param("budget.measured_points", "", "CSV of measured (method, step, error, cost) points for the budget choice; '' = the shipped reports/speed_error/speed_error.csv"),
+    Param("budget.measured_points", "", "CSV of measured (method, step, error, cost) points for the budget choice; '' = the shipped clusterfem_ros/data/speed_error.csv"),
     Param("modal.k", 30, "number of modes for method 'modal'", 1, 2000),
     Param("warping", True, "stiffness warping (eq. 10): removes the linear model's volume growth under rotation"),
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),

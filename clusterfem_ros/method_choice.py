@@ -1,10 +1,11 @@
 """Model only what a scene needs: the cheapest measured (method, step, modes) that meets an error budget.
 
 Pure Python + numpy, no ROS. The measured points come from the speed-vs-error report
-(``python -m clusterfem_ros.bench.speed_error_report``), which writes them as CSV; this module reads
-and writes that file and chooses from it:
+(``python -m benchmarks.speed_error_report`` from the repository root), which writes them as CSV; the
+full run writes the copy shipped inside the package (``SHIPPED_POINTS``, installed with it). This module
+reads and writes that file and chooses from it:
 
-    points = read_points("reports/speed_error/speed_error.csv")
+    points = read_points(SHIPPED_POINTS)
     choice = choose(points, budget=2.0, metric="max_mm", scene="jelly_man")
     choice.overrides   # {'method': 'clustered', 'physics.step': 0.002, 'modal.k': 30, 'warping': False}
 
@@ -28,6 +29,8 @@ METRICS = {
     "volume_pct": "max |V - V_ref| / V0 over the run [%]",
 }
 REQUIRED = ("scene", "method", "h", "k", "ms_per_step") + tuple(METRICS)
+# the measured points the package ships (package data: found beside this file in a wheel or a source tree)
+SHIPPED_POINTS = Path(__file__).resolve().parent / "data" / "speed_error.csv"
 
 
 class ChoiceError(ValueError):
@@ -159,7 +162,7 @@ def read_points(path: str | Path) -> list[MeasuredPoint]:
     path = Path(path)
     if not path.is_file():
         raise ChoiceError(f"measured points file {str(path)!r} not found: run "
-                          "`python -m clusterfem_ros.bench.speed_error_report` to make it")
+                          "`python -m benchmarks.speed_error_report` (from the repository root) to make it")
     with path.open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     if not rows:

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from clusterfem_ros.bench.core_benchmark import _stream, _wide_stream
+from benchmarks.core_benchmark import _stream, _wide_stream
 
 
 @pytest.mark.parametrize("lanes", [4, 8])
@@ -25,7 +25,7 @@ def test_the_wide_read_sums_every_block_entry_and_index_once(lanes, n_positions)
 def test_in_numba_refuses_a_threaded_build():
     """A threaded build called inside in_numba's serial loop would be inlined there and run serial
     (numba_config.PARALLEL), so the benchmark would time the wrong thing."""
-    from clusterfem_ros.bench.core_benchmark import in_numba
+    from benchmarks.core_benchmark import in_numba
     from clusterfem_ros.fem.cluster_force_kernel import force_kernel_parallel, force_kernel_serial
     with pytest.raises(ValueError, match="force_kernel.*threaded"):
         in_numba(force_kernel_parallel, (), 1)

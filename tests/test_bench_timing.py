@@ -3,8 +3,8 @@ import itertools
 
 import pytest
 
-from clusterfem_ros.bench.core_benchmark import per_call
-from clusterfem_ros.bench.timing import interleaved_seconds, paired_ratio
+from benchmarks.core_benchmark import per_call
+from benchmarks.timing import interleaved_seconds, paired_ratio
 
 
 def test_every_round_times_each_function_in_turn():

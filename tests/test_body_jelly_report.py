@@ -2,7 +2,7 @@
 import pytest
 import numpy as np
 
-from clusterfem_ros.bench.jelly_report import run, scene_default
+from benchmarks.jelly_report import run, scene_default
 from clusterfem_ros.body import LevelGains, bind_to_skeleton
 from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import build_model

@@ -134,7 +134,7 @@ def test_threaded_and_serial_clustered_steps_are_bit_identical(warp):
 
 @pytest.mark.parametrize("warp", [False, True])
 def test_the_benchmarks_compiled_step_is_the_step(warp):
-    """bench/core_benchmark times ClusteredExplicit.compiled_step without Python: calling it must advance the
+    """benchmarks/core_benchmark times ClusteredExplicit.compiled_step without Python: calling it must advance the
     state exactly as step() does, and it refuses what it does not cover (attachments)."""
     mesh = paper_mesh("sphere")
     model = build_model(mesh, MAT, fixed=mesh.vertices[:, 2] < mesh.vertices[:, 2].min() + 0.02)

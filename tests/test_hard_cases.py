@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from clusterfem_ros.bench import stability_table as st
+from benchmarks import stability_table as st
 from clusterfem_ros.fem.corotational import ElementCorotation
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.model import Control, State

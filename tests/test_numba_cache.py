@@ -71,7 +71,8 @@ def test_no_kernel_calls_a_separately_compiled_threaded_kernel(name):
 
 def _child(cache: Path, out: Path, *what: str) -> dict[str, tuple[int, int]]:
     """Run test_numba_cache_child.py with ``cache`` as numba's cache; (hits, misses) per threaded build."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache),        # the child imports benchmarks/ from the repo root
+               PYTHONPATH=os.pathsep.join(filter(None, [str(CHILD.parents[1]), os.environ.get("PYTHONPATH")])))
     run = subprocess.run([sys.executable, str(CHILD), str(out), *what], env=env, capture_output=True, text=True,
                          timeout=600)
     assert run.returncode == 0, f"{what} exited with {run.returncode} (a negative code is a signal):\n{run.stderr[-3000:]}"

@@ -13,7 +13,7 @@ import sys
 
 import numpy as np
 
-from clusterfem_ros.bench.core_benchmark import MATERIAL
+from benchmarks.core_benchmark import MATERIAL
 from clusterfem_ros.fem.cluster_force_kernel import clustered_force, force_kernel_parallel
 from clusterfem_ros.fem.integrators.clustered_explicit import (ClusteredExplicit, _step_parallel,
                                                                _warped_step_parallel)

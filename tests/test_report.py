@@ -6,7 +6,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from clusterfem_ros.bench import speed_error_report as R
+from benchmarks import scenarios as S
+from benchmarks import speed_error_report as R
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.voxel_mesh import box_mesh
 from clusterfem_ros.method_choice import METRICS, pareto_front, read_points
@@ -16,8 +17,8 @@ from clusterfem_ros.method_choice import METRICS, pareto_front, read_points
 def small():
     """A 3 x 3 x 6 voxel column (bottom held) sagging under gravity for 0.08 s, and its references."""
     mesh = box_mesh((0.05, 0.05, 0.1), (3, 3, 6), (-0.025, -0.025, 0.0))
-    sc = R.shape_scenario("column", 0.08, 0.004, mesh=mesh)
-    ref = R.reference(sc, "linear")
+    sc = S.shape_scenario("column", 0.08, 0.004, mesh=mesh)
+    ref = S.reference(sc, "linear")
     return sc, R.reference_data(sc, ref, corotated=False)
 
 
@@ -46,7 +47,7 @@ def test_implicit_error_converges_at_first_order(small):
     hs = np.array([1e-3, 5e-4, 2.5e-4])        # asymptotic range (errors 12 % and below)
     err = []
     for h in hs:
-        run = R.simulate(sc, make_integrator("implicit_direct", sc.model), h, timed=False)
+        run = S.simulate(sc, make_integrator("implicit_direct", sc.model), h, timed=False)
         err.append(R.errors(sc, run.u, ref, corotated=False)["rel_l2"])
     rate = np.polyfit(np.log(hs), np.log(err), 1)[0]
     assert 0.85 < rate < 1.15, f"observed rate {rate:.3f} (errors {err})"
@@ -55,7 +56,7 @@ def test_implicit_error_converges_at_first_order(small):
 def test_clustered_equals_standard_explicit_and_beats_implicit(small):
     """Lossless: the clustered and assembled explicit steps give the same errors; both beat implicit Euler."""
     sc, ref = small
-    e = {m: R.errors(sc, R.simulate(sc, make_integrator(m, sc.model), 2e-3, timed=False).u, ref, False)
+    e = {m: R.errors(sc, S.simulate(sc, make_integrator(m, sc.model), 2e-3, timed=False).u, ref, False)
          for m in ("clustered", "standard_explicit", "implicit_direct")}
     for m in METRICS:
         assert e["clustered"][m] == pytest.approx(e["standard_explicit"][m], rel=1e-8, abs=1e-15)
@@ -69,7 +70,7 @@ def test_runs_taking_turns_give_the_states_of_runs_one_after_the_other(small):
     sc, _ = small
     plan = {("clustered", 2e-3): ("clustered", {}), ("implicit_direct", 1e-3): ("implicit_direct", {}),
             ("modal_10", 4e-3): ("modal", {"k": 10})}
-    runs = {key: R.RunInProgress(sc, make_integrator(m, sc.model, **o), key[1]) for key, (m, o) in plan.items()}
+    runs = {key: S.RunInProgress(sc, make_integrator(m, sc.model, **o), key[1]) for key, (m, o) in plan.items()}
 
     class Failing:                                   # holds still, then diverges at its 8th step
         steps = 0
@@ -79,13 +80,13 @@ def test_runs_taking_turns_give_the_states_of_runs_one_after_the_other(small):
             if self.steps == 8:
                 raise R.DivergenceError("the state has diverged at t = 0.03 s: lower h")
             return SimpleNamespace(substeps=1)
-    runs["failing", 4e-3] = R.RunInProgress(sc, Failing(), 4e-3, timed=False)
+    runs["failing", 4e-3] = S.RunInProgress(sc, Failing(), 4e-3, timed=False)
     said = []
     out = R.interleaved_runs(runs, said.append)
     assert out["failing", 4e-3].startswith("DivergenceError: the state has diverged at t = 0.03 s")
     assert any("sample" in s and "runs in turn" in s for s in said)
     for key, (m, o) in plan.items():
-        alone = R.simulate(sc, make_integrator(m, sc.model, **o), key[1], timed=False)
+        alone = S.simulate(sc, make_integrator(m, sc.model, **o), key[1], timed=False)
         assert np.array_equal(out[key].u, alone.u), key
         steps = sc.n_samples * runs[key].per
         turns = -(-sc.n_samples // -(-R.TURN_STEPS // runs[key].per))
@@ -95,7 +96,7 @@ def test_runs_taking_turns_give_the_states_of_runs_one_after_the_other(small):
 def test_step_must_divide_the_sample_interval(small):
     sc, _ = small
     with pytest.raises(ValueError, match="must divide the sample interval"):
-        R.steps_per_sample(sc, 3e-3)
+        S.steps_per_sample(sc, 3e-3)
 
 
 def test_report_writes_csv_markdown_and_pngs(tmp_path):
@@ -136,7 +137,7 @@ def test_quick_command_end_to_end(tmp_path):
 
 def test_mujoco_peer_runs_the_same_mesh_when_installed(small):
     mujoco = pytest.importorskip("mujoco", reason="optional peer: pip install mujoco to run it")
-    from clusterfem_ros.bench.peer_mujoco import run_mujoco
+    from benchmarks.peer_mujoco import run_mujoco
     sc, ref = small
     r = run_mujoco(mujoco, sc, 1e-3, "Euler")
     assert r["u"].shape == ref.run.u.shape and np.isfinite(r["u"]).all()

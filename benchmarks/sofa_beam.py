@@ -1,6 +1,6 @@
 """SOFA's CPU/CUDA tetrahedral beam benchmark, run through our implicit and warped explicit paths.
 
-    python -m clusterfem_ros.bench.sofa_beam [--steps 30]
+    python -m benchmarks.sofa_beam [--steps 30]
 
 The published figure (sofa-framework/sofa PR #2561, scene TetrahedronFEMForceField_beam10x10x40_cpu.scn):
 a RegularGridTopology of 40 x 10 x 10 points over [0, 16] x [6, 10] x [-2, 2] m (39 x 9 x 9 hexahedra,
@@ -26,10 +26,10 @@ import time
 
 import numpy as np
 
-from ..fem.integrators import make_integrator
-from ..fem.material import Material
-from ..fem.model import Control, State, build_model
-from ..fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.integrators import make_integrator
+from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.model import Control, State, build_model
+from clusterfem_ros.fem.voxel_mesh import box_mesh
 from .timing import table
 
 SOFA_FPS = {"CPU": 23.5, "CUDA": 158.0}

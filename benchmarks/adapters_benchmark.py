@@ -1,6 +1,6 @@
 """Cost of the message adapters for a 10k-triangle coloured surface (median of repeats, ms).
 
-Run: python -m clusterfem_ros.bench.adapters_benchmark [--triangles N] [--repeats R]
+Run: python -m benchmarks.adapters_benchmark [--triangles N] [--repeats R]
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Hard cases x methods: does each method stay bounded, or refuse at set-up with a clear message?
 
-    python -m clusterfem_ros.bench.stability_table [--scale 2] [--steps 300] [--max-substeps 1000]
+    python -m benchmarks.stability_table [--scale 2] [--steps 300] [--max-substeps 1000]
 
 Scene: a 0.4 x 0.1 x 0.1 m bar clamped at x = 0 under gravity, h = 10 ms, E = 1 MPa, nu = 0.3 (tip sag about 4 cm), unless the
 case changes it. Per run we track the energy E = kinetic + elastic (linear 1/2 u.K u; the corotated
@@ -22,13 +22,13 @@ from typing import Callable
 
 import numpy as np
 
-from ..fem.corotational import ElementCorotation
-from ..fem.integrators import make_integrator
-from ..fem.material import Material
-from ..fem.model import Control, FemModel, State, build_model
-from ..fem.stability import DivergenceError, StabilityError
-from ..fem.tet_mesh import TetMesh, signed_volumes
-from ..fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.corotational import ElementCorotation
+from clusterfem_ros.fem.integrators import make_integrator
+from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.model import Control, FemModel, State, build_model
+from clusterfem_ros.fem.stability import DivergenceError, StabilityError
+from clusterfem_ros.fem.tet_mesh import TetMesh, signed_volumes
+from clusterfem_ros.fem.voxel_mesh import box_mesh
 from .timing import table
 
 ENERGY_SLACK = 1.05

@@ -1,6 +1,6 @@
 """Speed against error (issue 6): every method, several steps, on the paper's shapes and the jelly man.
 
-    python -m clusterfem_ros.bench.speed_error_report [--quick] [--out reports/speed_error]
+    python -m benchmarks.speed_error_report [--quick] [--out reports/speed_error]
 
 Scenes. 'sphere', 'cube', 'torus': the paper-sized object (``paper_mesh``), its bottom 20 % held,
 under gravity from rest for ``duration`` s (the core benchmark's material). 'jelly_man': the default
@@ -40,11 +40,13 @@ sum |u - u_ref|^2 / sum |u_ref - u_carried|^2 (u_carried: the skeleton's rigid c
 zero for the shapes, so only deformation counts), the max vertex error [mm], the relative L2 of the
 element von Mises stress (corotated for the warped model), and max |V - V_ref| / V0 [%].
 
-Writes into ``--out``: speed_error.csv (the measured points, read by clusterfem_ros.method_choice),
-speed_error.md (tables, beside the paper's Table 1), speed_error.png (error against compute per
+Writes the measured points as CSV (read by clusterfem_ros.method_choice): a full run into the default
+``--out`` replaces the copy the package ships (clusterfem_ros/data/speed_error.csv, what a scene's error
+budget reads), any other run writes <out>/speed_error.csv; ``--points`` names another file. Writes into
+``--out``: speed_error.md (tables, beside the paper's Table 1), speed_error.png (error against compute per
 simulated second, log-log, Pareto front marked) and figure5.png (displacement difference to the
 reference on the surface, clustered vs modal 30: the paper's Figure 5). In the same run the shapes go
-through MuJoCo's tetrahedral flex (bench/peer_mujoco.py: ms/step and what each computes) unless --no-peer.
+through MuJoCo's tetrahedral flex (benchmarks/peer_mujoco.py: ms/step and what each computes) unless --no-peer.
 """
 from __future__ import annotations
 
@@ -58,14 +60,13 @@ from typing import Callable
 
 import numpy as np
 
-from ..fem.integrators import make_integrator
-from ..fem.model import Control, FemModel, State, build_model
-from ..fem.stability import DivergenceError
-from ..fem.stress import compute_stress
-from ..fem.tet_mesh import boundary_triangles, signed_volumes
-from ..fem.voxel_mesh import paper_mesh
-from ..method_choice import METRICS, MeasuredPoint, choose, pareto_front, write_points
+from clusterfem_ros.fem.integrators import make_integrator
+from clusterfem_ros.fem.stability import DivergenceError
+from clusterfem_ros.fem.stress import compute_stress
+from clusterfem_ros.fem.tet_mesh import boundary_triangles, signed_volumes
+from clusterfem_ros.method_choice import METRICS, SHIPPED_POINTS, MeasuredPoint, choose, pareto_front, write_points
 from .core_benchmark import MATERIAL, PAPER_MS
+from .scenarios import Run, RunInProgress, Scenario, make_scenario, reference
 from .timing import table
 
 # label -> (make_integrator method, options, model kind)
@@ -81,136 +82,11 @@ METHODS = {
     "modal_30": ("modal", {"k": 30}, "linear"),
     "modal_60": ("modal", {"k": 60}, "linear"),
 }
-REF_SAFETY = 0.02           # reference sub-step / critical step
-REF_INPUT_STEP = 2.5e-5     # reference input refresh on the skeleton scene [s]
 TABLE_H = 1e-3              # step of the Table 1 comparison (the paper does not give its step)
 FULL = dict(scenes=("sphere", "cube", "torus", "jelly_man"), steps=(1e-2, 5e-3, 2e-3, 1e-3, 5e-4),
             walk_steps=(5e-3, 2e-3, 1e-3, 5e-4), duration=0.5, walk_duration=1.0, sample_dt=0.01)
 QUICK = dict(scenes=("sphere", "jelly_man"), steps=(5e-3, 2e-3, 1e-3), walk_steps=(5e-3, 2e-3, 1e-3),
              duration=0.2, walk_duration=0.2, sample_dt=0.01)
-
-
-# -- scenarios ---------------------------------------------------------------------------------
-@dataclass
-class Scenario:
-    """One loaded run: model, start state, inputs as a function of time, and the rigid carry."""
-    name: str
-    model: FemModel
-    duration: float
-    sample_dt: float
-    start: Callable[[], State]
-    inputs: Callable[[float], Callable[[float], Control]]     # h -> (t -> Control for [t, t + h])
-    carried: Callable[[float], np.ndarray] | None = None       # t -> (n, 3) rigid displacement
-
-    @property
-    def n_samples(self) -> int:
-        return int(round(self.duration / self.sample_dt))
-
-
-def shape_scenario(name: str, duration: float, sample_dt: float, scale: float = 1.0,
-                   mesh=None) -> Scenario:
-    """A paper shape (or ``mesh``), bottom 20 % held, gravity, from rest."""
-    mesh = paper_mesh(name, scale) if mesh is None else mesh
-    z = mesh.vertices[:, 2]
-    model = build_model(mesh, MATERIAL, fixed=z <= z.min() + 0.2 * np.ptp(z))
-    control = Control()
-    return Scenario(name, model, duration, sample_dt, lambda: State.rest(model), lambda h: (lambda t: control))
-
-
-def walk_scenario(duration: float, sample_dt: float, target_tets: int | None = None) -> Scenario:
-    """The jelly man on the built-in walk (scene defaults), started on the skeleton at t = 0."""
-    from ..body import SkeletonDriver
-    from .jelly_report import build_scene, scene_default
-    tets = int(scene_default("body.target_tets")) if target_tets is None else target_tets
-    sk, traj, model, binding, gains = build_scene(tets, duration + 0.1, 1.0 / 120.0)
-
-    def driver():
-        return SkeletonDriver(binding, model.rest, gains, bone_names=sk.bone_names)
-
-    def poses(t):
-        return sk.forward(*traj.sample(t))
-
-    def inputs(h):
-        d = driver()
-        return lambda t: d.control(poses(t), h)
-
-    carrier = driver()
-    return Scenario("jelly_man", model, duration, sample_dt, lambda: carrier.rigid_state(poses(0.0)), inputs,
-                    lambda t: carrier.rigid_state(poses(t)).u)
-
-
-def make_scenario(name: str, cfg: dict) -> Scenario:
-    if name == "jelly_man":
-        return walk_scenario(cfg["walk_duration"], cfg["sample_dt"], cfg.get("walk_tets"))
-    return shape_scenario(name, cfg["duration"], cfg["sample_dt"])
-
-
-# -- runs ----------------------------------------------------------------------------------------
-@dataclass
-class Run:
-    u: np.ndarray                   # (S, n, 3) displacement at the sample times sample_dt, 2 sample_dt, ...
-    ms_per_step: float = math.nan
-    substeps: int = 1
-    setup_s: float = 0.0
-    status: str = "ok"
-
-
-def steps_per_sample(sc: Scenario, h: float) -> int:
-    r = sc.sample_dt / h
-    if not (h > 0 and abs(r - round(r)) < 1e-6 and round(r) >= 1):
-        raise ValueError(f"step h = {h:g} s must divide the sample interval {sc.sample_dt:g} s")
-    return int(round(r))
-
-
-class RunInProgress:
-    """One run of the scenario with ``integ`` at step h, advanced a few samples at a time (``advance``), so the
-    report can take turns between its runs (``interleaved_runs``). Timed: three warm-up steps on a throw-away
-    state first (compile, factorize), then the wall time of every step (inputs excluded)."""
-
-    def __init__(self, sc: Scenario, integ, h: float, timed: bool = True):
-        self.sc, self.integ, self.h, self.timed = sc, integ, h, timed
-        self.per = steps_per_sample(sc, h)
-        self._inputs = sc.inputs(h)
-        if timed:
-            scratch, warm = sc.start(), sc.inputs(h)
-            for k in range(3):
-                integ.step(scratch, warm(k * h), h)
-        self.state = sc.start()
-        self.u = np.empty((sc.n_samples, sc.model.n_vertices, 3))
-        self.samples_done = 0
-        self.times: list[float] = []
-        self.substeps = 1
-
-    @property
-    def done(self) -> bool:
-        return self.samples_done >= self.sc.n_samples
-
-    def advance(self, samples: int, time_first: bool = True) -> None:
-        """Up to ``samples`` more samples; ``time_first=False`` leaves the first step out of the times (its
-        caches are cold after another run's turn)."""
-        timed = time_first
-        for _ in range(min(samples, self.sc.n_samples - self.samples_done)):
-            j = self.samples_done
-            for s in range(self.per):
-                control = self._inputs((j * self.per + s) * self.h)
-                t0 = time.perf_counter()
-                info = self.integ.step(self.state, control, self.h)
-                if timed:
-                    self.times.append(time.perf_counter() - t0)
-                timed = True
-                self.substeps = max(self.substeps, info.substeps)
-            self.u[j] = self.state.u
-            self.samples_done += 1
-
-    def result(self) -> Run:
-        return Run(self.u, float(np.median(self.times)) * 1e3 if self.timed else math.nan, self.substeps)
-
-
-def simulate(sc: Scenario, integ, h: float, timed: bool = True) -> Run:
-    """Run the scenario with ``integ`` at step h, start to end."""
-    run = RunInProgress(sc, integ, h, timed)
-    run.advance(sc.n_samples)
-    return run.result()
 
 
 # Each run's turn lasts at least this many steps; its first step is not timed (cold caches after the others').
@@ -248,14 +124,6 @@ def interleaved_runs(runs: dict, progress: Callable[[str], None] = lambda s: Non
             told = reached * 4 // total
             progress(f"sample {reached}/{total} of every run, {len(live)} runs in turn")
     return out
-
-
-def reference(sc: Scenario, kind: str) -> Run:
-    """The converged reference of the model kind ('linear' or 'corotated'); see the module docstring."""
-    integ = make_integrator("clustered", sc.model, safety=REF_SAFETY, max_substeps=10 ** 6,
-                            warp=(kind == "corotated"))
-    h = sc.sample_dt if sc.carried is None else REF_INPUT_STEP
-    return simulate(sc, integ, h, timed=False)
 
 
 @dataclass
@@ -383,7 +251,7 @@ def table1_rows(points: list[MeasuredPoint], h: float = TABLE_H) -> list[list[st
 def write_markdown(path: Path, points, cfg: dict, seconds: float, budget_example: tuple | None,
                    peer: list[list[str]] | None = None) -> None:
     lines = [f"# Speed against error ({'quick' if cfg.get('quick') else 'full'} run)", "",
-             "Regenerate: `python -m clusterfem_ros.bench.speed_error_report"
+             "Regenerate: `python -m benchmarks.speed_error_report"
              + (" --quick" if cfg.get("quick") else "") + f" --out {path.parent}`", "",
              f"Runs: shapes {cfg['duration']:g} s, jelly man {cfg['walk_duration']:g} s; samples every "
              f"{cfg['sample_dt']:g} s; measured in {seconds:.0f} s on this machine (2 shared cores, serial "
@@ -411,7 +279,7 @@ def write_markdown(path: Path, points, cfg: dict, seconds: float, budget_example
         from . import peer_mujoco
         lines += [f"## A peer: MuJoCo's tetrahedral flex, same mesh, material, load and step (h = {TABLE_H:g} s)", "",
                   table(peer_mujoco.HEADERS, peer) if peer else "MuJoCo is not installed: no peer rows.", "",
-                  peer_mujoco.NOTE + " What each simulator computes: `clusterfem_ros/bench/peer_mujoco.py`.", ""]
+                  peer_mujoco.NOTE + " What each simulator computes: `benchmarks/peer_mujoco.py`.", ""]
     if budget_example:
         lines += ["## Method choice from these points", ""] + [f"- {s}" for s in budget_example] + [""]
     path.write_text("\n".join(lines))
@@ -504,9 +372,10 @@ def budget_examples(points) -> list[str]:
     return out
 
 
-def write_outputs(out: Path, points, extras: dict, cfg: dict) -> dict:
+def write_outputs(out: Path, points, extras: dict, cfg: dict, points_path: Path | None = None) -> dict:
+    """The points CSV (``points_path``, default <out>/speed_error.csv), the tables and the figures."""
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"csv": write_points(out / "speed_error.csv", points), "md": out / "speed_error.md",
+    paths = {"csv": write_points(points_path or out / "speed_error.csv", points), "md": out / "speed_error.md",
              "png": out / "speed_error.png", "figure5": out / "figure5.png"}
     examples = budget_examples(points)
     write_markdown(paths["md"], points, cfg, extras["seconds"], examples, extras.get("peer"))
@@ -521,12 +390,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="sphere + jelly man, 0.2 s runs, 3 steps (~1-2 min)")
     ap.add_argument("--out", default=None, help="output folder (default reports/speed_error[_quick])")
     ap.add_argument("--scenes", nargs="+", choices=FULL["scenes"], help="only these scenes")
-    ap.add_argument("--no-peer", action="store_true", help="skip the MuJoCo peer (bench.peer_mujoco) in this run")
+    ap.add_argument("--points", default=None, help="measured points CSV to write (default: the package's "
+                    "clusterfem_ros/data/speed_error.csv for a full run into the default --out, else <out>/speed_error.csv)")
+    ap.add_argument("--no-peer", action="store_true", help="skip the MuJoCo peer (benchmarks.peer_mujoco) in this run")
     args = ap.parse_args(argv)
     cfg = dict(QUICK if args.quick else FULL, quick=args.quick)
     if args.scenes:
         cfg["scenes"] = tuple(args.scenes)
     out = Path(args.out or ("reports/speed_error_quick" if args.quick else "reports/speed_error"))
+    full = not (args.quick or args.scenes or args.out)
+    points_path = Path(args.points) if args.points else (SHIPPED_POINTS if full else None)
     print(f"speed vs error: scenes {', '.join(cfg['scenes'])}; methods {', '.join(METHODS)}; "
           f"material E={MATERIAL.E:g} Pa nu={MATERIAL.nu} xi={MATERIAL.xi} zeta={MATERIAL.zeta:g}", flush=True)
     say = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731
@@ -536,7 +409,7 @@ def main(argv: list[str] | None = None) -> int:
         from .peer_mujoco import compare
         say("peer: the same shapes in MuJoCo's flex")
         extras["peer"] = compare(shapes, TABLE_H, cfg["duration"], "Euler", progress=say) or []
-    paths = write_outputs(out, points, extras, cfg)
+    paths = write_outputs(out, points, extras, cfg, points_path)
     print(paths["md"].read_text())
     print("wrote " + ", ".join(str(p) for p in paths.values()))
     return 0

@@ -1,12 +1,12 @@
 """A peer side by side: the same mesh, material, load and step in MuJoCo's tetrahedral flex bodies.
 
-    python -m clusterfem_ros.bench.peer_mujoco [--shapes sphere cube torus] [--step 1e-3] [--duration 0.5]
+    python -m benchmarks.peer_mujoco [--shapes sphere cube torus] [--step 1e-3] [--duration 0.5]
 
 MuJoCo is pinned in requirements.lock (4.0.0) and runs in the speed-vs-error report's run; without it
 this prints how to install it and exits 0. Each paper shape, bottom 20 % pinned, falls under gravity
 from rest for ``duration`` s in both simulators at the same step; printed per shape: ms/step of each
 (median of per-step wall times after warm-up), the peak sag, and how far MuJoCo's final shape is from
-our converged reference of the linear model (speed_error_report.reference).
+our converged reference of the linear model (scenarios.reference).
 
 What each computes (so the comparison is honest):
 - ours: linear (Cauchy-strain) FEM, lumped mass by tet volume, Rayleigh damping D = xi M + zeta K,
@@ -28,8 +28,9 @@ import time
 
 import numpy as np
 
-from ..fem.integrators import make_integrator
+from clusterfem_ros.fem.integrators import make_integrator
 from .core_benchmark import MATERIAL
+from .scenarios import reference, shape_scenario, simulate
 from .timing import table
 
 
@@ -79,7 +80,6 @@ def run_mujoco(mujoco, sc, h: float, integrator: str) -> dict:
 
 
 def run_ours(sc, h: float) -> dict:
-    from .speed_error_report import simulate
     integ = make_integrator("clustered", sc.model)
     r = simulate(sc, integ, h)
     return {"ms": r.ms_per_step, "u": r.u, "substeps": r.substeps}
@@ -96,7 +96,6 @@ def compare(shapes, h: float, duration: float, integrator: str, progress=print) 
     mujoco = mujoco_or_none()
     if mujoco is None:
         return None
-    from .speed_error_report import reference, shape_scenario
     rows = []
     for name in shapes:
         sc = shape_scenario(name, duration, 0.01)

@@ -1,6 +1,6 @@
 """Scaling: ms/step and memory against mesh size, 1k to 200k+ tets, with the fitted log-log slope.
 
-    python -m clusterfem_ros.bench.scaling [--max-tets 220000] [--timeout 900]
+    python -m benchmarks.scaling [--max-tets 220000] [--timeout 900]
 
 Body: the paper's cube (0.1 m, bottom 20 % held, the core benchmark's material) split into n^3 voxels
 of 5 tets. Step h = 0.8 h_crit(n), so the explicit methods do exactly one sub-step: the columns are the
@@ -59,10 +59,10 @@ def _reset_peak() -> bool:
 
 def measure_one(n: int, label: str) -> dict:
     """One (size, method) in this process; returns the numbers as a dict (printed as JSON by --one)."""
-    from ..fem.integrators import make_integrator
-    from ..fem.model import Control, State, build_model
-    from ..fem.stability import critical_step, max_eigenvalue
-    from ..fem.voxel_mesh import box_mesh
+    from clusterfem_ros.fem.integrators import make_integrator
+    from clusterfem_ros.fem.model import Control, State, build_model
+    from clusterfem_ros.fem.stability import critical_step, max_eigenvalue
+    from clusterfem_ros.fem.voxel_mesh import box_mesh
     from .core_benchmark import MATERIAL
     from .timing import median_seconds
     method, opts = METHODS[label]
@@ -94,7 +94,7 @@ def measure_one(n: int, label: str) -> dict:
 
 
 def _child(n: int, label: str, timeout: float) -> dict:
-    cmd = [sys.executable, "-m", "clusterfem_ros.bench.scaling", "--one", str(n), label]
+    cmd = [sys.executable, "-m", "benchmarks.scaling", "--one", str(n), label]
     try:
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:

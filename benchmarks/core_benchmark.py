@@ -1,10 +1,10 @@
 """Issue-2 benchmark: ms/step of the clustered and standard methods on the paper's three objects.
 
-    python -m clusterfem_ros.bench.core_benchmark [--step 1e-3] [--scale 1.0] [--sizes 1,2,4]
+    python -m benchmarks.core_benchmark [--step 1e-3] [--scale 1.0] [--sizes 1,2,4]
 
 Every method runs the same scene (the object's bottom fixed, gravity, same material and step) and
 is timed after warm-up (JIT compilation excluded). All methods and kernel pieces of a shape are timed in
-interleaved rounds (bench/timing.interleaved_seconds): times are medians over the rounds, ratios the medians
+interleaved rounds (benchmarks/timing.interleaved_seconds): times are medians over the rounds, ratios the medians
 of each round's own ratio, so a slow spell of the host cannot flip a target (timed one after the other, one
 run read the sphere's implicit-direct ratio as 17x; interleaved, 21-27x on the same host). 'stream' is a bare
 pass that reads every block and column index of the clusters once, vectorized: the memory-bound floor for the
@@ -89,14 +89,14 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from ..fem.cluster_force_kernel import (_k, _vector_at, accumulating_loop, cluster_args, force_kernel_serial,
+from clusterfem_ros.fem.cluster_force_kernel import (_k, _vector_at, accumulating_loop, cluster_args, force_kernel_serial,
                                         scratch, stiffness_held_w_serial, stiffness_slices_serial)
-from ..fem.cluster_slices import aligned_zeros
-from ..fem.integrators import make_integrator
-from ..fem.material import Material
-from ..fem.model import Control, State, build_model
-from ..fem.numba_config import contains_threads
-from ..fem.voxel_mesh import PAPER_SHAPES, paper_mesh
+from clusterfem_ros.fem.cluster_slices import aligned_zeros
+from clusterfem_ros.fem.integrators import make_integrator
+from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.model import Control, State, build_model
+from clusterfem_ros.fem.numba_config import contains_threads
+from clusterfem_ros.fem.voxel_mesh import PAPER_SHAPES, paper_mesh
 from .timing import interleaved_seconds, paired_ratio, table
 
 PAPER_MS = {"sphere": (1.60, 0.73, 0.83), "cube": (1.89, 0.92, 1.09), "torus": (2.15, 0.97, 1.12)}

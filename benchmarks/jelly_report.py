@@ -1,6 +1,6 @@
 """The paper's jelly man (Figure 1): a walking humanoid driving a soft body, with and without warping.
 
-    python -m clusterfem_ros.bench.jelly_report [--duration 3] [--step 1e-3] [--tets 4800]
+    python -m benchmarks.jelly_report [--duration 3] [--step 1e-3] [--tets 4800]
 
 The default scene: ``jelly_man_mesh`` (~4800 tets) around the built-in ~48-DOF humanoid, bound with the
 scene defaults (``config.PARAMS``: binding.level_radii / kp / kd, the material), driven by
@@ -18,12 +18,12 @@ import time
 
 import numpy as np
 
-from ..body import LevelGains, SkeletonDriver, bind_to_skeleton
-from ..config import PARAMS
-from ..fem.integrators import make_integrator
-from ..fem.material import Material
-from ..fem.model import State, build_model
-from ..fem.tet_mesh import signed_volumes
+from clusterfem_ros.body import LevelGains, SkeletonDriver, bind_to_skeleton
+from clusterfem_ros.config import PARAMS
+from clusterfem_ros.fem.integrators import make_integrator
+from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.model import State, build_model
+from clusterfem_ros.fem.tet_mesh import signed_volumes
 from .timing import table
 
 PAPER_STEPS_PER_S = 1000 / 2.0
@@ -52,10 +52,10 @@ def rest_configuration(skeleton) -> np.ndarray:
 
 def build_scene(target_tets: int, duration: float, step: float):
     """(skeleton, trajectory, model, binding, gains) of the default jelly man scene."""
-    from ..skeleton.humanoid import default_humanoid
-    from ..skeleton.jelly_body import jelly_man_mesh
-    from ..skeleton.kinematics import Skeleton
-    from ..skeleton.procedural_walk import procedural_walk
+    from clusterfem_ros.skeleton.humanoid import default_humanoid
+    from clusterfem_ros.skeleton.jelly_body import jelly_man_mesh
+    from clusterfem_ros.skeleton.kinematics import Skeleton
+    from clusterfem_ros.skeleton.procedural_walk import procedural_walk
     spec = default_humanoid()
     skeleton = Skeleton.from_urdf_string(spec.urdf)
     traj = procedural_walk(duration + step, 1.0 / step)

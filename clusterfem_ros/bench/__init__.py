@@ -1,1 +1,0 @@
-"""Benchmark commands: each prints a table; none is a test."""
