@@ -12,6 +12,8 @@ from typing import Any
 
 import yaml
 
+from .errors import ClusterFemError
+
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg", "modal")
 BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh")
 SKELETONS = ("builtin", "urdf_file", "robot_description", "none")
@@ -92,7 +94,7 @@ PARAMS: tuple[Param, ...] = (
 _BY_NAME = {p.name: p for p in PARAMS}
 
 
-class ConfigError(ValueError):
+class ConfigError(ClusterFemError, ValueError):
     """A scene parameter with an invalid value; the message names it, the value and the valid range."""
 
 

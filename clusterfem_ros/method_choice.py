@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
+from .errors import ClusterFemError
+
 # metric -> (column, what it measures); every error is "smaller is better"
 METRICS = {
     "max_mm": "max vertex displacement error over the run [mm]",
@@ -33,7 +35,7 @@ REQUIRED = ("scene", "method", "h", "k", "ms_per_step") + tuple(METRICS)
 SHIPPED_POINTS = Path(__file__).resolve().parent / "data" / "speed_error.csv"
 
 
-class ChoiceError(ValueError):
+class ChoiceError(ClusterFemError, ValueError):
     """No measured point meets the budget, or the points/budget are unusable; the message says why."""
 
 

@@ -5,8 +5,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ClusterFemError
 
-class ParameterError(ValueError):
+
+class ParameterError(ClusterFemError, ValueError):
     """A physical parameter out of its valid range; the message names the value and the range."""
 
 

@@ -15,15 +15,16 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from ..errors import ClusterFemError
 from .material import Material
 from .model import Control, FemModel
 
 
-class StabilityError(RuntimeError):
+class StabilityError(ClusterFemError, RuntimeError):
     """The requested step cannot be made stable within the allowed sub-steps."""
 
 
-class DivergenceError(RuntimeError):
+class DivergenceError(ClusterFemError, RuntimeError):
     """The state became non-finite or exploded; it is never published."""
 
 

@@ -9,8 +9,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import ClusterFemError
 
-class MeshError(ValueError):
+
+class MeshError(ClusterFemError, ValueError):
     """A mesh that cannot be simulated; the message names the offending entity and the way out."""
 
 

@@ -17,12 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ClusterFemError
+
 CMU_UNIT_M = 0.056444
 CHANNEL_NAMES = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 _AXIS = {"X": 0, "Y": 1, "Z": 2}
 
 
-class BvhError(ValueError):
+class BvhError(ClusterFemError, ValueError):
     """A malformed BVH file; the message names the file line and what was expected."""
 
 

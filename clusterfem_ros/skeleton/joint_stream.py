@@ -28,10 +28,12 @@ from typing import Sequence
 
 import numpy as np
 
+from ..errors import ClusterFemError
+
 FATAL = frozenset({"out_of_order", "stale", "future", "bad_sample"})
 
 
-class StaleSample(ValueError):
+class StaleSample(ClusterFemError, ValueError):
     """Raised by ``push_or_raise`` for a rejected sample; ``kind`` is one of ``FATAL``."""
 
     def __init__(self, kind: str, message: str):

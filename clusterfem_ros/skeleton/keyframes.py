@@ -23,12 +23,13 @@ from typing import Sequence
 import numpy as np
 import yaml
 
+from ..errors import ClusterFemError
 from .trajectory import INTERPOLATIONS, JointTrajectory
 
 DEFAULT_PRISMATIC = ("root_x", "root_y", "root_z")
 
 
-class KeyframeError(ValueError):
+class KeyframeError(ClusterFemError, ValueError):
     """A key-frame file that cannot be played; the message names the file, line and frame."""
 
 

@@ -28,13 +28,14 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from ..errors import ClusterFemError
 from .fk_kernel import tree_forward
 from .urdf_builder import HELPER_MASS, TIP_SUFFIX
 
 SCALAR_KINDS = ("revolute", "continuous", "prismatic")
 
 
-class UrdfError(ValueError):
+class UrdfError(ClusterFemError, ValueError):
     """A URDF that cannot become a skeleton; the message names the element and the way out."""
 
 
