@@ -356,7 +356,7 @@ class Scene:
 
     def follow_inputs(self, max_steps: int | None = None, on_step: Callable[[], None] | None = None) -> StepReport:
         """physics.clock = input, called after every joint-state sample: start at the first accepted stamp,
-        then step up to the newest. The node and a replay (recording/replay.py) both step through this, so
+        then step up to the newest. The node and a replay (clusterfem_ros/replay.py) both step through this, so
         the same inputs give the same states. ``on_step()`` also sees the state at the start."""
         if self.sim_time is None:
             if self.driver is None or not self.stream.ready:

@@ -146,7 +146,8 @@ def test_recording_opens_in_rosbags_with_the_published_counts(world, tmp_path):
 
 def test_replaying_the_recorded_joint_states_reproduces_the_recorded_surfaces(world, tmp_path):
     from clusterfem_ros.config import load_scene_file
-    from clusterfem_ros.recording.replay import PARAMS_FILE, read_joint_states, read_surfaces, replay
+    from clusterfem_ros.recording.bag_reader import PARAMS_FILE, read_joint_states, read_surfaces
+    from clusterfem_ros.replay import replay
     from clusterfem_ros.scene import Scene
     sim = _sim(world, **{"recording.enabled": True, "recording.dir": str(tmp_path), "physics.clock": "input",
                          "warping": True})

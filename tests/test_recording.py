@@ -214,7 +214,8 @@ def test_the_sample_recording_replays_to_round_off_and_a_changed_physics_is_repo
     replay of a fresh recording is tested in test_node_skeleton.py). A failure here means the physics
     changed since it was recorded: record it again (bags/README.md). The same bag with a stiffer material
     must fail with exit 1 (0.0278 m off), naming the way out."""
-    from clusterfem_ros.recording.replay import PARAMS_FILE, main
+    from clusterfem_ros.recording.bag_reader import PARAMS_FILE
+    from clusterfem_ros.replay import main
     assert main([str(SAMPLE)]) == 0, capsys.readouterr()
     out = capsys.readouterr().out
     got = re.search(r"compared (\d+) surfaces; max vertex difference (\S+) m", out)

@@ -88,7 +88,7 @@ class ClusterFemNode(Node):
             self.recorder.add_topic(self._bag_topics[topic], msg_type, qos=qos)
         self.recording_path = path
         from ..config import scene_file_text
-        from ..recording.replay import PARAMS_FILE
+        from ..recording.bag_reader import PARAMS_FILE
         (path / PARAMS_FILE).write_text(scene_file_text(self.config))   # what a replay needs besides the inputs
         self.get_logger().info(f"recording to {path}")
 

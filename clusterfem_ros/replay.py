@@ -5,7 +5,7 @@ function of the inputs and the parameters; the bag folder keeps both (``scene_pa
 the .mcap). Replaying the joint states through a fresh Scene in the same order reproduces every
 recorded surface Marker (stamped with its simulated time) to round-off:
 
-    python -m clusterfem_ros.recording.replay bags/clusterfem_20261122_120000
+    python -m clusterfem_ros.replay bags/clusterfem_20261122_120000
 
 It exits with 1 when a bag recorded that way differs by more than ``--tolerance`` (the physics or the
 parameters' meaning changed since the recording), 2 when the bag cannot be replayed.
@@ -14,55 +14,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-PARAMS_FILE = "scene_parameters.yaml"
-
-
-@dataclass
-class JointSample:
-    log_ns: int                 # receive time (the node's clock)
-    stamp: float                # header stamp [s]
-    names: list
-    q: np.ndarray
-    v: np.ndarray | None
-
-
-def _reader(folder: Path):
-    from rosbags.highlevel import AnyReader
-    return AnyReader([Path(folder)])
-
-
-def read_joint_states(folder: str | Path, topic: str = "/joint_states") -> list[JointSample]:
-    """Every joint state in the bag, in recording order."""
-    out = []
-    with _reader(Path(folder)) as r:
-        conns = [c for c in r.connections if c.topic == topic]
-        if not conns:
-            raise ValueError(f"bag {str(folder)!r} has no {topic!r} topic (topics: "
-                             f"{sorted({c.topic for c in r.connections})})")
-        for c, log_ns, raw in r.messages(connections=conns):
-            m = r.deserialize(raw, c.msgtype)
-            stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
-            q = np.asarray(m.position, dtype=np.float64)
-            v = np.asarray(m.velocity, dtype=np.float64) if len(m.velocity) else None
-            out.append(JointSample(log_ns, stamp, list(m.name), q, v))
-    return out
-
-
-def read_surfaces(folder: str | Path, topic: str = "/clusterfem/surface") -> list[tuple[int, np.ndarray]]:
-    """(stamp in ns, triangle-list points (3t, 3)) of every recorded surface Marker."""
-    out = []
-    with _reader(Path(folder)) as r:
-        conns = [c for c in r.connections if c.topic == topic]
-        for c, _, raw in r.messages(connections=conns):
-            m = r.deserialize(raw, c.msgtype)
-            pts = np.array([[p.x, p.y, p.z] for p in m.points], dtype=np.float64).reshape(-1, 3)
-            out.append((m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, pts))
-    return out
+from .recording.bag_reader import PARAMS_FILE, JointSample, read_joint_states, read_surfaces
 
 
 def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.ndarray]:
@@ -83,7 +39,7 @@ def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.
             got[now] = verts[tris].reshape(-1, 3)
             k += 1
 
-    from ..fem.stability import DivergenceError, StabilityError
+    from .fem.stability import DivergenceError, StabilityError
     max_steps = scene.config["physics.max_catchup_steps"]
     for s in samples:                                     # as ClusterFemNode._on_joint_state / _advance
         stamp = s.stamp if s.stamp != 0.0 else s.log_ns * 1e-9     # as the node stamps unstamped samples
@@ -101,8 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tolerance", type=float, default=1e-6,
                     help="largest vertex difference [m] a physics.clock = input bag may show (default 1e-6)")
     args = ap.parse_args(argv)
-    from ..config import load_scene_file
-    from ..scene import Scene
+    from .config import load_scene_file
+    from .scene import Scene
     folder = Path(args.bag)
     params = folder / PARAMS_FILE
     if not params.exists():

@@ -1,0 +1,56 @@
+"""Read what the clusterfem node recorded in a bag folder: its joint states, its surface Markers, and the name of
+the scene parameter file it writes beside them. No ROS (rosbags decodes the CDR).
+
+The replay that drives a Scene with these lives above the recording layer, in clusterfem_ros/replay.py.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+PARAMS_FILE = "scene_parameters.yaml"
+
+
+@dataclass
+class JointSample:
+    log_ns: int                 # receive time (the node's clock)
+    stamp: float                # header stamp [s]
+    names: list
+    q: np.ndarray
+    v: np.ndarray | None
+
+
+def _reader(folder: Path):
+    from rosbags.highlevel import AnyReader
+    return AnyReader([Path(folder)])
+
+
+def read_joint_states(folder: str | Path, topic: str = "/joint_states") -> list[JointSample]:
+    """Every joint state in the bag, in recording order."""
+    out = []
+    with _reader(Path(folder)) as r:
+        conns = [c for c in r.connections if c.topic == topic]
+        if not conns:
+            raise ValueError(f"bag {str(folder)!r} has no {topic!r} topic (topics: "
+                             f"{sorted({c.topic for c in r.connections})})")
+        for c, log_ns, raw in r.messages(connections=conns):
+            m = r.deserialize(raw, c.msgtype)
+            stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+            q = np.asarray(m.position, dtype=np.float64)
+            v = np.asarray(m.velocity, dtype=np.float64) if len(m.velocity) else None
+            out.append(JointSample(log_ns, stamp, list(m.name), q, v))
+    return out
+
+
+def read_surfaces(folder: str | Path, topic: str = "/clusterfem/surface") -> list[tuple[int, np.ndarray]]:
+    """(stamp in ns, triangle-list points (3t, 3)) of every recorded surface Marker."""
+    out = []
+    with _reader(Path(folder)) as r:
+        conns = [c for c in r.connections if c.topic == topic]
+        for c, _, raw in r.messages(connections=conns):
+            m = r.deserialize(raw, c.msgtype)
+            pts = np.array([[p.x, p.y, p.z] for p in m.points], dtype=np.float64).reshape(-1, 3)
+            out.append((m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, pts))
+    return out
