@@ -89,8 +89,9 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from clusterfem_ros.fem.cluster_force_kernel import (_k, _vector_at, accumulating_loop, cluster_args, force_kernel_serial,
-                                        scratch, stiffness_held_w_serial, stiffness_slices_serial)
+from clusterfem_ros.fem.cluster_force_kernel import (_k, _vector_at, accumulating_loop, cluster_args,
+                                                     force_kernel_serial, scratch, stiffness_held_w_serial,
+                                                     stiffness_slices_serial)
 from clusterfem_ros.fem.cluster_slices import aligned_zeros
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.material import Material

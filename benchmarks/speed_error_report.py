@@ -391,7 +391,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="output folder (default reports/speed_error[_quick])")
     ap.add_argument("--scenes", nargs="+", choices=FULL["scenes"], help="only these scenes")
     ap.add_argument("--points", default=None, help="measured points CSV to write (default: the package's "
-                    "clusterfem_ros/data/speed_error.csv for a full run into the default --out, else <out>/speed_error.csv)")
+                    "clusterfem_ros/data/speed_error.csv for a full run into the default --out, else "
+                    "<out>/speed_error.csv)")
     ap.add_argument("--no-peer", action="store_true", help="skip the MuJoCo peer (benchmarks.peer_mujoco) in this run")
     args = ap.parse_args(argv)
     cfg = dict(QUICK if args.quick else FULL, quick=args.quick)

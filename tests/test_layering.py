@@ -1,0 +1,242 @@
+"""The package's layers and import graph, read from the sources with ast (nothing is imported to check imports).
+
+Layers, imports one way only (clusterfem_ros/__init__.py):
+  the numerical core, every module below nodes/: no rclpy, no ROS message packages, no msg_adapters, no nodes,
+    and inside it each part imports only the parts below it (ALLOWED);
+  msg_adapters: numpy arrays <-> ROS messages, no physics (no numba, scipy, pinocchio) and nothing of the core;
+  nodes: wire the two.
+No module of the installed package imports benchmarks/ or tests/ (they are not installed), and no modules
+import each other in a circle.
+"""
+from __future__ import annotations
+
+import ast
+import importlib
+import inspect
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("clusterfem_ros", "msg_adapters", "benchmarks")
+INSTALLED = ("clusterfem_ros", "msg_adapters")
+
+# part of the core -> the parts it may import besides itself ('' = the modules directly in clusterfem_ros/)
+ALLOWED = {
+    "errors": set(),
+    "recording": {"errors"},                      # a leaf: it records bytes, knows no physics and no scene
+    "fem": {"errors"},
+    "skeleton": {"errors", "fem"},                # the jelly body's mesh, numba build flags
+    "body": {"errors", "fem", "skeleton"},
+    "": {"errors", "recording", "fem", "skeleton", "body", ""},     # config, scene, replay, method choice, ...
+}
+PHYSICS = {"numba", "scipy", "pinocchio", "llvmlite"}
+# circles another change is taking apart (fem/ is being rewritten): listed so that no new circle hides among
+# them; test_the_known_fem_circles_are_gone fails (strict xfail) the day they are gone, to drop them here
+KNOWN_CIRCLES = [
+    frozenset({"clusterfem_ros.fem.integrators.base", "clusterfem_ros.fem.integrators.clustered_explicit",
+               "clusterfem_ros.fem.integrators.standard_explicit", "clusterfem_ros.fem.integrators.standard_implicit",
+               "clusterfem_ros.fem.modal"}),                # make_integrator in base.py imports every method
+    frozenset({"clusterfem_ros.fem.clusters", "clusterfem_ros.fem.cluster_slices"}),    # a lazy property
+]
+
+
+def module_files(root: Path = ROOT, packages=PACKAGES) -> dict[str, Path]:
+    """Dotted module name -> file, for every .py of the packages (a package by its __init__.py)."""
+    out = {}
+    for top in packages:
+        for f in sorted((root / top).rglob("*.py")):
+            parts = f.relative_to(root).with_suffix("").parts
+            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = f
+    return out
+
+
+def imports_of(name: str, path: Path, known) -> set[str]:
+    """Every module ``name`` imports, anywhere in the file (in functions too: a lazy import is still a
+    dependency), relative imports made absolute; ``from p import x`` gives p.x when that is a module of
+    ``known``, else p."""
+    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level > len(package):
+                raise ValueError(f"{path}:{node.lineno}: relative import above the top package")
+            base = package[:len(package) - node.level + 1] if node.level else []
+            module = ".".join(base + ([node.module] if node.module else []))
+            out |= {f"{module}.{a.name}" if f"{module}.{a.name}" in known else module for a in node.names}
+    return out
+
+
+def import_graph(root: Path = ROOT, packages=PACKAGES) -> dict[str, set[str]]:
+    files = module_files(root, packages)
+    return {name: imports_of(name, path, files) for name, path in files.items()}
+
+
+def part(module: str, graph: dict) -> str:
+    """The core part a module of clusterfem_ros belongs to: its subpackage ('fem', 'skeleton', ...), 'errors',
+    or '' for the other modules directly in clusterfem_ros/."""
+    parts = module.split(".")
+    if len(parts) == 1:
+        return ""
+    if parts[1] == "errors" or len(parts) > 2 or any(m.startswith(module + ".") for m in graph):
+        return parts[1]
+    return ""
+
+
+def is_ros(top: str) -> bool:
+    return (top in {"rclpy", "rcl", "rmw", "rosbag2_py", "launch", "launch_ros"} or top.startswith("rosidl")
+            or top.endswith(("_msgs", "_srvs", "_interfaces")))
+
+
+def layer_violations(graph: dict[str, set[str]]) -> list[str]:
+    """What each module imports against the layers (module docstring), one line per import."""
+    bad = []
+    for module, imported in sorted(graph.items()):
+        top = module.split(".")[0]
+        for imp in sorted(imported):
+            itop = imp.split(".")[0]
+            if top in INSTALLED and itop in ("benchmarks", "tests"):
+                bad.append(f"{module} imports {imp}: {itop}/ is not installed with the package")
+            if top == "msg_adapters":
+                if itop == "clusterfem_ros":
+                    bad.append(f"{module} imports {imp}: msg_adapters converts messages and knows nothing of the core")
+                if itop in PHYSICS:
+                    bad.append(f"{module} imports {imp}: msg_adapters holds no physics")
+            if top != "clusterfem_ros" or module.startswith("clusterfem_ros.nodes"):
+                continue
+            if is_ros(itop) or itop == "msg_adapters":
+                bad.append(f"{module} imports {imp}: the core (below nodes/) imports no ROS and no msg_adapters")
+            if itop == "clusterfem_ros" and imp != "clusterfem_ros":
+                if imp.startswith("clusterfem_ros.nodes"):
+                    bad.append(f"{module} imports {imp}: the core never imports nodes/")
+                    continue
+                own, other = part(module, graph), part(imp, graph)
+                if other != own and other not in ALLOWED[own]:
+                    bad.append(f"{module} imports {imp}: {own or 'clusterfem_ros/'} may import only "
+                               f"{sorted(ALLOWED[own]) or 'nothing of the package'}")
+    return bad
+
+
+def circles(graph: dict[str, set[str]]) -> list[frozenset]:
+    """The strongly connected components of the import graph with more than one module, or a module importing
+    itself (Tarjan's algorithm, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found = []
+    for start in graph:
+        if start in index:
+            continue
+        work = [(start, iter(sorted(graph[start] & graph.keys())))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        on_stack.add(start)
+        while work:
+            v, edges = work[-1]
+            w = next(edges, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on_stack.add(w)
+                    work.append((w, iter(sorted(graph[w] & graph.keys()))))
+                elif w in on_stack:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                component = set()
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    component.add(w)
+                    if w == v:
+                        break
+                if len(component) > 1 or v in graph[v]:
+                    found.append(frozenset(component))
+    return found
+
+
+GRAPH = import_graph()
+
+
+def test_the_graph_reads_every_kind_of_import(tmp_path):
+    """The reader sees absolute, relative (any depth), 'from . import module' and function-level imports, and
+    the checks flag each kind of breach, so a clean result below means something."""
+    files = {"clusterfem_ros/__init__.py": "", "clusterfem_ros/nodes/__init__.py": "",
+             "clusterfem_ros/nodes/node.py": "import rclpy\nfrom ..fem import kern\n",
+             "clusterfem_ros/fem/__init__.py": "", "clusterfem_ros/fem/kern.py": "import numpy\n",
+             "clusterfem_ros/fem/bad.py": "def f():\n    from ..nodes.node import x\n    import sensor_msgs.msg\n",
+             "clusterfem_ros/fem/up.py": "from ..scene import Scene\n",
+             "clusterfem_ros/recording/__init__.py": "", "clusterfem_ros/recording/rec.py": "from .. import scene\n",
+             "clusterfem_ros/scene.py": "from .fem import up\nfrom clusterfem_ros.recording import rec\n",
+             "msg_adapters/__init__.py": "", "msg_adapters/m.py": "import numba\nfrom clusterfem_ros.fem import kern\n"}
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    g = import_graph(tmp_path, ("clusterfem_ros", "msg_adapters"))
+    assert g["clusterfem_ros.nodes.node"] == {"rclpy", "clusterfem_ros.fem.kern"}
+    assert g["clusterfem_ros.fem.bad"] == {"clusterfem_ros.nodes.node", "sensor_msgs.msg"}
+    assert g["clusterfem_ros.recording.rec"] == {"clusterfem_ros.scene"}
+    bad = "\n".join(layer_violations(g))
+    for expected in ("fem.bad imports clusterfem_ros.nodes.node: the core never imports nodes/",
+                     "fem.bad imports sensor_msgs.msg: the core (below nodes/) imports no ROS",
+                     "fem.up imports clusterfem_ros.scene: fem may import only ['errors']",
+                     "recording.rec imports clusterfem_ros.scene: recording may import only ['errors']",
+                     "msg_adapters.m imports numba: msg_adapters holds no physics",
+                     "msg_adapters.m imports clusterfem_ros.fem.kern: msg_adapters converts messages"):
+        assert expected in bad, expected
+    assert "nodes.node" not in bad.replace("imports clusterfem_ros.nodes.node", "")     # nodes may import ROS
+    assert circles(g) == [frozenset({"clusterfem_ros.scene", "clusterfem_ros.fem.up",
+                                     "clusterfem_ros.recording.rec"})]
+
+
+def test_the_graph_holds_the_package():
+    """The real graph, read: every part of the core is there and the known edges are found."""
+    assert {part(m, GRAPH) for m in _core_modules()} == set(ALLOWED)
+    assert "rclpy" in {i.split(".")[0] for i in GRAPH["clusterfem_ros.nodes.clusterfem_node"]}
+    assert "clusterfem_ros.scene" in GRAPH["clusterfem_ros.replay"]
+    assert "clusterfem_ros.fem.integrators.base" in GRAPH["clusterfem_ros.fem.integrators.clustered_explicit"]
+
+
+def test_every_module_keeps_to_its_layer():
+    bad = layer_violations(GRAPH)
+    assert not bad, "imports against the layers:\n" + "\n".join(bad)
+
+
+def test_no_import_circles_but_the_known_fem_ones():
+    new = [sorted(c) for c in circles(GRAPH) if not any(c <= known for known in KNOWN_CIRCLES)]
+    assert not new, f"modules importing each other in a circle: {new}"
+
+
+@pytest.mark.xfail(strict=True, reason="fem/ keeps two circles (integrators/base <-> the integrators and modal "
+                   "through make_integrator; clusters <-> cluster_slices through a lazy property) while another "
+                   "change rewrites those files; when this passes, empty KNOWN_CIRCLES")
+def test_the_known_fem_circles_are_gone():
+    assert not [sorted(c) for c in circles(GRAPH) if any(c <= known for known in KNOWN_CIRCLES)]
+
+
+def _core_modules():
+    return sorted(m for m in GRAPH if m.startswith("clusterfem_ros") and not m.startswith("clusterfem_ros.nodes"))
+
+
+def test_every_error_the_core_defines_derives_from_the_common_root():
+    """Every exception class of the core (public: a private marker such as recording's _Reported is not an
+    error the caller sees) is a ClusterFemError, and keeps a builtin base a caller may already catch."""
+    from clusterfem_ros.errors import ClusterFemError
+    found = []
+    for name in _core_modules():
+        module = importlib.import_module(name)
+        for obj in vars(module).values():
+            if (inspect.isclass(obj) and issubclass(obj, BaseException) and obj.__module__ == name
+                    and not obj.__name__.startswith("_") and obj is not ClusterFemError):
+                found.append(obj)
+                assert issubclass(obj, ClusterFemError), f"{name}.{obj.__name__} does not derive from ClusterFemError"
+                assert issubclass(obj, (ValueError, RuntimeError)), f"{name}.{obj.__name__} lost its builtin base"
+    names = {e.__name__ for e in found}
+    assert {"ConfigError", "DivergenceError", "StabilityError", "MeshError", "ChoiceError"} <= names, names
