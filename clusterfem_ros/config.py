@@ -6,6 +6,7 @@ A scene says what exists: outputs and features it does not ask for are neither b
 """
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -239,12 +240,14 @@ def scene_file_text(config: SceneConfig, node_name: str = NODE_NAME) -> str:
 
 
 def default_scene_path() -> Path:
-    """config/default_scene.yaml from the source tree, or from share/ when installed."""
+    """config/default_scene.yaml from the source tree, or from share/ when installed: through the ament index
+    (colcon), else under the environment's prefix (where ``pip install`` puts setup.py's data_files)."""
     here = Path(__file__).resolve().parent.parent / "config" / "default_scene.yaml"
     if here.exists():
         return here
     try:
         from ament_index_python.packages import get_package_share_directory
         return Path(get_package_share_directory("clusterfem_ros")) / "config" / "default_scene.yaml"
-    except Exception:  # not installed through ament either
-        return here
+    except Exception:  # not installed through ament: a pip install
+        pip_share = Path(sys.prefix) / "share" / "clusterfem_ros" / "config" / "default_scene.yaml"
+        return pip_share if pip_share.exists() else here
