@@ -40,9 +40,9 @@ sum |u - u_ref|^2 / sum |u_ref - u_carried|^2 (u_carried: the skeleton's rigid c
 zero for the shapes, so only deformation counts), the max vertex error [mm], the relative L2 of the
 element von Mises stress (corotated for the warped model), and max |V - V_ref| / V0 [%].
 
-Writes the measured points as CSV (read by clusterfem_ros.method_choice): a full run into the default
-``--out`` replaces the copy the package ships (clusterfem_ros/data/speed_error.csv, what a scene's error
-budget reads), any other run writes <out>/speed_error.csv; ``--points`` names another file. Writes into
+Writes the measured points as CSV (read by clusterfem_ros.method_choice): a full run (every scene, not
+--quick) replaces the copy the package ships (clusterfem_ros/data/speed_error.csv, what a scene's error
+budget reads), a partial one writes <out>/speed_error.csv; ``--points`` names another file. Writes into
 ``--out``: speed_error.md (tables, beside the paper's Table 1), speed_error.png (error against compute per
 simulated second, log-log, Pareto front marked) and figure5.png (displacement difference to the
 reference on the surface, clustered vs modal 30: the paper's Figure 5). In the same run the shapes go
@@ -372,6 +372,14 @@ def budget_examples(points) -> list[str]:
     return out
 
 
+def points_destination(quick: bool, scenes, points: str | None) -> Path | None:
+    """Where the run writes its measured points: ``points`` if given, the package's shipped copy after a full
+    run (every scene, not quick), else None (<out>/speed_error.csv): a partial run never replaces it."""
+    if points:
+        return Path(points)
+    return None if quick or scenes else SHIPPED_POINTS
+
+
 def write_outputs(out: Path, points, extras: dict, cfg: dict, points_path: Path | None = None) -> dict:
     """The points CSV (``points_path``, default <out>/speed_error.csv), the tables and the figures."""
     out.mkdir(parents=True, exist_ok=True)
@@ -391,16 +399,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="output folder (default reports/speed_error[_quick])")
     ap.add_argument("--scenes", nargs="+", choices=FULL["scenes"], help="only these scenes")
     ap.add_argument("--points", default=None, help="measured points CSV to write (default: the package's "
-                    "clusterfem_ros/data/speed_error.csv for a full run into the default --out, else "
-                    "<out>/speed_error.csv)")
+                    "clusterfem_ros/data/speed_error.csv for a full run, <out>/speed_error.csv for "
+                    "--quick or --scenes)")
     ap.add_argument("--no-peer", action="store_true", help="skip the MuJoCo peer (benchmarks.peer_mujoco) in this run")
     args = ap.parse_args(argv)
     cfg = dict(QUICK if args.quick else FULL, quick=args.quick)
     if args.scenes:
         cfg["scenes"] = tuple(args.scenes)
     out = Path(args.out or ("reports/speed_error_quick" if args.quick else "reports/speed_error"))
-    full = not (args.quick or args.scenes or args.out)
-    points_path = Path(args.points) if args.points else (SHIPPED_POINTS if full else None)
+    points_path = points_destination(args.quick, args.scenes, args.points)
     print(f"speed vs error: scenes {', '.join(cfg['scenes'])}; methods {', '.join(METHODS)}; "
           f"material E={MATERIAL.E:g} Pa nu={MATERIAL.nu} xi={MATERIAL.xi} zeta={MATERIAL.zeta:g}", flush=True)
     say = lambda s: print(s, file=sys.stderr, flush=True)  # noqa: E731

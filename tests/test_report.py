@@ -122,6 +122,15 @@ def test_report_writes_csv_markdown_and_pngs(tmp_path):
     assert len(pareto_front(back)) >= 1
 
 
+def test_only_a_full_run_replaces_the_shipped_points(tmp_path):
+    from clusterfem_ros.method_choice import SHIPPED_POINTS
+    assert R.points_destination(False, None, None) == SHIPPED_POINTS
+    assert SHIPPED_POINTS.is_file() and SHIPPED_POINTS.parent.name == "data"     # package data, installed
+    assert R.points_destination(True, None, None) is None                           # --quick: <out>/
+    assert R.points_destination(False, ["sphere"], None) is None                    # --scenes: <out>/
+    assert R.points_destination(False, None, str(tmp_path / "p.csv")) == tmp_path / "p.csv"
+
+
 @pytest.mark.soak
 def test_quick_command_end_to_end(tmp_path):
     assert R.main(["--quick", "--out", str(tmp_path)]) == 0
