@@ -101,3 +101,14 @@ def test_the_main_job_renders_its_recording(tmp_path):
     assert (bag / "run.mp4").exists() and (bag / "run.gif").exists(), out
     frames = iio.imread(bag / "run.mp4", index=None)
     assert frames.shape[1:] == (720, 960, 3) and frames.shape[0] >= 10, out
+
+
+def test_the_render_command_on_the_sample_bag(tmp_path, capsys):
+    """The README's `python -m clusterfem_ros.render bags/sample_default_scene`, written outside the repository."""
+    import imageio.v3 as iio
+    out = tmp_path / "sample.mp4"
+    assert main([str(SAMPLE), "--mp4", str(out), "--size", "128x96", "--max-frames", "3", "--gif-width", "64"]) == 0
+    said = capsys.readouterr().out
+    assert f"[render] {out} and {out.with_suffix('.gif')}" in said
+    assert iio.imread(out, index=None).shape == (3, 96, 128, 3)
+    assert iio.imread(out.with_suffix(".gif"), index=None).shape[1:3] == (48, 64)
