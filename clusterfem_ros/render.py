@@ -135,7 +135,15 @@ class FrameRenderer:
         self.half = 0.62 * max(extent, 1e-3)
         self.light = _unit(0.5 * self.back + 0.6 * self.up - 0.3 * self.right)
         self.t0 = min([frames.surfaces[0].stamp_ns * 1e-9] + [s.stamp for s in frames.joint_states[:1]])
-        self.skeleton = _SkeletonPoser(frames.urdf, frames.joint_states) if frames.urdf and frames.joint_states else None
+        self.skeleton = self.skeleton_note = None
+        if frames.urdf and frames.joint_states:
+            try:
+                self.skeleton = _SkeletonPoser(frames.urdf, frames.joint_states)
+            except (ValueError, NotImplementedError) as exc:     # UrdfError is a ValueError
+                self.skeleton_note = f"the skeleton is not drawn: its URDF cannot be posed ({exc})"
+        else:
+            self.skeleton_note = ("the skeleton is not drawn: the bag has no joint states" if frames.urdf else
+                                  "the skeleton is not drawn: neither the bag nor its scene_parameters.yaml gives a URDF")
         self.target = None
 
         dpi = 100
@@ -247,6 +255,8 @@ def render_bag(folder: str | Path, mp4: str | Path | None = None, gif: str | Pat
     gif_every = max(int(round(fps / options.gif_fps)), 1)
     mp4.parent.mkdir(parents=True, exist_ok=True)
     renderer = FrameRenderer(frames, options)
+    if renderer.skeleton_note and frames.scene.get("skeleton.source", "builtin") != "none":
+        progress(f"[render] {renderer.skeleton_note}")
     small = []
     t_start = t_said = time.perf_counter()
     try:

@@ -112,3 +112,40 @@ def test_the_render_command_on_the_sample_bag(tmp_path, capsys):
     assert f"[render] {out} and {out.with_suffix('.gif')}" in said
     assert iio.imread(out, index=None).shape == (3, 96, 128, 3)
     assert iio.imread(out.with_suffix(".gif"), index=None).shape[1:3] == (48, 64)
+
+
+def test_the_drawn_skeleton_is_the_urdf_posed_by_the_latest_joint_state():
+    from clusterfem_ros.render import FrameRenderer
+    from clusterfem_ros.skeleton.humanoid import humanoid_urdf
+    from clusterfem_ros.skeleton.kinematics import Skeleton
+    frames = read_bag_frames(SAMPLE)
+    renderer = FrameRenderer(frames, VideoOptions(width=128, height=96))
+    try:
+        assert renderer.skeleton is not None and renderer.skeleton_note is None
+        frame = frames.surfaces[len(frames.surfaces) // 2]
+        t = frame.stamp_ns * 1e-9
+        starts, ends = renderer.skeleton.segments(t)
+        latest = [s for s in frames.joint_states if s.stamp <= t][-1]
+        reference = Skeleton.from_urdf_string(humanoid_urdf())
+        q = np.zeros(reference.nq)
+        q[[reference.joint_index(n) for n in latest.names]] = latest.q
+        a, b = reference.bone_segments(q)
+        assert np.allclose(starts, a, atol=1e-12) and np.allclose(ends, b, atol=1e-12)
+    finally:
+        renderer.close()
+
+
+def test_a_bag_without_a_skeleton_is_drawn_without_one(tmp_path):
+    import shutil
+    import imageio.v3 as iio
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    for f in (next(SAMPLE.glob("*.mcap")), SAMPLE / "metadata.yaml"):
+        shutil.copy(f, bag)
+    (bag / "scene_parameters.yaml").write_text((SAMPLE / "scene_parameters.yaml").read_text().replace(
+        "source: builtin", "source: urdf_file").replace("urdf_file: ''", "urdf_file: missing.urdf"))
+    lines = []
+    mp4, _ = render_bag(bag, tmp_path / "x.mp4", options=VideoOptions(width=128, height=96, max_frames=2, gif_width=0),
+                        progress=lines.append)
+    assert any("skeleton is not drawn" in line and "URDF" in line for line in lines), lines
+    assert iio.imread(mp4, index=None).shape == (2, 96, 128, 3)
