@@ -85,13 +85,9 @@ def test_the_main_job_renders_its_recording(tmp_path):
     """scripts/run records a bag and renders it beside the PNG: run.mp4 and run.gif in the bag folder."""
     import imageio.v3 as iio
     from clusterfem_ros.config import SceneConfig, scene_file_text
-    from clusterfem_ros.fem.voxel_mesh import paper_mesh
-    x = paper_mesh("sphere").vertices
-    cap = [float(x[:, 0].mean()), float(x[:, 1].mean()), float(x[:, 2].max())]
-    scene = tmp_path / "hanging.yaml"
+    scene = tmp_path / "cube.yaml"                  # the paper's cube, its bottom held, sagging under gravity
     scene.write_text(scene_file_text(SceneConfig().with_values(
-        body__kind="sphere", skeleton__source="none", body__fix_bottom=False, anchors__points=cap,
-        anchors__radius=0.05, output__marker_rate_hz=10.0)))
+        body__kind="cube", skeleton__source="none", body__fix_bottom=True, output__marker_rate_hz=10.0)))
     env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="SHM", ROS_DOMAIN_ID=str(140 + os.getpid() % 20))
     run = subprocess.run([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--duration", "2", "--scene", str(scene),
                           "--bags", str(tmp_path / "bags")], env=env, capture_output=True, text=True, timeout=300)
@@ -100,7 +96,8 @@ def test_the_main_job_renders_its_recording(tmp_path):
     bag = Path(run.stdout.split("\n  recording")[1].split()[0])
     assert (bag / "run.mp4").exists() and (bag / "run.gif").exists(), out
     frames = iio.imread(bag / "run.mp4", index=None)
-    assert frames.shape[1:] == (720, 960, 3) and frames.shape[0] >= 10, out
+    states = {s.stamp_ns for s in read_bag_frames(bag).surfaces}       # one video frame per recorded state
+    assert frames.shape == (len(states), 720, 960, 3) and len(states) >= 10, out
 
 
 def test_the_render_command_on_the_sample_bag(tmp_path, capsys):
