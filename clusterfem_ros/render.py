@@ -248,8 +248,8 @@ def render_bag(folder: str | Path, mp4: str | Path | None = None, gif: str | Pat
     frames = read_bag_frames(folder)
     # a Marker re-sent before the next physics step carries the same state: one video frame per state
     surfaces = [s for k, s in enumerate(frames.surfaces) if k == 0 or s.stamp_ns != frames.surfaces[k - 1].stamp_ns]
+    fps = _frame_rate(surfaces)
     surfaces = surfaces[: options.max_frames] if options.max_frames > 0 else surfaces
-    fps = _frame_rate(frames.surfaces)
     mp4 = Path(mp4) if mp4 else frames.folder / "run.mp4"
     gif = None if options.gif_width <= 0 else (Path(gif) if gif else mp4.with_suffix(".gif"))
     gif_every = max(int(round(fps / options.gif_fps)), 1)
