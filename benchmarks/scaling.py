@@ -14,8 +14,8 @@ memory can be measured: 'model MB' is the resident memory the assembled model ad
 resident memory of the method's set-up and stepping above that (Linux peak-RSS counter reset with
 /proc/self/clear_refs; the method's numba code is loaded on a tiny model first, so neither counts
 compiled code). ms/step is the median after warm-up (JIT excluded); set-up (factorization, eigen-solve,
-largest eigenvalue) is reported separately. The full run took 408 s on the 2-core host of 2026-11-23
-(implicit direct and modal 30 spend 94 and 118 s setting up at 214k tets; 864 s on the earlier host).
+largest eigenvalue) is reported separately. A full run takes about 7 minutes on 2 cores; implicit direct
+and modal 30 spend 94 and 118 s of it setting up at 214k tets (docs/benchmarks.md has the latest table).
 """
 from __future__ import annotations
 

@@ -16,7 +16,8 @@ runs to rtol 1e-6 instead of stopping at 20 iterations: the iterations used are 
 warped clustered explicit step, sub-stepped below its critical step. Rayleigh stiffness damping
 0.1 s makes that step tiny (h_crit <= 2 / (zeta lambda_max)); the last row shows the same explicit
 path with zeta = 1e-3 to separate the cost of the damping from the cost of the method.
-Steps/s: median per-step wall time after warm-up (JIT, factorization excluded), this machine, serial.
+Steps/s: median per-step wall time after warm-up (JIT, factorization excluded), serial, on the machine
+that runs it.
 """
 from __future__ import annotations
 

@@ -100,9 +100,9 @@ def failure_status(e: Exception) -> str:
 
 def interleaved_runs(runs: dict, progress: Callable[[str], None] = lambda s: None) -> dict:
     """Advance every RunInProgress of ``runs`` by turns of TURN_STEPS steps or more until all are done, so a
-    slow spell of the host (this 2-core VM has spells of 1.5-2x lasting seconds) falls on all of them alike
-    instead of on whichever was running: timed one after the other, one run read modal_10's step (whose cost
-    does not depend on h) 1.7x its neighbours' and implicit CG's at 1 ms above its cost at 2 ms. Returns, per
+    slow spell of the host (a shared VM can slow down 1.5-2x for seconds) falls on all of them alike instead
+    of on whichever is running: timed one after the other, modal_10's step (whose cost does not depend on h)
+    can read 1.7x its neighbours', and implicit CG's at 1 ms more than its cost at 2 ms. Returns, per
     key, the run's Run or the failure's status; ``progress`` hears every quarter of the samples."""
     out: dict = {}
     live = dict(runs)

@@ -1,6 +1,19 @@
-"""A PNG of a deformed surface coloured by a scalar field, for people without RViz (matplotlib, Agg)."""
+"""Pictures of the body for people without RViz: a still PNG of one state, and a recorded bag as a video.
+
+    python -m clusterfem_ros.render BAG [--size 960x720] [--max-frames N] [--no-gif]
+
+writes BAG/run.mp4 (H.264 through imageio-ffmpeg) and BAG/run.gif (small, looping): the surface coloured
+by von Mises stress as the node coloured it, with a colour bar; the skeleton posed from the bag's joint
+states; the simulated time; the camera following the body. Frames are drawn with matplotlib (Agg) as
+2-D polygons that this module projects, sorts back to front and shades itself, which is several times
+faster than matplotlib's 3-D axes for a few thousand triangles.
+"""
 from __future__ import annotations
 
+import argparse
+import sys
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -44,3 +57,266 @@ def render_surface_png(path: str | Path, vertices: np.ndarray, triangles: np.nda
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
     return path
+
+
+# -- the run as a video --------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Camera:
+    """Orthographic view from azimuth / elevation [deg] (azimuth 0 looks along -x, 90 along -y; z is up)."""
+    azimuth: float = -60.0
+    elevation: float = 12.0
+
+    def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(right, up, towards the viewer) unit vectors in world coordinates."""
+        az, el = np.radians(self.azimuth), np.radians(self.elevation)
+        back = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        right = np.array([-np.sin(az), np.cos(az), 0.0])
+        return right, np.cross(back, right), back
+
+
+@dataclass
+class VideoOptions:
+    width: int = 960                # MP4 frame size [px]; multiples of 16 keep the encoder from resizing
+    height: int = 720
+    max_frames: int = 0             # 0 = every surface Marker in the bag
+    gif_width: int = 400            # the small GIF for the README (0 = no GIF)
+    gif_fps: float = 10.0
+    camera: Camera = field(default_factory=Camera)
+
+
+def _stress_scale(scene: dict) -> tuple[float, str]:
+    """(stress mapped to the top colour [Pa], colour map) as the node coloured the recorded Markers."""
+    vmax = float(scene.get("output.stress_max", 0.0) or 0.0)
+    if vmax <= 0.0:
+        vmax = float(scene.get("material.young_modulus", 3.0e4)) / 20.0
+    return vmax, str(scene.get("output.colormap", "turbo"))
+
+
+class _SkeletonPoser:
+    """Bone segments at each frame's time, from the bag's joint states mapped onto the URDF by name."""
+
+    def __init__(self, urdf: str, samples):
+        from .skeleton.joint_map import JointMap
+        from .skeleton.kinematics import Skeleton
+        self.skeleton = Skeleton.from_urdf_string(urdf)
+        self.map = JointMap(self.skeleton.joint_names)
+        self.samples = samples
+        self.next = 0
+
+    def segments(self, stamp_s: float) -> tuple[np.ndarray, np.ndarray]:
+        while self.next < len(self.samples) and self.samples[self.next].stamp <= stamp_s:
+            s = self.samples[self.next]
+            self.map.update(s.names, s.q, s.v)
+            self.next += 1
+        return self.skeleton.bone_segments(self.map.q)
+
+
+class FrameRenderer:
+    """Draws one surface frame: the triangles projected by ``Camera``, sorted back to front and shaded by
+    their normal's angle to the light, over a floor grid, with the skeleton on top, the simulated time and
+    a von Mises colour bar. One matplotlib figure (Agg) is reused: the still parts (colour bar, labels) are
+    drawn once and restored, only the moving artists are drawn per frame, which halves a frame's cost.
+    Each call returns an (h, w, 3) uint8 image."""
+
+    def __init__(self, frames, options: VideoOptions):
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        from matplotlib.collections import LineCollection, PolyCollection
+
+        self.options, self.frames = options, frames
+        self.right, self.up, self.back = options.camera.axes()
+        first = frames.surfaces[0].corners
+        self.floor_z = float(first[:, 2].min())
+        self.centre_z = float(0.5 * (first[:, 2].min() + first[:, 2].max()))
+        # one scale for the whole video: the largest body extent seen, with a margin
+        extent = max(float(np.ptp(s.corners, axis=0).max()) for s in frames.surfaces[:: max(len(frames.surfaces) // 20, 1)])
+        self.half = 0.62 * max(extent, 1e-3)
+        self.light = _unit(0.5 * self.back + 0.6 * self.up - 0.3 * self.right)
+        self.t0 = min([frames.surfaces[0].stamp_ns * 1e-9] + [s.stamp for s in frames.joint_states[:1]])
+        self.skeleton = self.skeleton_note = None
+        if frames.urdf and frames.joint_states:
+            try:
+                self.skeleton = _SkeletonPoser(frames.urdf, frames.joint_states)
+            except (ValueError, NotImplementedError) as exc:     # UrdfError is a ValueError
+                self.skeleton_note = f"the skeleton is not drawn: its URDF cannot be posed ({exc})"
+        else:
+            self.skeleton_note = ("the skeleton is not drawn: the bag has no joint states" if frames.urdf else
+                                  "the skeleton is not drawn: neither the bag nor its scene_parameters.yaml gives a URDF")
+        self.target = None
+
+        dpi = 100
+        self.fig = plt.figure(figsize=(options.width / dpi, options.height / dpi), dpi=dpi)
+        self.ax = self.fig.add_axes((0.0, 0.0, 0.86, 1.0))
+        self.ax.set_axis_off()
+        self.ax.set_aspect("equal")
+        self.ax.set_xlim(-self.half, self.half)
+        half_y = self.half * options.height / (0.86 * options.width)     # the axes' own aspect
+        self.ax.set_ylim(-half_y, half_y)
+        # the moving artists are "animated": left out of the full draw, drawn over a saved background
+        self.floor = LineCollection([], colors="0.75", linewidths=0.6, zorder=1, animated=True)
+        self.body = PolyCollection([], edgecolors="none", linewidths=0, antialiaseds=False, zorder=2, animated=True)
+        self.bones = LineCollection([], colors="black", linewidths=1.6, alpha=0.85, zorder=3, animated=True)
+        for artist in (self.floor, self.body, self.bones):
+            self.ax.add_collection(artist)
+        self.clock = self.ax.text(0.03, 0.96, "", transform=self.ax.transAxes, fontsize=13, va="top",
+                                  family="monospace", animated=True)
+        vmax, cmap = _stress_scale(frames.scene)
+        cax = self.fig.add_axes((0.88, 0.12, 0.03, 0.76))
+        bar = self.fig.colorbar(matplotlib.cm.ScalarMappable(matplotlib.colors.Normalize(0.0, vmax), cmap), cax=cax)
+        bar.set_label("von Mises stress [Pa]")
+        self.fig.text(0.03, 0.02, f"{frames.folder.name}: {frames.scene.get('body.kind', 'body')}, "
+                      f"{frames.scene.get('method', '')}", fontsize=8, color="0.4")
+        self._plt = plt
+        self.fig.canvas.draw()                  # colour bar, labels: drawn once, then restored per frame
+        self.background = self.fig.canvas.copy_from_bbox(self.fig.bbox)
+
+    def _follow(self, corners: np.ndarray) -> np.ndarray:
+        """The camera target: the body's horizontal centre, eased so that a limb swing does not shake the view."""
+        centre = np.array([*corners[:, :2].mean(axis=0), self.centre_z])
+        self.target = centre if self.target is None else self.target + 0.35 * (centre - self.target)
+        return self.target
+
+    def _project(self, points: np.ndarray, target: np.ndarray) -> np.ndarray:
+        p = points - target
+        return np.stack([p @ self.right, p @ self.up], axis=-1)
+
+    def _floor_lines(self, target: np.ndarray, step: float = 0.25) -> np.ndarray:
+        n = int(np.ceil(2.0 * self.half / step)) + 1
+        gx = (np.floor(target[0] / step) + np.arange(-n, n + 1)) * step
+        gy = (np.floor(target[1] / step) + np.arange(-n, n + 1)) * step
+        z = self.floor_z
+        lines = [[(x, gy[0], z), (x, gy[-1], z)] for x in gx] + [[(gx[0], y, z), (gx[-1], y, z)] for y in gy]
+        return self._project(np.asarray(lines), target)
+
+    def draw(self, frame) -> np.ndarray:
+        tri = frame.corners.reshape(-1, 3, 3)
+        target = self._follow(frame.corners)
+        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+        shade = 0.45 + 0.55 * np.abs(normal @ self.light)
+        colour = frame.rgba.reshape(-1, 3, 4)[:, :, :3].mean(axis=1) * shade[:, None]
+        order = np.argsort((tri.mean(axis=1) - target) @ self.back)          # far first
+        self.body.set_verts(self._project(tri[order], target))
+        self.body.set_facecolors(np.clip(colour[order], 0.0, 1.0))
+        self.floor.set_segments(self._floor_lines(target))
+        t = frame.stamp_ns * 1e-9
+        if self.skeleton is not None:
+            a, b = self.skeleton.segments(t)
+            self.bones.set_segments(self._project(np.stack([a, b], axis=1), target))
+        self.clock.set_text(f"t = {t - self.t0:6.2f} s")
+        canvas = self.fig.canvas
+        canvas.restore_region(self.background)
+        for artist in (self.floor, self.body, self.bones, self.clock):
+            self.ax.draw_artist(artist)
+        return np.asarray(self.fig.canvas.buffer_rgba())[:, :, :3].copy()
+
+    def close(self) -> None:
+        self._plt.close(self.fig)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def _frame_rate(surfaces) -> float:
+    """Frames per second that play the recording at its simulated speed (the Markers' median spacing)."""
+    if len(surfaces) < 2:
+        return 10.0
+    dt = np.median(np.diff([s.stamp_ns for s in surfaces])) * 1e-9
+    return float(np.clip(1.0 / dt, 1.0, 120.0)) if dt > 0 else 10.0
+
+
+def render_bag(folder: str | Path, mp4: str | Path | None = None, gif: str | Path | None = None,
+               options: VideoOptions | None = None, progress=print) -> tuple[Path, Path | None]:
+    """Render a recorded bag to an MP4 (H.264 through imageio-ffmpeg) and a small looping GIF.
+
+    One video frame per recorded state (surface Marker), played at the simulated speed; the default outputs are
+    ``<bag>/run.mp4`` and ``<bag>/run.gif``. ``progress`` gets a line about once a second.
+    Returns (mp4 path, gif path or None).
+    """
+    import imageio.v2 as imageio
+    from PIL import Image
+
+    from .recording.bag_frames import read_bag_frames
+
+    options = options or VideoOptions()
+    if options.width < 64 or options.height < 64 or options.width % 2 or options.height % 2:
+        raise ValueError(f"video size {options.width}x{options.height}: give even sizes of at least 64 px "
+                         "(multiples of 16 avoid resizing by the encoder)")
+    frames = read_bag_frames(folder)
+    # a Marker re-sent before the next physics step carries the same state: one video frame per state
+    surfaces = [s for k, s in enumerate(frames.surfaces) if k == 0 or s.stamp_ns != frames.surfaces[k - 1].stamp_ns]
+    fps = _frame_rate(surfaces)
+    surfaces = surfaces[: options.max_frames] if options.max_frames > 0 else surfaces
+    mp4 = Path(mp4) if mp4 else frames.folder / "run.mp4"
+    gif = None if options.gif_width <= 0 else (Path(gif) if gif else mp4.with_suffix(".gif"))
+    gif_every = max(int(round(fps / options.gif_fps)), 1)
+    mp4.parent.mkdir(parents=True, exist_ok=True)
+    renderer = FrameRenderer(frames, options)
+    if renderer.skeleton_note and frames.scene.get("skeleton.source", "builtin") != "none":
+        progress(f"[render] {renderer.skeleton_note}")
+    small = []
+    t_start = t_said = time.perf_counter()
+    try:
+        with imageio.get_writer(mp4, fps=fps, codec="libx264", quality=7, macro_block_size=16,
+                                ffmpeg_log_level="error") as writer:
+            for k, frame in enumerate(surfaces):
+                image = renderer.draw(frame)
+                writer.append_data(image)
+                if gif is not None and k % gif_every == 0:
+                    h = int(round(options.gif_width * image.shape[0] / image.shape[1]))
+                    small.append(np.asarray(Image.fromarray(image).resize((options.gif_width, h), Image.LANCZOS)))
+                now = time.perf_counter()
+                if now - t_said >= 1.0 or k + 1 == len(surfaces):
+                    rate = (k + 1) / max(now - t_start, 1e-9)
+                    progress(f"[render] frame {k + 1}/{len(surfaces)} ({100 * (k + 1) / len(surfaces):3.0f} %), "
+                             f"{rate:.1f} frames/s, {(len(surfaces) - k - 1) / rate:.0f} s left")
+                    t_said = now
+    finally:
+        renderer.close()
+    if gif is not None:
+        imageio.mimsave(gif, small, duration=1000.0 * gif_every / fps, loop=0)
+    return mp4, gif
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size {text!r}: give WIDTHxHEIGHT in pixels, e.g. 960x720") from None
+    return w, h
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m clusterfem_ros.render",
+                                 description="Render a recorded bag to an MP4 and a small GIF: the surface coloured "
+                                             "by von Mises stress, the skeleton, the simulated time.")
+    ap.add_argument("bag", help="bag folder (the one scripts/run prints after 'recording') or its .mcap file")
+    ap.add_argument("--mp4", default=None, help="video file (default: <bag>/run.mp4)")
+    ap.add_argument("--gif", default=None, help="GIF file (default: the video's name with .gif)")
+    ap.add_argument("--no-gif", action="store_true", help="write the MP4 only")
+    ap.add_argument("--size", type=_size, default=(960, 720), help="video size WIDTHxHEIGHT (default 960x720)")
+    ap.add_argument("--gif-width", type=int, default=400, help="GIF width in pixels (default 400)")
+    ap.add_argument("--gif-fps", type=float, default=10.0, help="GIF frame rate (default 10)")
+    ap.add_argument("--max-frames", type=int, default=0, help="render only the first N surface frames (0 = all)")
+    ap.add_argument("--azimuth", type=float, default=Camera.azimuth, help="camera azimuth [deg] (default -60)")
+    ap.add_argument("--elevation", type=float, default=Camera.elevation, help="camera elevation [deg] (default 12)")
+    args = ap.parse_args(argv)
+    from .recording.bag_frames import BagFramesError
+    options = VideoOptions(width=args.size[0], height=args.size[1], max_frames=args.max_frames,
+                           gif_width=0 if args.no_gif else args.gif_width, gif_fps=args.gif_fps,
+                           camera=Camera(args.azimuth, args.elevation))
+    try:
+        t0 = time.perf_counter()
+        mp4, gif = render_bag(args.bag, args.mp4, args.gif, options)
+    except (BagFramesError, ValueError, OSError) as exc:
+        print(f"[render] cannot render {args.bag}: {exc}", file=sys.stderr)
+        return 2
+    print(f"[render] {mp4}" + (f" and {gif}" if gif else "") + f" in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -164,7 +164,7 @@ def test_a_falling_body_stays_rigid_with_warped_implicit(method):
 
 def test_symmetric_blocks_leave_only_a_small_diagonal_skew_part_in_the_torn_state():
     """The held-rotation Jacobian, 10 steps after the teleport: eq. 10's is non-symmetric in every block pair;
-    ours only in each vertex's own diagonal block, and much less (README, "Where we depart from eq. 10")."""
+    ours only in each vertex's own diagonal block, and much less (docs/method.md, "Stiffness warping, and why we depart from eq. 10")."""
     case = next(c for c in st.CASES if c.name == "teleport 0.5 m")
     model = case.model(1.0)
     integ = make_integrator("clustered", model, warp=True)

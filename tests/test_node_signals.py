@@ -54,8 +54,8 @@ def test_signal_finalises_the_recording(tmp_path, sig):
 @pytest.mark.parametrize("module, node_class", [("clusterfem_node", "ClusterFemNode"), ("player_node", "MocapPlayer")])
 def test_a_callback_racing_the_shutdown_is_not_an_error_but_a_real_error_is(monkeypatch, module, node_class):
     """SIGTERM shuts the context down from the signal handler; a timer callback already running then fails to
-    publish (seen once in six full test runs on 2026-11-23: exit code 1 and a traceback after 'recording
-    finalised'). Each node's main() must treat that as the shutdown it is, close the node, and still raise
+    publish (a rare race: exit code 1 and a traceback after 'recording finalised' when unhandled). Each
+    node's main() must treat that as the shutdown it is, close the node, and still raise
     real errors."""
     import importlib
 
@@ -99,9 +99,9 @@ def test_a_callback_racing_the_shutdown_is_not_an_error_but_a_real_error_is(monk
 
 
 def test_the_main_job_runs_a_scene_without_skeleton_without_waiting_for_a_player(tmp_path):
-    """scripts/run --scene <a scene with skeleton.source = none>: no mocap player to wait for (it used to wait
-    60 s for joint states that nothing used, then exit with a DDS hint and an abort), the body hangs from its
-    anchor, and the process ends cleanly."""
+    """scripts/run --scene <a scene with skeleton.source = none>: no mocap player to wait for (waiting would
+    take 60 s for joint states that nothing uses, then exit with a DDS hint), the body hangs from its anchor,
+    and the process ends cleanly."""
     from clusterfem_ros.config import SceneConfig, scene_file_text
     from clusterfem_ros.fem.voxel_mesh import paper_mesh
     x = paper_mesh("sphere").vertices

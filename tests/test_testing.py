@@ -1,4 +1,4 @@
-"""The README's launch-free test example, run as written, and the harness's own promises."""
+"""The launch-free test example of docs/architecture.md, run as written, and the harness's own promises."""
 import re
 from pathlib import Path
 
@@ -7,17 +7,17 @@ import pytest
 from clusterfem_ros.nodes.testing import RosWorld
 
 pytestmark = pytest.mark.ros
-README = Path(__file__).resolve().parents[1] / "README.md"
+EXAMPLE_PAGE = Path(__file__).resolve().parents[1] / "docs" / "architecture.md"
 
 
 def _example() -> str:
-    section = README.read_text().split("### Launch-free tests of your own", 1)[1]
+    section = EXAMPLE_PAGE.read_text().split("## Launch-free tests of your own", 1)[1]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
-def test_the_readme_example_runs_as_written():
+def test_the_docs_example_runs_as_written():
     scope: dict = {}
-    exec(compile(_example(), "README.md example", "exec"), scope)
+    exec(compile(_example(), "docs/architecture.md example", "exec"), scope)
     tests = [f for name, f in scope.items() if name.startswith("test_")]
     assert len(tests) == 1
     tests[0]()

@@ -2,7 +2,7 @@
 
 The per-vertex clusters (clusters.py, eqs. 5-6) keep their blocks row after row, each block's nine numbers
 together. A kernel that walks one row at a time must then gather w_j for every block and add its nine
-products into one 3-vector, which on this machine cost 2.7x a bare 4-wide read of the same blocks (see
+products into one 3-vector, which costs 2.7x a bare 4-wide read of the same blocks (see
 bench/core_benchmark.py). Here C rows are walked together, lane l of every vector belonging to row l of the
 slice: entry (r, c) of the k-th block of the C rows is one C-wide load, the C neighbours' w are loaded as
 rows and transposed once per position, and each row's sum stays in its own lane, so there is no horizontal
@@ -19,7 +19,7 @@ sum and no per-row loop exit.
   doubles there (the row and the next row's x, unused), so w has a row per lane and one more
   (``cluster_force_kernel.input_rows``): the last vertex's load ends inside it. Rows of 3 instead of rows padded
   to 4 let the passes that write w run over flat arrays (u + zeta v, element by element), vectorized: 0.20
-  instead of 0.42 us per pass on the paper's sphere (AMD EPYC, Zen 3), the same bits.
+  instead of 0.42 us per pass on the paper's sphere, the same bits.
 
 The kernel writes each row's K w to the row ``owner[s * C + l]`` of an (n_slices * C, 3) array: vertex i's
 sum lands in row i, in vertex order, so the per-vertex passes after it run over flat arrays; each padding

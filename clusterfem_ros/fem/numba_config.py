@@ -120,14 +120,14 @@ SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 # compiles them (segfault on the warped jelly man's threaded step after a test run had filled the cache, every
 # time; numba issues #4807, #8578). So ``compiled`` never lets that call happen: a threaded build is inlined
 # into every caller (numba IR, inline="always"), and a build that calls one is threaded itself, so its parallel
-# loops are its own and it calls only serial code. Before, threaded builds were not cached at all (5e68de1)
-# and the warped step's was compiled at every start of the node (8-10 s; loaded from the cache: 0.2 s).
+# loops are its own and it calls only serial code. Keeping threaded builds out of the cache instead would
+# compile the warped step at every start of the node (8-10 s, against 0.2 s to load it).
 PARALLEL = dict(SERIAL, parallel=True)
 
 # Below this many vertices the bare force kernels (clustered_force, warped_force, vertex_rotations) run
-# serial. On an idle 2-core Zen 1 the threaded builds already pay at the jelly man's 1803 vertices (warped
-# step 0.56 -> 0.35 ms, linear 0.137 -> 0.116 ms), but with another process on one core every parallel
-# region waits for the scheduler (~8 ms per step measured, 20-60x slower), so a fixed threshold stays high.
+# serial. On an idle 2-core machine the threaded builds can pay already at the jelly man's 1803 vertices
+# (warped step 0.56 -> 0.35 ms, linear 0.137 -> 0.116 ms), but with another process on one core every
+# parallel region waits for the scheduler (~8 ms per step, 20-60x slower), so a fixed threshold stays high.
 PARALLEL_MIN_VERTICES = 20000
 # The clustered integrator (threads=None) instead times both builds from this size on and keeps the faster
 # (integrators/clustered_explicit.ThreadChoice); below it one step is ~0.1 ms and threads never paid.
@@ -135,7 +135,7 @@ AUTO_THREADS_MIN_VERTICES = 1000
 
 
 def simd_lanes() -> int:
-    """Doubles per vector register on this host: 8 with AVX-512, else 4 (AVX2; LLVM splits wider vectors on
+    """Doubles per vector register on the running CPU: 8 with AVX-512, else 4 (AVX2; LLVM splits wider vectors on
     anything narrower, so any choice computes the same numbers). The cluster slices take one row per lane."""
     import llvmlite.binding as llvm
     llvm.initialize_native_target()

@@ -4,8 +4,8 @@ The standard implicit step (A = M + h D + h^2 K on the free DOFs) and the modal 
 (K - sigma M, sigma < 0) both factor an SPD matrix. scipy's SuperLU is the factorization available
 without another native library; its default column ordering (COLAMD) ignores the symmetry and fills
 2-3x more, so here it runs in symmetric mode: minimum-degree ordering of A + A^T, the same permutation
-on rows and columns, no pivoting (an SPD matrix needs none). Measured on this machine, the paper's cube
-grid held at the bottom (h = 1e-4 s):
+on rows and columns, no pivoting (an SPD matrix needs none). On the paper's cube grid held at the bottom
+(h = 1e-4 s, one core):
 
     tets      COLAMD: factor / solve / nnz(L+U)      symmetric: factor / solve / nnz(L+U)
     53240     55.3 s / 175 ms / 5.27e7               7.1 s / 60 ms / 2.28e7

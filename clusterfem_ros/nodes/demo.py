@@ -1,12 +1,13 @@
 """The main job: the built-in walk played into the simulation node, headless, recorded, summarised.
 
     scripts/run [--duration 8] [--scene config/default_scene.yaml] [--no-record] [--png bags/jelly_man.png]
+                [--no-video]
 
 The mocap player runs as its own process, the simulation in this one on a single-threaded executor
 (rclpy's multi-threaded one is slower here; shared-memory DDS only). A scene without skeleton
 (skeleton.source = none) has nothing to play: it runs at once, without a player.
-Progress is printed every second; at the end: a summary, the bag folder, and a PNG of the deformed
-body coloured by von Mises stress.
+Progress is printed every second; at the end: a summary, the bag folder, a PNG of the deformed
+body coloured by von Mises stress, and the recording rendered to run.mp4 and run.gif in the bag folder.
 """
 from __future__ import annotations
 
@@ -54,6 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP bag")
     ap.add_argument("--bags", default="bags", help="folder for the recording (default bags/)")
     ap.add_argument("--png", default=None, help="picture of the final state (default: <bag folder>/final_state.png)")
+    ap.add_argument("--no-video", action="store_true", help="do not render the recording to run.mp4 / run.gif")
     args = ap.parse_args(argv)
 
     import rclpy
@@ -126,6 +128,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{d['resets_after_divergence']} resets after divergence")
         print(f"  recording       {bag or 'off'}")
         print(f"  picture         {png}")
+        if bag and not args.no_video:
+            from ..render import render_bag
+            mp4, gif = render_bag(bag)
+            print(f"  video           {mp4} and {gif}")
         return 0
     finally:
         if spin is not None:                    # an early exit: stop spinning before the node goes, or the

@@ -1,0 +1,166 @@
+"""A recorded bag's surfaces as numpy arrays, for drawing it without ROS: the surface Markers, the joint
+states and the URDF that poses the skeleton.
+
+The surface Markers are decoded straight from their CDR bytes (the layout ``msg_adapters.marker`` writes:
+TRIANGLE_LIST, one point and one RGBA per triangle corner) into arrays, because a message of ~9000 corners
+deserialised into per-point objects costs more than drawing it. tests/test_render.py checks the decoder
+against rosbags' own deserialiser.
+"""
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .replay import PARAMS_FILE, JointSample, read_joint_states
+
+SURFACE_TOPIC = "/clusterfem/surface"
+JOINT_TOPIC = "/joint_states"
+URDF_TOPIC = "/robot_description"
+
+
+class BagFramesError(ValueError):
+    """A bag that cannot be drawn; the message names the folder or topic and what to do."""
+
+
+@dataclass
+class SurfaceFrame:
+    stamp_ns: int               # header stamp: the simulated time of the state drawn
+    corners: np.ndarray         # (3t, 3) float64: triangle corners, three per triangle
+    rgba: np.ndarray            # (3t, 4) float32 in [0, 1]: the stress colour of each corner
+
+
+@dataclass
+class BagFrames:
+    folder: Path
+    surfaces: list[SurfaceFrame]
+    joint_states: list[JointSample]
+    urdf: str | None            # the skeleton's URDF, or None when neither the bag nor its scene gives one
+    scene: dict                 # scene_parameters.yaml as {dotted name: value} ({} when the folder has none)
+
+
+class _Cdr:
+    """Sequential little-endian CDR reads; alignment counts from the body (after the 4-byte header)."""
+
+    def __init__(self, data: bytes):
+        self.data, self.pos = data, 4
+
+    def align(self, n: int) -> None:
+        self.pos += -(self.pos - 4) % n
+
+    def unpack(self, fmt: str, align: int) -> tuple:
+        self.align(align)
+        out = struct.unpack_from(fmt, self.data, self.pos)
+        self.pos += struct.calcsize(fmt)
+        return out
+
+    def string(self) -> str:
+        (n,) = self.unpack("<I", 4)
+        text = self.data[self.pos:self.pos + n].rstrip(b"\x00").decode("utf-8")
+        self.pos += n
+        return text
+
+    def array(self, dtype: str, width: int, align: int) -> np.ndarray:
+        (n,) = self.unpack("<I", 4)
+        if n == 0:
+            return np.zeros((0, width), dtype=dtype)
+        self.align(align)
+        size = n * width * np.dtype(dtype).itemsize
+        if self.pos + size > len(self.data):
+            raise BagFramesError(f"a sequence of {n} elements runs past the end of a {len(self.data)}-byte message")
+        out = np.frombuffer(self.data, dtype=dtype, count=n * width, offset=self.pos).reshape(n, width)
+        self.pos += size
+        return out
+
+
+def decode_surface_marker(data: bytes) -> SurfaceFrame:
+    """A TRIANGLE_LIST Marker's CDR bytes -> SurfaceFrame (stamp, corners, per-corner colours)."""
+    r = _Cdr(data)
+    sec, nanosec = r.unpack("<iI", 4)
+    r.string()                                   # frame_id
+    r.string()                                   # ns
+    _, kind, _ = r.unpack("<3i", 4)              # id, type, action
+    if kind != 11:
+        raise BagFramesError(f"surface Marker of type {kind}: expected TRIANGLE_LIST (11)")
+    r.unpack("<10d", 8)                          # pose, scale
+    r.unpack("<4f", 4)                           # colour
+    r.unpack("<iI", 4)                           # lifetime
+    r.unpack("<?", 1)                            # frame_locked
+    corners = r.array("<f8", 3, 8).astype(np.float64)
+    rgba = r.array("<f4", 4, 4).astype(np.float32)
+    if len(rgba) != len(corners) or len(corners) % 3:
+        raise BagFramesError(f"surface Marker with {len(corners)} points and {len(rgba)} colours: expected one "
+                             "colour per point and three points per triangle")
+    return SurfaceFrame(sec * 1_000_000_000 + nanosec, corners, rgba)
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        out.update(_flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+    return out
+
+
+def scene_of(folder: Path) -> dict:
+    """The bag folder's scene_parameters.yaml as {dotted name: value}, unvalidated ({} when absent)."""
+    path = folder / PARAMS_FILE
+    if not path.exists():
+        return {}
+    doc = yaml.safe_load(path.read_text()) or {}
+    section = next(iter(doc.values()), {}) if isinstance(doc, dict) else {}
+    return _flatten((section or {}).get("ros__parameters") or {})
+
+
+def _mcap_file(folder: Path) -> Path:
+    if folder.is_file() and folder.suffix == ".mcap":
+        return folder
+    files = sorted(folder.glob("*.mcap")) if folder.is_dir() else []
+    if not files:
+        raise BagFramesError(f"{str(folder)!r} is not a bag folder with an .mcap file: pass the folder scripts/run "
+                             "printed after 'recording'")
+    return files[0]
+
+
+def _skeleton_urdf(scene: dict, bag_urdf: str | None, folder: Path) -> str | None:
+    """The bag's own robot_description first; else what the scene's skeleton.source names."""
+    if bag_urdf:
+        return bag_urdf
+    source = scene.get("skeleton.source", "builtin")
+    if source == "builtin":
+        from ..skeleton.humanoid import humanoid_urdf
+        return humanoid_urdf()
+    if source == "urdf_file":
+        path = Path(scene.get("skeleton.urdf_file", ""))
+        for candidate in (path, folder / path):
+            if candidate.is_file():
+                return candidate.read_text()
+    return None
+
+
+def read_bag_frames(folder: str | Path) -> BagFrames:
+    """Every surface Marker (in recording order), the joint states and the skeleton's URDF of one bag."""
+    from mcap.reader import make_reader
+
+    folder = Path(folder)
+    mcap_path = _mcap_file(folder)
+    folder = mcap_path.parent
+    surfaces, bag_urdf, topics = [], None, set()
+    with open(mcap_path, "rb") as fh:
+        reader = make_reader(fh)
+        for _, channel, message in reader.iter_messages(topics=[SURFACE_TOPIC, URDF_TOPIC]):
+            if channel.topic == SURFACE_TOPIC:
+                surfaces.append(decode_surface_marker(message.data))
+            elif bag_urdf is None:
+                bag_urdf = _Cdr(message.data).string()
+        summary = reader.get_summary()
+        if summary is not None:
+            topics = {c.topic for c in summary.channels.values()}
+    if not surfaces:
+        raise BagFramesError(f"bag {str(folder)!r} has no {SURFACE_TOPIC} Markers (topics: {sorted(topics)}): "
+                             "record with output.marker_rate_hz > 0")
+    joints = read_joint_states(folder) if JOINT_TOPIC in topics else []
+    scene = scene_of(folder)
+    return BagFrames(folder, surfaces, joints, _skeleton_urdf(scene, bag_urdf, folder), scene)

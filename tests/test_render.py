@@ -1,0 +1,148 @@
+"""The video renderer: the bag decoder against rosbags, the camera, and a few frames of the sample bag
+written to a playable MP4 and GIF, read back with imageio."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clusterfem_ros.recording.bag_frames import BagFramesError, decode_surface_marker, read_bag_frames
+from clusterfem_ros.render import Camera, VideoOptions, main, render_bag
+
+SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample_default_scene"
+
+
+def test_the_surface_decoder_equals_rosbags_deserialisation():
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([SAMPLE]) as r:
+        conn = [c for c in r.connections if c.topic == "/clusterfem/surface"]
+        _, _, raw = next(iter(r.messages(connections=conn)))
+        msg = r.deserialize(raw, conn[0].msgtype)
+    with open(next(SAMPLE.glob("*.mcap")), "rb") as fh:
+        _, _, first = next(iter(make_reader(fh).iter_messages(topics=["/clusterfem/surface"])))
+    frame = decode_surface_marker(first.data)
+    assert frame.stamp_ns == msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+    assert np.array_equal(frame.corners, [[p.x, p.y, p.z] for p in msg.points])
+    assert np.array_equal(frame.rgba, np.array([[c.r, c.g, c.b, c.a] for c in msg.colors], dtype=np.float32))
+    assert len(frame.corners) % 3 == 0 and len(frame.corners) > 3000
+
+
+def test_the_sample_bag_gives_frames_joint_states_and_the_humanoid():
+    frames = read_bag_frames(SAMPLE)
+    meta = (SAMPLE / "metadata.yaml").read_text()
+    assert len(frames.surfaces) == int(meta.split("name: /clusterfem/surface")[1].split("message_count:")[1].split()[0])
+    assert len(frames.joint_states) == int(meta.split("name: /joint_states")[1].split("message_count:")[1].split()[0])
+    stamps = [s.stamp_ns for s in frames.surfaces]
+    assert stamps == sorted(stamps)
+    assert frames.urdf and "<robot" in frames.urdf and frames.scene["skeleton.source"] == "builtin"
+
+
+def test_the_camera_axes_are_a_right_handed_orthonormal_frame():
+    for az, el in ((-60.0, 12.0), (0.0, 0.0), (135.0, 40.0)):
+        right, up, back = Camera(az, el).axes()
+        m = np.stack([right, up, back])
+        assert np.allclose(m @ m.T, np.eye(3), atol=1e-15)
+        assert np.allclose(np.cross(right, up), back, atol=1e-15)
+        assert up[2] >= 0.0                       # z stays up on screen
+    right, up, back = Camera(0.0, 0.0).axes()
+    assert np.allclose(back, [1, 0, 0]) and np.allclose(up, [0, 0, 1])
+
+
+def test_a_few_frames_of_the_sample_bag_make_a_playable_mp4_and_gif(tmp_path):
+    import imageio.v3 as iio
+
+    lines = []
+    mp4, gif = render_bag(SAMPLE, tmp_path / "clip.mp4",
+                          options=VideoOptions(width=192, height=144, max_frames=5, gif_width=96, gif_fps=10.0),
+                          progress=lines.append)
+    video = iio.imread(mp4, index=None)
+    assert video.shape == (5, 144, 192, 3)
+    small = iio.imread(gif, index=None)
+    assert small.shape[0] == 5 and small.shape[1:3] == (72, 96)      # the sample's Markers come at 10 Hz
+    assert lines and lines[-1].startswith("[render] frame 5/5 (100 %)")
+    # the body is drawn (coloured pixels, not just the white background) and moves between frames
+    coloured = np.ptp(video[0].astype(int), axis=2) > 60
+    assert coloured.mean() > 0.01
+    assert np.abs(video[0].astype(int) - video[4].astype(int)).mean() > 0.5
+
+
+def test_a_folder_without_a_bag_is_refused_with_the_way_out(tmp_path, capsys):
+    with pytest.raises(BagFramesError, match="not a bag folder"):
+        read_bag_frames(tmp_path)
+    assert main([str(tmp_path)]) == 2
+    assert "scripts/run printed" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="even sizes"):
+        render_bag(SAMPLE, tmp_path / "x.mp4", options=VideoOptions(width=101, height=80))
+
+
+def test_the_main_job_renders_its_recording(tmp_path):
+    """scripts/run records a bag and renders it beside the PNG: run.mp4 and run.gif in the bag folder."""
+    import imageio.v3 as iio
+    from clusterfem_ros.config import SceneConfig, scene_file_text
+    scene = tmp_path / "cube.yaml"                  # the paper's cube, its bottom held, sagging under gravity
+    scene.write_text(scene_file_text(SceneConfig().with_values(
+        body__kind="cube", skeleton__source="none", body__fix_bottom=True, output__marker_rate_hz=10.0)))
+    env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="SHM", ROS_DOMAIN_ID=str(140 + os.getpid() % 20))
+    run = subprocess.run([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--duration", "2", "--scene", str(scene),
+                          "--bags", str(tmp_path / "bags")], env=env, capture_output=True, text=True, timeout=300)
+    out = run.stdout + run.stderr
+    assert run.returncode == 0, out
+    bag = Path(run.stdout.split("\n  recording")[1].split()[0])
+    assert (bag / "run.mp4").exists() and (bag / "run.gif").exists(), out
+    frames = iio.imread(bag / "run.mp4", index=None)
+    states = {s.stamp_ns for s in read_bag_frames(bag).surfaces}       # one video frame per recorded state
+    assert frames.shape == (len(states), 720, 960, 3) and len(states) >= 10, out
+
+
+def test_the_render_command_on_the_sample_bag(tmp_path, capsys):
+    """The README's `python -m clusterfem_ros.render bags/sample_default_scene`, written outside the repository."""
+    import imageio.v3 as iio
+    out = tmp_path / "sample.mp4"
+    assert main([str(SAMPLE), "--mp4", str(out), "--size", "128x96", "--max-frames", "3", "--gif-width", "64"]) == 0
+    said = capsys.readouterr().out
+    assert f"[render] {out} and {out.with_suffix('.gif')}" in said
+    assert iio.imread(out, index=None).shape == (3, 96, 128, 3)
+    assert iio.imread(out.with_suffix(".gif"), index=None).shape[1:3] == (48, 64)
+
+
+def test_the_drawn_skeleton_is_the_urdf_posed_by_the_latest_joint_state():
+    from clusterfem_ros.render import FrameRenderer
+    from clusterfem_ros.skeleton.humanoid import humanoid_urdf
+    from clusterfem_ros.skeleton.kinematics import Skeleton
+    frames = read_bag_frames(SAMPLE)
+    renderer = FrameRenderer(frames, VideoOptions(width=128, height=96))
+    try:
+        assert renderer.skeleton is not None and renderer.skeleton_note is None
+        frame = frames.surfaces[len(frames.surfaces) // 2]
+        t = frame.stamp_ns * 1e-9
+        starts, ends = renderer.skeleton.segments(t)
+        latest = [s for s in frames.joint_states if s.stamp <= t][-1]
+        reference = Skeleton.from_urdf_string(humanoid_urdf())
+        q = np.zeros(reference.nq)
+        q[[reference.joint_index(n) for n in latest.names]] = latest.q
+        a, b = reference.bone_segments(q)
+        assert np.allclose(starts, a, atol=1e-12) and np.allclose(ends, b, atol=1e-12)
+    finally:
+        renderer.close()
+
+
+def test_a_bag_without_a_skeleton_is_drawn_without_one(tmp_path):
+    import shutil
+    import imageio.v3 as iio
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    for f in (next(SAMPLE.glob("*.mcap")), SAMPLE / "metadata.yaml"):
+        shutil.copy(f, bag)
+    (bag / "scene_parameters.yaml").write_text((SAMPLE / "scene_parameters.yaml").read_text().replace(
+        "source: builtin", "source: urdf_file").replace("urdf_file: ''", "urdf_file: missing.urdf"))
+    lines = []
+    mp4, _ = render_bag(bag, tmp_path / "x.mp4", options=VideoOptions(width=128, height=96, max_frames=2, gif_width=0),
+                        progress=lines.append)
+    assert any("skeleton is not drawn" in line and "URDF" in line for line in lines), lines
+    assert iio.imread(mp4, index=None).shape == (2, 96, 128, 3)
