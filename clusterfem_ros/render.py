@@ -239,7 +239,7 @@ def render_bag(folder: str | Path, mp4: str | Path | None = None, gif: str | Pat
     import imageio.v2 as imageio
     from PIL import Image
 
-    from .recording.bag_frames import read_bag_frames
+    from .bag_frames import read_bag_frames
 
     options = options or VideoOptions()
     if options.width < 64 or options.height < 64 or options.width % 2 or options.height % 2:
@@ -304,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--azimuth", type=float, default=Camera.azimuth, help="camera azimuth [deg] (default -60)")
     ap.add_argument("--elevation", type=float, default=Camera.elevation, help="camera elevation [deg] (default 12)")
     args = ap.parse_args(argv)
-    from .recording.bag_frames import BagFramesError
+    from .bag_frames import BagFramesError
     options = VideoOptions(width=args.size[0], height=args.size[1], max_frames=args.max_frames,
                            gif_width=0 if args.no_gif else args.gif_width, gif_fps=args.gif_fps,
                            camera=Camera(args.azimuth, args.elevation))

@@ -25,7 +25,7 @@ SAMPLE = ROOT / "bags" / "sample_default_scene"
 RUN_BY = {
     "scripts/run": "tests/test_render.py::test_the_main_job_renders_its_recording",
     "python -m clusterfem_ros.render bags/sample_default_scene": "tests/test_render.py::test_the_render_command_on_the_sample_bag",
-    "python -m clusterfem_ros.recording.replay bags/sample_default_scene":
+    "python -m clusterfem_ros.replay bags/sample_default_scene":
         "tests/test_recording.py::test_the_sample_recording_replays_to_round_off_and_a_changed_physics_is_reported",
     "clusterfem_node --ros-args --params-file config/default_scene.yaml -p skeleton.source:=robot_description":
         "tests/test_docs.py::test_the_readme_node_commands_run_together",
@@ -97,7 +97,7 @@ def test_the_readme_command_parser_sees_indented_blocks_and_drops_comments():
 def test_the_readme_node_commands_run_together(tmp_path):
     """The README's node block as written: the node on the default scene file takes the player's skeleton
     and the CMU walk's joint states (recorded here to count them); SIGINT stops both cleanly."""
-    from clusterfem_ros.recording.replay import _reader
+    from clusterfem_ros.recording.bag_reader import _reader
     block = [c for c in readme_commands(README.read_text()) if c.startswith(("clusterfem_node", "mocap_player"))]
     assert len(block) == 2, block
     bvh = ROOT.parent / "shared" / "data" / "mocap" / "cmu_06_01_walk.bvh"

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clusterfem_ros.recording.bag_frames import BagFramesError, decode_surface_marker, read_bag_frames
+from clusterfem_ros.bag_frames import BagFramesError, decode_surface_marker, read_bag_frames
 from clusterfem_ros.render import Camera, VideoOptions, main, render_bag
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample_default_scene"

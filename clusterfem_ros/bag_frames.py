@@ -15,14 +15,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .replay import PARAMS_FILE, JointSample, read_joint_states
+from .errors import ClusterFemError
+from .recording.bag_reader import PARAMS_FILE, JointSample, read_joint_states
 
 SURFACE_TOPIC = "/clusterfem/surface"
 JOINT_TOPIC = "/joint_states"
 URDF_TOPIC = "/robot_description"
 
 
-class BagFramesError(ValueError):
+class BagFramesError(ClusterFemError, ValueError):
     """A bag that cannot be drawn; the message names the folder or topic and what to do."""
 
 
@@ -130,7 +131,7 @@ def _skeleton_urdf(scene: dict, bag_urdf: str | None, folder: Path) -> str | Non
         return bag_urdf
     source = scene.get("skeleton.source", "builtin")
     if source == "builtin":
-        from ..skeleton.humanoid import humanoid_urdf
+        from .skeleton.humanoid import humanoid_urdf
         return humanoid_urdf()
     if source == "urdf_file":
         path = Path(scene.get("skeleton.urdf_file", ""))
