@@ -69,7 +69,8 @@ class Snapshot:
         """The stress field of this state, computed once (the surface colours and the cloud share it)."""
         if self._stress is None:
             t0 = time.perf_counter()
-            self._stress = compute_stress(model, self.u, corotated=corotated)
+            # a writable copy: a read-only array is another type to numba, compiled once more for nothing
+            self._stress = compute_stress(model, self.u.copy(), corotated=corotated)
             if stages is not None:
                 stages.add("stress", time.perf_counter() - t0)
         return self._stress
@@ -286,7 +287,9 @@ class SimLoop:
             s = self.scene
             problem = output_problem(s)
             if problem is None:
-                self.snapshot = Snapshot(s.sim_time, s.state.u.copy(), s.state.v.copy(), s.steps_done, used, t)
+                u, v = s.state.u.copy(), s.state.v.copy()
+                u.flags.writeable = v.flags.writeable = False      # handed over: nobody writes it again
+                self.snapshot = Snapshot(s.sim_time, u, v, s.steps_done, used, t)
         if problem is not None and s.sim_time is not None:
             self.unpublishable += 1
         self.stages.add("snapshot", time.perf_counter() - t)
