@@ -127,6 +127,13 @@ class LatencyMeter:
                 self.count += 1
                 self.max = max(self.max, lat)
 
+    def restart(self) -> None:
+        """Forget the latencies measured so far (a timed run starts); arrivals still open stay open."""
+        with self._lock:
+            self._done.clear()
+            self.count = 0
+            self.max = 0.0
+
     def percentiles(self) -> dict[str, float]:
         """p50, p99 (of the last ``keep``) and max [ms]; zeros before the first."""
         with self._lock:
