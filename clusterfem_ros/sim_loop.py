@@ -106,11 +106,15 @@ class LatencyMeter:
 
     Arrivals are numbered in the order they were accepted; a published marker whose snapshot saw the first
     ``used`` of them closes every one still open up to ``used``. The last ``keep`` latencies are kept for the
-    percentiles (bounded memory); the maximum and the count cover the whole run."""
+    percentiles (bounded memory); the maximum and the count cover the whole run. Beside it, arrival -> first
+    snapshot handed over that had seen it (``latency_state_*``: the physics thread's share; the rest is the
+    wait for the marker timer and the marker's making)."""
 
     def __init__(self, keep: int = 20000):
         self._open: deque[tuple[int, float]] = deque(maxlen=keep)
+        self._open_state: deque[tuple[int, float]] = deque(maxlen=keep)
         self._done: deque[float] = deque(maxlen=keep)
+        self._state: deque[float] = deque(maxlen=keep)
         self.count = 0
         self.max = 0.0
         self._lock = threading.Lock()
@@ -118,8 +122,16 @@ class LatencyMeter:
     def arrived(self, seq: int, t: float) -> None:
         with self._lock:
             self._open.append((seq, t))
+            self._open_state.append((seq, t))
+
+    def handed_over(self, used: int, t: float) -> None:
+        """A snapshot that had seen ``used`` arrivals was handed over at ``t``."""
+        with self._lock:
+            while self._open_state and self._open_state[0][0] <= used:
+                self._state.append(t - self._open_state.popleft()[1])
 
     def published(self, used: int, t: float) -> None:
+        """A marker of a snapshot that had seen ``used`` arrivals was published at ``t``."""
         with self._lock:
             while self._open and self._open[0][0] <= used:
                 lat = t - self._open.popleft()[1]
@@ -131,17 +143,20 @@ class LatencyMeter:
         """Forget the latencies measured so far (a timed run starts); arrivals still open stay open."""
         with self._lock:
             self._done.clear()
+            self._state.clear()
             self.count = 0
             self.max = 0.0
 
     def percentiles(self) -> dict[str, float]:
-        """p50, p99 (of the last ``keep``) and max [ms]; zeros before the first."""
+        """p50, p99 (of the last ``keep``) and max [ms] to the marker, p50 and p99 to the snapshot; zeros
+        before the first."""
         with self._lock:
             done = np.fromiter(self._done, float, len(self._done))
-        if done.size == 0:
-            return {"latency_p50_ms": 0.0, "latency_p99_ms": 0.0, "latency_max_ms": 0.0}
-        p50, p99 = np.percentile(done, [50, 99]) * 1e3
-        return {"latency_p50_ms": float(p50), "latency_p99_ms": float(p99), "latency_max_ms": self.max * 1e3}
+            state = np.fromiter(self._state, float, len(self._state))
+        p50, p99 = np.percentile(done, [50, 99]) * 1e3 if done.size else (0.0, 0.0)
+        s50, s99 = np.percentile(state, [50, 99]) * 1e3 if state.size else (0.0, 0.0)
+        return {"latency_p50_ms": float(p50), "latency_p99_ms": float(p99), "latency_max_ms": self.max * 1e3,
+                "latency_state_p50_ms": float(s50), "latency_state_p99_ms": float(s99)}
 
 
 class SimLoop:
@@ -168,6 +183,7 @@ class SimLoop:
         self.unpublishable = 0                           # batches whose end state failed output_problem
         self.queue_full = 0                              # clock "input": samples refused, queue full
         self._accepted = 0                               # accepted inputs pushed so far (the latency's numbering)
+        self._seen = 0                                   # of them, those a step has seen
         self._queue: deque = deque()
         self._wake = threading.Condition()
         self._pending = False                            # an input arrived since the thread last looked
@@ -235,10 +251,11 @@ class SimLoop:
             except Exception as exc:  # noqa: BLE001 (any failure of a step: report it, reset, go on or stop)
                 self._crashed(exc)
 
-    def _wait(self) -> None:
+    def _wait(self, timeout: float | None = None) -> None:
+        """Until an input arrives, ``timeout`` or 1 / timer_hz passes, or stop."""
         with self._wake:
             if not self._queue and not self._pending and not self._stop.is_set():
-                self._wake.wait(self.period)
+                self._wake.wait(self.period if timeout is None else min(timeout, self.period))
             self._pending = False
 
     def _follow_inputs(self) -> None:
@@ -257,23 +274,32 @@ class SimLoop:
             self._take_snapshot(used)
 
     def _follow_clock(self) -> None:
-        """Clock "wall": steps up to now, one step per lock hold, until none is due or the batch's time is up."""
+        """Clock "wall": steps up to now, one step per lock hold, until none is due or the batch's time is up.
+        The first state that saw a new input is handed over at once, and an input no step has seen yet wakes
+        the thread when the next step is due (not a timer period later): so from an input's arrival to a
+        snapshot that used it takes about a step, whatever else the batch does."""
         deadline = time.perf_counter() + 0.7 * self.period
-        stepped = 0
+        stepped, due_in, unsent = 0, None, False
         while not self._stop.is_set():
             with self.lock:
                 target = self.now()
                 if self.scene.sim_time is not None and self.scene.steps_due(target) <= 0:
+                    if self._accepted > self._seen:
+                        due_in = self.scene.sim_time + self.scene.h - target
                     break
-                used = self._accepted
+                fresh = self._accepted > self._seen
+                used = self._seen = self._accepted
                 # deadline 0: advance_to does one step (or drops the gap past max_steps, or starts the clock)
                 stepped += self._timed(lambda: self.scene.advance_to(target, self.max_steps, deadline=0.0)) or 1
+            unsent = not fresh
+            if fresh:
+                self._take_snapshot(used)
             if time.perf_counter() > deadline:
                 break
-        if stepped:
+        if unsent:
             self._take_snapshot(used)
         if stepped == 0 or time.perf_counter() <= deadline:
-            self._wait()
+            self._wait(due_in)
 
     def _timed(self, advance: Callable[[], object]) -> int:
         """Run ``advance`` (steps of the scene); its time goes to the skeleton and physics stages."""
@@ -297,6 +323,7 @@ class SimLoop:
                 u, v = s.state.u.copy(), s.state.v.copy()
                 u.flags.writeable = v.flags.writeable = False      # handed over: nobody writes it again
                 self.snapshot = Snapshot(s.sim_time, u, v, s.steps_done, used, t)
+                self.latency.handed_over(used, time.perf_counter())
         if problem is not None and s.sim_time is not None:
             self.unpublishable += 1
         self.stages.add("snapshot", time.perf_counter() - t)

@@ -163,14 +163,18 @@ def test_latency_closes_every_arrival_seen_by_the_published_state():
     meter = LatencyMeter(keep=100)
     for seq, t in enumerate([1.000, 1.010, 1.020, 1.030], start=1):
         meter.arrived(seq, t)
-    meter.published(2, 1.040)                   # a state that had seen the first two
+    meter.handed_over(2, 1.025)                 # a snapshot that had seen the first two
+    meter.published(2, 1.040)                   # a marker of it
     meter.published(2, 1.070)                   # the same state again: nothing new to close
+    meter.handed_over(4, 1.035)
+    meter.handed_over(4, 1.045)                 # a later snapshot: the first one closed them
     meter.published(4, 1.050)
     assert meter.count == 4
     assert meter.max == pytest.approx(0.040)
     p = meter.percentiles()
     assert p["latency_max_ms"] == pytest.approx(40.0)
     assert p["latency_p50_ms"] == pytest.approx(np.percentile([40, 30, 30, 20], 50))
+    assert p["latency_state_p99_ms"] == pytest.approx(np.percentile([25, 15, 15, 5], 99))
 
 
 def test_stage_shares_are_seconds_per_wall_second():

@@ -59,6 +59,8 @@ def everything_on(duration: float, tmp: Path) -> dict:
             ["latency p50 ms", f"{r['latency_p50_ms']:.1f}", ""],
             ["latency p99 ms", f"{r['latency_p99_ms']:.1f}", f"<= {TARGETS['latency_p99_ms']:g}"],
             ["latency max ms", f"{r['latency_max_ms']:.1f}", ""],
+            ["of it to the snapshot p50 / p99 ms", f"{r['latency_state_p50_ms']:.1f} / {r['latency_state_p99_ms']:.1f}",
+             ""],
             ["latencies measured", r["latencies"], ""],
             ["process CPU (cores)", f"{r['process_cpu']:.2f}", ""],
             ["RSS after warm-up / end / peak MB",

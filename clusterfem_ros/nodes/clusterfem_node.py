@@ -122,7 +122,8 @@ class ClusterFemNode(Node):
 
     def stop_physics(self) -> None:
         """Stop and join the physics thread (idempotent): the scene is then still and may be read."""
-        if self.physics is not None and not self.physics.stop():
+        physics = getattr(self, "physics", None)       # None too when the constructor failed before it
+        if physics is not None and not physics.stop():
             self.get_logger().error("the physics thread did not end within 10 s; the process exit ends it")
 
     def destroy_node(self) -> None:
