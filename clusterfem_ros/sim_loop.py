@@ -2,22 +2,23 @@
 
     loop = SimLoop(scene, clock="wall", now=ros_seconds, timer_hz=100.0, max_catchup_steps=250, log=log)
     loop.start()
-    loop.take_input(lambda: scene.push_joint_state(...))   # from the subscription callback
+    loop.take_input(lambda: scene.push_joint_state(...))   # from the subscription callback: queued
     snap = loop.snapshot                                    # from the output timers: never half written
     loop.stop()                                             # joins the thread
 
 The numba kernels release the GIL, so a step runs while the executor thread builds markers, computes stress
-and records. The scene is touched by this thread only, except for the input push, which runs under
-``lock`` (clock "wall") or on this thread itself (clock "input"). The outputs never read the scene's state:
-each batch of steps ends with a ``Snapshot``, a fresh copy of the state that is never written again, put in
-place by one reference assignment (atomic in Python); the copy being read stays whole while the next is made.
+and records. The scene is changed by this thread only: the subscription callback queues each joint-state
+sample (a bounded queue) and this thread pushes it into the scene, so no callback waits for a step and no
+lock is held across one. The outputs never read the scene's state: batches of steps end with a ``Snapshot``,
+a fresh, read-only copy of the state, put in place by one reference assignment (atomic in Python); the copy
+being read stays whole while the next is made.
 
-Clock "input" keeps today's order exactly (push a sample, step up to its stamp, next sample), so a replay of
+Clock "input" steps in a replay's order (push a sample, step up to its stamp, next sample), so a replay of
 the recorded joint states (recording/replay.py) reproduces every published state bit for bit. Clock "wall"
 steps up to the clock whenever a joint state arrives or 1 / timer_hz has passed, at most 0.7 / timer_hz per
 batch (then a snapshot, then on), in slow motion up to ``max_catchup_steps`` behind.
 
-A divergence resets the body (as before). Any other exception in a step is logged, counted in ``crashes``
+A divergence resets the body. Any other exception in a step is logged, counted in ``crashes``
 and ``error``, and the body is reset; after ``MAX_CRASHES_IN_A_ROW`` crashes with no good step between them
 the thread stops (``stopped``), the node keeps running and reports it, and ``stop()`` still returns.
 """
@@ -36,7 +37,7 @@ from .fem.stability import DivergenceError, StabilityError
 from .fem.stress import compute_stress
 
 MAX_CRASHES_IN_A_ROW = 5
-INPUT_QUEUE = 1024          # clock "input": samples waiting for the physics thread (~8 s of a 120 Hz stream)
+INPUT_QUEUE = 1024          # samples waiting for the physics thread (~8 s of a 120 Hz stream)
 STAGES = ("inputs", "skeleton", "physics", "snapshot", "stress", "markers", "cloud", "diagnostics", "recording")
 
 
@@ -172,16 +173,16 @@ class SimLoop:
         self.period = 1.0 / float(timer_hz)
         self.max_steps = int(max_catchup_steps)
         self.log = log                                   # log(level, text), level "error" | "warning" | "info"
-        self.lock = threading.Lock()                     # the scene, between the input push and the steps
         self.stages = StageClock()
         self.latency = LatencyMeter()
         self.snapshot: Snapshot | None = None
         self.divergences = 0
         self.crashes = 0
         self.error: str | None = None                    # the last crash, for the diagnostics
+        self.error_at = float("-inf")                    # and when (time.perf_counter())
         self.stopped = False                             # the thread gave up (MAX_CRASHES_IN_A_ROW)
         self.unpublishable = 0                           # batches whose end state failed output_problem
-        self.queue_full = 0                              # clock "input": samples refused, queue full
+        self.queue_full = 0                              # samples refused: INPUT_QUEUE of them waiting
         self._accepted = 0                               # accepted inputs pushed so far (the latency's numbering)
         self._seen = 0                                   # of them, those a step has seen
         self._queue: deque = deque()
@@ -211,30 +212,28 @@ class SimLoop:
 
     # -- inputs ----------------------------------------------------------------------------------
     def take_input(self, push: Callable[[], None]) -> None:
-        """Hand one joint-state sample over: ``push()`` pushes it into the scene. Clock "wall": pushed here,
-        under the lock, and the thread woken; clock "input": queued, pushed and stepped to on the thread."""
-        t = time.perf_counter()
-        if self.clock == "wall":
-            with self.lock:
-                self._push(push, t)
-            self.stages.add("inputs", time.perf_counter() - t)
-        else:
-            if len(self._queue) >= INPUT_QUEUE:
-                self.queue_full += 1
-                self.log("warning", f"joint state dropped: {INPUT_QUEUE} samples wait for physics "
-                                    f"({self.queue_full} dropped so far); physics cannot keep up with the input rate")
-                return
-            self._queue.append((push, t))
+        """Hand one joint-state sample over: ``push()`` pushes it into the scene, on the physics thread (the
+        callback never waits for a step). Clock "wall": every sample queued is pushed before the next step;
+        clock "input": one sample is pushed, then the steps up to its stamp are done, then the next."""
+        if len(self._queue) >= INPUT_QUEUE:
+            self.queue_full += 1
+            self.log("warning", f"joint state dropped: {INPUT_QUEUE} samples wait for physics "
+                                f"({self.queue_full} dropped so far); physics cannot keep up with the input rate")
+            return
+        self._queue.append((push, time.perf_counter()))
         with self._wake:
             self._pending = True
             self._wake.notify()
 
-    def _push(self, push: Callable[[], None], arrived: float) -> None:
+    def _push_next(self) -> None:
+        push, arrived = self._queue.popleft()
+        t = time.perf_counter()
         before = self.scene.inputs.accepted
         push()
         if self.scene.inputs.accepted > before:
             self._accepted += 1
             self.latency.arrived(self._accepted, arrived)
+        self.stages.add("inputs", time.perf_counter() - t)
 
     # -- the thread ------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -263,34 +262,32 @@ class SimLoop:
         if not self._queue:
             self._wait()
             return
-        push, arrived = self._queue.popleft()
-        with self.lock:
-            t = time.perf_counter()
-            self._push(push, arrived)
-            self.stages.add("inputs", time.perf_counter() - t)
-            used = self._accepted
-            n = self._timed(lambda: self.scene.follow_inputs(self.max_steps))
+        self._push_next()
+        used = self._accepted
+        n = self._timed(lambda: self.scene.follow_inputs(self.max_steps))
         if n or self.snapshot is None:
             self._take_snapshot(used)
 
     def _follow_clock(self) -> None:
-        """Clock "wall": steps up to now, one step per lock hold, until none is due or the batch's time is up.
-        The first state that saw a new input is handed over at once, and an input no step has seen yet wakes
-        the thread when the next step is due (not a timer period later): so from an input's arrival to a
-        snapshot that used it takes about a step, whatever else the batch does."""
+        """Clock "wall": the queued inputs pushed, then steps up to now, until none is due or the batch's
+        time is up. The first state that saw a new input is handed over at once, and an input no step has
+        seen yet wakes the thread when the next step is due (not a timer period later): so from an input's
+        arrival to a snapshot that used it takes about a step, whatever else the batch does."""
         deadline = time.perf_counter() + 0.7 * self.period
         stepped, due_in, unsent = 0, None, False
+        scene = self.scene
         while not self._stop.is_set():
-            with self.lock:
-                target = self.now()
-                if self.scene.sim_time is not None and self.scene.steps_due(target) <= 0:
-                    if self._accepted > self._seen:
-                        due_in = self.scene.sim_time + self.scene.h - target
-                    break
-                fresh = self._accepted > self._seen
-                used = self._seen = self._accepted
-                # deadline 0: advance_to does one step (or drops the gap past max_steps, or starts the clock)
-                stepped += self._timed(lambda: self.scene.advance_to(target, self.max_steps, deadline=0.0)) or 1
+            while self._queue:
+                self._push_next()
+            target = self.now()
+            if scene.sim_time is not None and scene.steps_due(target) <= 0:
+                if self._accepted > self._seen:
+                    due_in = scene.sim_time + scene.h - target
+                break
+            fresh = self._accepted > self._seen
+            used = self._seen = self._accepted
+            # deadline 0: advance_to does one step (or drops the gap past max_steps, or starts the clock)
+            stepped += self._timed(lambda: scene.advance_to(target, self.max_steps, deadline=0.0)) or 1
             unsent = not fresh
             if fresh:
                 self._take_snapshot(used)
@@ -316,26 +313,25 @@ class SimLoop:
 
     def _take_snapshot(self, used: int) -> None:
         t = time.perf_counter()
-        with self.lock:
-            s = self.scene
-            problem = output_problem(s)
-            if problem is None:
-                u, v = s.state.u.copy(), s.state.v.copy()
-                u.flags.writeable = v.flags.writeable = False      # handed over: nobody writes it again
-                self.snapshot = Snapshot(s.sim_time, u, v, s.steps_done, used, t)
-                self.latency.handed_over(used, time.perf_counter())
+        s = self.scene
+        problem = output_problem(s)
+        if problem is None:
+            u, v = s.state.u.copy(), s.state.v.copy()
+            u.flags.writeable = v.flags.writeable = False      # handed over: nobody writes it again
+            self.snapshot = Snapshot(s.sim_time, u, v, s.steps_done, used, t)
+            self.latency.handed_over(used, time.perf_counter())
         if problem is not None and s.sim_time is not None:
             self.unpublishable += 1
         self.stages.add("snapshot", time.perf_counter() - t)
 
     def _reset(self) -> None:
-        with self.lock:
-            self.scene.reset()
+        self.scene.reset()
 
     def _crashed(self, exc: BaseException) -> None:
         self.crashes += 1
         self._in_a_row += 1
         self.error = f"{type(exc).__name__}: {exc}"
+        self.error_at = time.perf_counter()
         trace = "".join(traceback.format_exception(exc)).rstrip()
         if self._in_a_row >= MAX_CRASHES_IN_A_ROW:
             self.stopped = True

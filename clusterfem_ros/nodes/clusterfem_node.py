@@ -35,6 +35,7 @@ from .params import declare_scene_parameters
 from .spinning import run_node
 
 SURFACE_TOPIC, STRESS_TOPIC, DIAG_TOPIC, JOINTS_TOPIC = "clusterfem/surface", "clusterfem/stress", "/diagnostics", "joint_states"
+ERROR_HOLD_S = 10.0         # /diagnostics stays at ERROR this long after a failed physics step
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
@@ -166,7 +167,7 @@ class ClusterFemNode(Node):
             return
         if stamp == 0.0:
             stamp = now_ns * 1e-9
-        # wall clock: pushed now, under the physics lock; input clock: pushed and stepped to on the physics thread
+        # queued for the physics thread, which pushes it (and, on the input clock, steps up to its stamp)
         self.physics.take_input(lambda: self._push_sample(scene, stamp, names, q, v, now_ns))
 
     def _push_sample(self, scene: Scene, stamp: float, names, q, v, now_ns: int) -> None:
@@ -292,10 +293,12 @@ class ClusterFemNode(Node):
         t0 = time.perf_counter()
         values = self.diagnostics()
         finite = all(np.isfinite(v) for v in values.values() if isinstance(v, float))
-        failed = bool(values.get("physics_failures"))
-        level = "ERROR" if failed else (
-            "OK" if finite and not values["inputs_rejected"] and not self.divergences else "WARN")
-        message = f"physics failed: {values['physics_error']}" if failed else ""
+        loop = self.physics
+        # ERROR while physics is stopped or for ERROR_HOLD_S after a failed step (then WARN: the count stays)
+        failed = loop is not None and (loop.stopped or time.perf_counter() - loop.error_at < ERROR_HOLD_S)
+        level = "ERROR" if failed else ("OK" if finite and not values["inputs_rejected"] and not self.divergences
+                                        and not values.get("physics_failures") else "WARN")
+        message = ("physics stopped: " if loop.stopped else "physics failed: ") + loop.error if failed else ""
         values = {k: (v if not isinstance(v, float) or np.isfinite(v) else -1.0) for k, v in values.items()}
         me = self.get_fully_qualified_name().lstrip("/")     # "clusterfem", or "<namespace>/clusterfem"
         msg = diagnostic_array(self._stamp(), f"{me}: simulation", me, values, level, message)
