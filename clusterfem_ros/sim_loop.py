@@ -39,6 +39,7 @@ from .fem.stress import compute_stress
 MAX_CRASHES_IN_A_ROW = 5
 INPUT_QUEUE = 1024          # samples waiting for the physics thread (~8 s of a 120 Hz stream)
 STAGES = ("inputs", "skeleton", "physics", "snapshot", "stress", "markers", "cloud", "diagnostics", "recording")
+THREAD_STAGES = ("inputs", "skeleton", "physics", "snapshot")     # the physics thread's own work
 
 
 def output_problem(scene) -> str | None:
@@ -190,7 +191,7 @@ class SimLoop:
         self._pending = False                            # an input arrived since the thread last looked
         self._stop = threading.Event()
         self._in_a_row = 0
-        self._headroom = (0, 0.0)                        # (steps, step seconds) at the previous headroom() call
+        self._headroom = (0, 0.0)                        # (steps, busy seconds) at the previous headroom() call
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
 
     # -- control ---------------------------------------------------------------------------------
@@ -347,13 +348,16 @@ class SimLoop:
             self._crashed(again)
 
     # -- measurements ----------------------------------------------------------------------------
+    def busy_s(self) -> float:
+        """Seconds the physics thread has worked (inputs, skeleton, physics, snapshots), waits excluded."""
+        return sum(self.stages.totals[k] for k in THREAD_STAGES)
+
     def headroom(self) -> float:
-        """Simulated seconds per wall second the steps (skeleton and physics) would sustain alone, over the
-        steps since the previous call: h / mean wall time per step. 0 before any step."""
-        s = self.scene
-        steps, wall = s.steps_done, s.step_wall_s
-        d_steps, d_wall = steps - self._headroom[0], wall - self._headroom[1]
-        if d_steps <= 0 or d_wall <= 0:
+        """Simulated seconds per wall second the physics thread would sustain alone, over the steps since the
+        previous call: simulated time / the thread's busy time (``busy_s``). 0 before any step."""
+        steps, busy = self.scene.steps_done, self.busy_s()
+        d_steps, d_busy = steps - self._headroom[0], busy - self._headroom[1]
+        if d_steps <= 0 or d_busy <= 0:
             return 0.0
-        self._headroom = (steps, wall)
-        return d_steps * s.h / d_wall
+        self._headroom = (steps, busy)
+        return d_steps * self.scene.h / d_busy

@@ -6,7 +6,8 @@ what do 1, 2, 4, 8 bodies give on this machine. Prints tables; a benchmark, not 
 1. Everything on: the default scene (warped jelly man, markers 30 Hz, stress 10 Hz, diagnostics, recording
    to a temporary folder) driven by the built-in walk's player process, for ``--duration`` s of wall time
    after the first joint state (``scripts/run``'s own run, in a child process). Printed: real-time factor,
-   physics headroom (simulated seconds per wall second the steps would sustain alone), joint-state ->
+   physics headroom (simulated seconds per wall second the physics thread would sustain alone: simulated
+   time over the thread's busy time in inputs, skeleton, physics and snapshots), joint-state ->
    surface Marker latency (p50, p99, max), busy share per stage (wall seconds in the stage per wall second),
    the process's CPU (cores), and RSS over time (growth after the warm-up). Beside the targets of issue #21.
 2. Bodies: N default bodies, each with its own player process, for ``--scaling-duration`` s, all in one

@@ -54,7 +54,7 @@ class RunWindow:
     def start(self) -> None:
         s, loop = self.sim.scene, self.sim.physics
         self.t0, self.cpu0 = time.perf_counter(), time.process_time()
-        self.steps0, self.wall0 = s.steps_done, s.step_wall_s
+        self.steps0, self.wall0, self.busy0 = s.steps_done, s.step_wall_s, loop.busy_s()
         self.stages0 = dict(loop.stages.totals)
         self.inputs0 = s.inputs.accepted
         loop.latency.restart()
@@ -64,11 +64,12 @@ class RunWindow:
         elapsed = time.perf_counter() - self.t0
         steps = s.steps_done - self.steps0
         wall = s.step_wall_s - self.wall0
+        busy = loop.busy_s() - self.busy0
         m = s.model
         return {"namespace": self.sim.get_namespace(), "tets": int(m.mesh.n_tets), "vertices": int(m.n_vertices),
                 "h": s.h, "seconds": elapsed, "steps": steps, "real_time_factor": steps * s.h / elapsed,
                 "mean_step_ms": wall / max(steps, 1) * 1e3,
-                "headroom": steps * s.h / wall if wall > 0 else 0.0,
+                "headroom": steps * s.h / busy if busy > 0 else 0.0,
                 "tet_steps_per_s": m.mesh.n_tets * steps / elapsed,
                 **loop.latency.percentiles(), "latencies": loop.latency.count,
                 "shares": {k: (v - self.stages0[k]) / elapsed for k, v in loop.stages.totals.items()},
