@@ -189,3 +189,25 @@ def test_stage_shares_are_seconds_per_wall_second():
     assert 0 < s["markers"] < s["physics"] <= 0.02 / 0.1 + 1e-9
     assert s["physics"] == pytest.approx(2 * s["markers"])
     assert clock.shares()["markers"] == 0.0           # a new window
+
+
+def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_waiting_for_the_batch():
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    clock = {"now": T0}
+    loop, log = _loop(scene, clock="wall", now=lambda: clock["now"])
+    handed = []
+    original = loop.latency.handed_over
+    loop.latency.handed_over = lambda used, t: handed.append((used, loop.snapshot.steps)) or original(used, t)
+    loop.start()
+    try:
+        _wait_for(lambda: loop.snapshot is not None, 10, "the placed body")
+        stamp, names, q, v = next(_samples(0.1))
+        loop.take_input(lambda: scene.push_joint_state(T0, names, q, v, now=T0))
+        clock["now"] = T0 + 5.5 * scene.h                         # five steps due
+        _wait_for(lambda: scene.steps_done == 5 and handed[-1][1] == 5, 10, "five steps")
+    finally:
+        assert loop.stop()
+    assert handed[0] == (0, 0)                                    # the placed body, before any input
+    assert (1, 1) in handed                                       # the first step that saw the input, at once
+    assert handed[-1] == (1, 5) and log == []
+    assert loop.latency.percentiles()["latency_state_p50_ms"] > 0

@@ -266,7 +266,8 @@ class ClusterFemNode(Node):
                   "resets_after_divergence": self.divergences,
                   "dropped_time_s": s.dropped_s if s else 0.0}
         if s:
-            values.update({f"rejected_{k}": n for k, n in sorted(s.inputs.rejected.items())})
+            rejected = dict(s.inputs.rejected)            # one copy: the physics thread adds kinds as it pushes
+            values.update({f"rejected_{k}": n for k, n in sorted(rejected.items())})
         if loop is not None:
             values.update(loop.latency.percentiles())
             values.update(self._window)
