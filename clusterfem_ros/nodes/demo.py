@@ -79,11 +79,9 @@ def _body_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--summary-json", default=None, help="also write the summary to this JSON file")
 
 
-def _child_argv(args: argparse.Namespace, k: int) -> list[str]:
-    """The demo arguments of body k's own process (--process-per-body)."""
-    out = ["--duration", f"{args.duration:g}", "--bags", args.bags, "--no-png"]
-    if args.scene:
-        out += ["--scene", args.scene[k] if len(args.scene) > 1 else args.scene[0]]
+def _child_argv(args: argparse.Namespace, scene: Path) -> list[str]:
+    """The demo arguments of a body's own process (--process-per-body)."""
+    out = ["--duration", f"{args.duration:g}", "--bags", args.bags, "--no-png", "--scene", str(scene)]
     return out + (["--no-record"] if args.no_record else [])
 
 
@@ -99,21 +97,21 @@ def main(argv: list[str] | None = None) -> int:
     args = _arguments(argv)
     if args.bodies > 1 and args.process_per_body:
         from .bodies import run_process_per_body
-        if args.scene and len(args.scene) not in (1, args.bodies):
-            raise SystemExit(f"[demo] {len(args.scene)} --scene files for {args.bodies} bodies: give one or one each")
-        return run_process_per_body(args, lambda k: _child_argv(args, k))
+        scenes = _scene_files(args, args.bodies)
+        return run_process_per_body(args, lambda k: _child_argv(args, scenes[k]))
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
     from ..config import load_scene_file
-    from .bodies import RunWindow, body_namespaces, print_summary, rss_growth, rss_mb, start_player, WALK_PHASE_S
+    from .bodies import WALK_PHASE_S, RunWindow, body_namespaces, print_summary, rss_growth, rss_mb, start_player
     from .clusterfem_node import ClusterFemNode
 
     names = body_namespaces(args.bodies, args.namespace)
-    configs = [load_scene_file(f) for f in _scene_files(args, len(names))]   # validated before ROS starts
-    for ns, f, config in zip(names, _scene_files(args, len(names)), configs):
+    scenes = _scene_files(args, len(names))
+    configs = [load_scene_file(f) for f in scenes]           # validated here, with a clear error, before ROS starts
+    for ns, f, config in zip(names, scenes, configs):
         print(f"[demo] {ns or 'scene'} {f}: body {config['body.kind']}, method {config['method']}, "
               f"warping {config['warping']}, h = {config['physics.step']:g} s; ROS_DOMAIN_ID="
               f"{os.environ.get('ROS_DOMAIN_ID', '0')}, DDS transport {os.environ['FASTDDS_BUILTIN_TRANSPORTS']}",
