@@ -211,3 +211,14 @@ def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_wait
     assert (1, 1) in handed                                       # the first step that saw the input, at once
     assert handed[-1] == (1, 5) and log == []
     assert loop.latency.percentiles()["latency_state_p50_ms"] > 0
+
+
+def test_the_physics_thread_imports_no_ros():
+    import subprocess
+    import sys
+    code = ("import sys\nimport clusterfem_ros.sim_loop\n"
+            "print(','.join(sorted(m for m in sys.modules if m.split('.')[0] == 'rclpy' "
+            "or m.split('.')[0].endswith('_msgs'))))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "", f"ROS modules imported by sim_loop: {out.stdout.strip()}"
