@@ -55,7 +55,7 @@ PARAMS: tuple[Param, ...] = (
     Param("modal.k", 30, "number of modes for method 'modal'", 1, 2000),
     Param("warping", True, "stiffness warping (eq. 10): removes the linear model's volume growth under rotation"),
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
-    Param("physics.timer_hz", 100.0, "rate of the physics timer; each tick advances the steps due since the last", 1.0, 2000.0),
+    Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this before the outputs get a snapshot", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
     Param("physics.max_substeps", 64, "explicit methods refuse a step needing more sub-steps than this; implicit with warping sub-steps up to it where rotations turn fast", 1, 100000),
     Param("physics.clock", "wall", "'wall': physics follows the ROS clock; 'input': it follows the newest joint-state "

@@ -41,7 +41,7 @@ def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.
 
     from .fem.stability import DivergenceError, StabilityError
     max_steps = scene.config["physics.max_catchup_steps"]
-    for s in samples:                                     # as ClusterFemNode._on_joint_state / _advance
+    for s in samples:                                     # as ClusterFemNode._on_joint_state / SimLoop._follow_inputs
         stamp = s.stamp if s.stamp != 0.0 else s.log_ns * 1e-9     # as the node stamps unstamped samples
         scene.push_joint_state(stamp, s.names, s.q, s.v, now=s.log_ns * 1e-9)
         try:

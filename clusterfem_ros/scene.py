@@ -104,6 +104,7 @@ class Scene:
         self.first_stamp: float | None = None     # stamp of the first joint state accepted
         self.steps_done = 0
         self.step_wall_s = 0.0          # wall time inside step() over steps_done steps
+        self.skeleton_wall_s = 0.0      # the part of it spent on the constraints (skeleton pose, targets)
         self.dropped_s = 0.0             # simulated time skipped because physics could not keep up
         self._replace = False
         self._stress_cache = None
@@ -295,11 +296,14 @@ class Scene:
         if self._replace:
             self._place_on_skeleton()
         t0 = time.perf_counter()
-        info = self.integrator.step(self.state, self._control(self.sim_time, self.state), self.h)
+        control = self._control(self.sim_time, self.state)
+        t1 = time.perf_counter()
+        info = self.integrator.step(self.state, control, self.h)
         wall = time.perf_counter() - t0
         self._k += 1
         self.steps_done += 1
         self.step_wall_s += wall
+        self.skeleton_wall_s += t1 - t0
         return StepReport(1, info.substeps, info.margin, wall)
 
     @property

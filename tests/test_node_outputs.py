@@ -60,13 +60,18 @@ def test_marker_stress_and_diagnostics_arrive_and_are_finite(world):
     assert values["steps"] > 0
 
 
-def test_nothing_is_computed_without_a_consumer(world):
-    node = _node(world)
+def test_nothing_is_computed_without_a_consumer(world, monkeypatch):
+    from clusterfem_ros import sim_loop
     calls = []
-    original = node.scene.stress
-    node.scene.stress = lambda: calls.append(1) or original()
-    world.wait_for(lambda: node.scene.steps_done > 50, 20, "physics steps")
+    original = sim_loop.compute_stress
+    monkeypatch.setattr(sim_loop, "compute_stress", lambda *a, **k: calls.append(1) or original(*a, **k))
+    node = _node(world)
+    world.wait_for(lambda: node.scene.steps_done > 50 and node.physics.snapshot is not None, 20, "physics steps")
     assert calls == [], "stress was computed with no subscriber and no recording"
+    from visualization_msgs.msg import Marker
+    markers = world.collect(Marker, "clusterfem/surface")          # a consumer: now it is computed
+    world.wait_for(lambda: len(markers) >= 2, 20, "markers")
+    assert calls
 
 
 def test_invalid_parameter_updates_are_refused_with_reasons(world):

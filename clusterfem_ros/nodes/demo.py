@@ -2,16 +2,23 @@
 
     scripts/run [--duration 8] [--scene config/default_scene.yaml] [--no-record] [--png bags/jelly_man.png]
                 [--no-video]
+    scripts/run --bodies 2 [--process-per-body] [--scene a.yaml --scene b.yaml]
 
 The mocap player runs as its own process, the simulation in this one on a single-threaded executor
 (rclpy's multi-threaded one is slower here; shared-memory DDS only). A scene without skeleton
 (skeleton.source = none) has nothing to play: it runs at once, without a player.
 Progress is printed every second; at the end: a summary, the bag folder, a PNG of the deformed
-body coloured by von Mises stress, and the recording rendered to run.mp4 and run.gif in the bag folder.
+body coloured by von Mises stress, the recording rendered to run.mp4 and run.gif in the bag folder, then a table of the timed run (nodes/bodies.py): real-time factor,
+physics headroom, joint-state -> marker latency, busy share per stage, RSS.
+
+With ``--bodies N`` each body is a node in its own namespace (body1, ...) with its own player process,
+scene file and recording, all on this process's executor, or each in a process of its own
+(``--process-per-body``).
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import subprocess
@@ -48,105 +55,181 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
           flush=True)
 
 
-def main(argv: list[str] | None = None) -> int:
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=8.0, help="seconds of wall time to run (default 8)")
-    ap.add_argument("--scene", default=None, help="scene parameter file (default: config/default_scene.yaml)")
+    ap.add_argument("--scene", default=None, action="append",
+                    help="scene parameter file (default: config/default_scene.yaml); once for every body, or once "
+                         "per body with --bodies")
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP bag")
     ap.add_argument("--bags", default="bags", help="folder for the recording (default bags/)")
     ap.add_argument("--png", default=None, help="picture of the final state (default: <bag folder>/final_state.png)")
     ap.add_argument("--no-video", action="store_true", help="do not render the recording to run.mp4 / run.gif")
-    args = ap.parse_args(argv)
+    _body_arguments(ap)
+    return ap.parse_args(argv)
+
+
+def _body_arguments(ap: argparse.ArgumentParser) -> None:
+    """Several bodies (nodes/bodies.py) and the run's measurements."""
+    ap.add_argument("--bodies", type=int, default=1, help="bodies to run, each in its own namespace (body1, ...) "
+                    "with its own player, joint_states, outputs and recording (default 1)")
+    ap.add_argument("--process-per-body", action="store_true",
+                    help="run each body as a process of its own (default: all as nodes of this process, one executor)")
+    ap.add_argument("--namespace", default="", help="namespace of the body (of the bodies' namespaces with --bodies)")
+    ap.add_argument("--walk-offset", type=float, default=0.0, help="start this far into the built-in walk [s]")
+    ap.add_argument("--no-png", action="store_true", help="no picture of the final state")
+    ap.add_argument("--summary-json", default=None, help="also write the summary to this JSON file")
+
+
+def _child_argv(args: argparse.Namespace, scene: Path) -> list[str]:
+    """The demo arguments of a body's own process (--process-per-body)."""
+    out = ["--duration", f"{args.duration:g}", "--bags", args.bags, "--no-png", "--scene", str(scene)]
+    return out + (["--no-record"] if args.no_record else []) + (["--no-video"] if args.no_video else [])
+
+
+def _scene_files(args: argparse.Namespace, n: int) -> list[Path]:
+    from ..config import default_scene_path
+    files = [Path(f) for f in args.scene] if args.scene else [default_scene_path()]
+    if len(files) not in (1, n):
+        raise SystemExit(f"[demo] {len(files)} --scene files for {n} bodies: give one for all or one per body")
+    return files * n if len(files) == 1 else files
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _arguments(argv)
+    if args.bodies > 1 and args.process_per_body:
+        from .bodies import run_process_per_body
+        scenes = _scene_files(args, args.bodies)
+        return run_process_per_body(args, lambda k: _child_argv(args, scenes[k]))
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from ..config import default_scene_path, load_scene_file
+    from ..config import load_scene_file
+    from .bodies import WALK_PHASE_S, RunWindow, body_namespaces, print_summary, rss_growth, rss_mb, start_player
     from .clusterfem_node import ClusterFemNode
-    from ..render import render_surface_png
 
-    scene_file = Path(args.scene) if args.scene else default_scene_path()
-    config = load_scene_file(scene_file)           # validated here, with a clear error, before ROS starts
-    overrides = [Parameter(k, value=v) for k, v in config.values.items()]
-    overrides += [Parameter("recording.enabled", value=not args.no_record), Parameter("recording.dir", value=args.bags)]
-    print(f"[demo] scene {scene_file}: body {config['body.kind']}, method {config['method']}, "
-          f"warping {config['warping']}, h = {config['physics.step']:g} s; ROS_DOMAIN_ID="
-          f"{os.environ.get('ROS_DOMAIN_ID', '0')}, DDS transport {os.environ['FASTDDS_BUILTIN_TRANSPORTS']}", flush=True)
+    names = body_namespaces(args.bodies, args.namespace)
+    scenes = _scene_files(args, len(names))
+    configs = [load_scene_file(f) for f in scenes]           # validated here, with a clear error, before ROS starts
+    for ns, f, config in zip(names, scenes, configs):
+        print(f"[demo] {ns or 'scene'} {f}: body {config['body.kind']}, method {config['method']}, "
+              f"warping {config['warping']}, h = {config['physics.step']:g} s; ROS_DOMAIN_ID="
+              f"{os.environ.get('ROS_DOMAIN_ID', '0')}, DDS transport {os.environ['FASTDDS_BUILTIN_TRANSPORTS']}",
+              flush=True)
     rclpy.init()
-    sim = player = spin = None
+    sims, players, spin = [], [], None
     executor = SingleThreadedExecutor()
-    driven = config["skeleton.source"] != "none"
     try:
         t_build = time.perf_counter()
-        sim = ClusterFemNode(parameter_overrides=overrides)
+        for k, (ns, config) in enumerate(zip(names, configs)):
+            overrides = [Parameter(key, value=v) for key, v in config.values.items()]
+            overrides += [Parameter("recording.enabled", value=not args.no_record),
+                          Parameter("recording.dir", value=args.bags)]
+            if ns:
+                overrides.append(Parameter("recording.prefix", value="clusterfem_" + ns.replace("/", "_")))
+            sims.append(ClusterFemNode(parameter_overrides=overrides, **({"namespace": ns} if ns else {})))
+            if config["skeleton.source"] != "none":
+                offset = args.walk_offset + (k * WALK_PHASE_S if len(names) > 1 else 0.0)
+                players.append((sims[-1], start_player(ns, offset)))
         print(f"[demo] simulation ready in {time.perf_counter() - t_build:.1f} s", flush=True)
-        if driven:
-            player = subprocess.Popen([sys.executable, "-m", "clusterfem_ros.nodes.player_node", "--ros-args",
-                                       "-p", "source:=builtin_walk", "--log-level", "warn"])
-        executor.add_node(sim)
+        for sim in sims:
+            executor.add_node(sim)
         spin = threading.Thread(target=executor.spin, daemon=True)
         spin.start()
-        if driven:
+        for sim, player in players:
             _wait_for_first_input(sim, player)
-        else:
+        if not players:
             print("[demo] the scene has no skeleton (skeleton.source = none): no mocap player; the body moves under "
                   "gravity and its anchors", flush=True)
+        windows = [RunWindow(sim) for sim in sims]
+        for w in windows:
+            w.start()
         t0 = time.perf_counter()
-        last_steps, last_wall = 0, 0.0
+        rss = [(0.0, rss_mb())]
+        last = [(0, 0.0)] * len(sims)
         while time.perf_counter() - t0 < args.duration:
             time.sleep(1.0)
-            d = sim.diagnostics()
-            wall = sim.scene.step_wall_s                # the second's own mean step, not the last tick's
-            step_ms = (wall - last_wall) / max(d["steps"] - last_steps, 1) * 1e3
-            print(f"[demo] t = {time.perf_counter() - t0:4.1f} s  steps {d['steps']:6d} (+{d['steps'] - last_steps})  "
-                  f"step {step_ms:.3f} ms  RTF {d['real_time_factor']:.2f}  sub-steps {d['substeps']}  "
-                  f"volume error {d['volume_error'] * 100:+.2f} %  inputs {d['inputs_accepted']} ok / "
-                  f"{d['inputs_rejected']} rejected", flush=True)
-            last_steps, last_wall = d["steps"], wall
+            rss.append((time.perf_counter() - t0, rss_mb()))
+            for k, sim in enumerate(sims):
+                last[k] = _progress(sim, names[k], time.perf_counter() - t0, *last[k], rss[-1][1])
         executor.shutdown(timeout_sec=5.0)
         spin.join(timeout=10.0)
         spin = None
-        d = sim.diagnostics()
-        scene = sim.scene
-        verts, tris = scene.surface()
-        vm = scene.vertex_von_mises()
-        bag = getattr(sim, "recording_path", None)
-        sim.close()
-        png = Path(args.png) if args.png else (Path(bag) / "final_state.png" if bag else Path(args.bags) / "final_state.png")
-        render_surface_png(png, verts, tris, vm[scene.surface_vertices],
-                           title=f"{config['body.kind']} after {scene.sim_time - scene.start_time:.2f} s "
-                                 f"({config['method']}, warping {config['warping']})")
-        print("\n[demo] summary")
-        print(f"  body            {scene.model.mesh.n_tets} tets, {scene.model.n_vertices} vertices")
-        mean_ms = scene.step_wall_s / max(scene.steps_done, 1) * 1e3
-        print(f"  physics steps   {d['steps']} of {scene.h * 1e3:g} ms; mean step {mean_ms:.3f} ms over the run; "
-              f"real-time factor {d['real_time_factor']:.2f}")
-        print(f"  stability       sub-steps {d['substeps']}, margin {d['stability_margin']:.2f}")
-        print(f"  volume error    {d['volume_error'] * 100:+.3f} %;  energy {d['energy_J']:.4g} J")
-        print(f"  inputs          {d['inputs_accepted']} joint states used, {d['inputs_rejected']} rejected, "
-              f"{d['resets_after_divergence']} resets after divergence")
-        print(f"  recording       {bag or 'off'}")
-        print(f"  picture         {png}")
-        if bag and not args.no_video:
-            from ..render import render_bag
-            mp4, gif = render_bag(bag)
-            print(f"  video           {mp4} and {gif}")
+        results = [w.result() for w in windows]
+        for sim in sims:
+            sim.stop_physics()                 # the scenes are still from here on
+        memory = rss_growth(rss, warm_up_s=min(5.0, args.duration / 4))
+        for sim, ns in zip(sims, names):
+            _final(sim, ns, args)
+        print_summary(results, memory, "timed run, all bodies in this process")
+        if args.summary_json:
+            Path(args.summary_json).write_text(json.dumps({"mode": "one_process", "bodies": results, "rss": memory},
+                                                          indent=1))
         return 0
     finally:
         if spin is not None:                    # an early exit: stop spinning before the node goes, or the
             executor.shutdown(timeout_sec=5.0)  # executor thread dies with the process ("terminate called")
             spin.join(timeout=10.0)
-        if player is not None and player.poll() is None:
-            player.send_signal(signal.SIGINT)
+        for _, player in players:
+            if player.poll() is None:
+                player.send_signal(signal.SIGINT)
+        for _, player in players:
             try:
                 player.wait(timeout=10.0)
             except subprocess.TimeoutExpired:
                 player.kill()
-        if sim is not None:
+        for sim in sims:
             sim.close()
             sim.destroy_node()
         rclpy.try_shutdown()
+
+
+def _progress(sim, ns: str, t: float, last_steps: int, last_wall: float, rss: float) -> tuple[int, float]:
+    """One progress line of a body; returns its (steps, step wall time) for the next."""
+    d = sim.diagnostics()
+    wall = sim.scene.step_wall_s                # the second's own mean step, not the last tick's
+    step_ms = (wall - last_wall) / max(d["steps"] - last_steps, 1) * 1e3
+    print(f"[demo{' ' + ns if ns else ''}] t = {t:4.1f} s  steps {d['steps']:6d} (+{d['steps'] - last_steps})  "
+          f"step {step_ms:.3f} ms  RTF {d['real_time_factor']:.2f}  headroom {d.get('physics_headroom', 0.0):.2f}  "
+          f"latency p99 {d.get('latency_p99_ms', 0.0):.1f} ms  sub-steps {d['substeps']}  "
+          f"volume error {d['volume_error'] * 100:+.2f} %  inputs {d['inputs_accepted']} ok / "
+          f"{d['inputs_rejected']} rejected  RSS {rss:.0f} MB", flush=True)
+    return d["steps"], wall
+
+
+def _final(sim, ns: str, args: argparse.Namespace) -> None:
+    """A body's closing lines and its picture (the physics thread is stopped: the scene is still)."""
+    from ..render import render_surface_png
+    d = sim.diagnostics()
+    scene, config = sim.scene, sim.config
+    bag = getattr(sim, "recording_path", None)
+    sim.close()
+    png = None
+    if not args.no_png:
+        verts, tris = scene.surface()
+        vm = scene.vertex_von_mises()
+        default = Path(args.bags) / (f"final_state_{ns.replace('/', '_')}.png" if ns else "final_state.png")
+        png = Path(args.png) if args.png and not ns else (Path(bag) / "final_state.png" if bag else default)
+        render_surface_png(png, verts, tris, vm[scene.surface_vertices],
+                           title=f"{config['body.kind']} after {scene.sim_time - scene.start_time:.2f} s "
+                                 f"({config['method']}, warping {config['warping']})")
+    print(f"\n[demo] summary{' of ' + ns if ns else ''}")
+    print(f"  body            {scene.model.mesh.n_tets} tets, {scene.model.n_vertices} vertices")
+    mean_ms = scene.step_wall_s / max(scene.steps_done, 1) * 1e3
+    print(f"  physics steps   {d['steps']} of {scene.h * 1e3:g} ms; mean step {mean_ms:.3f} ms over the run; "
+          f"real-time factor {d['real_time_factor']:.2f}")
+    print(f"  stability       sub-steps {d['substeps']}, margin {d['stability_margin']:.2f}")
+    print(f"  volume error    {d['volume_error'] * 100:+.3f} %;  energy {d['energy_J']:.4g} J")
+    print(f"  inputs          {d['inputs_accepted']} joint states used, {d['inputs_rejected']} rejected, "
+          f"{d['resets_after_divergence']} resets after divergence, {d.get('physics_failures', 0)} physics failures")
+    print(f"  recording       {bag or 'off'}")
+    print(f"  picture         {png or 'off'}")
+    if bag and not args.no_video:
+        from ..render import render_bag
+        mp4, gif = render_bag(bag)
+        print(f"  video           {mp4} and {gif}")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,363 @@
+"""Physics on a thread of its own, handing finished states to the outputs as snapshots. No ROS.
+
+    loop = SimLoop(scene, clock="wall", now=ros_seconds, timer_hz=100.0, max_catchup_steps=250, log=log)
+    loop.start()
+    loop.take_input(lambda: scene.push_joint_state(...))   # from the subscription callback: queued
+    snap = loop.snapshot                                    # from the output timers: never half written
+    loop.stop()                                             # joins the thread
+
+The numba kernels release the GIL, so a step runs while the executor thread builds markers, computes stress
+and records. The scene is changed by this thread only: the subscription callback queues each joint-state
+sample (a bounded queue) and this thread pushes it into the scene, so no callback waits for a step and no
+lock is held across one. The outputs never read the scene's state: batches of steps end with a ``Snapshot``,
+a fresh, read-only copy of the state, put in place by one reference assignment (atomic in Python); the copy
+being read stays whole while the next is made.
+
+Clock "input" steps in a replay's order (push a sample, step up to its stamp, next sample), so a replay of
+the recorded joint states (replay.py) reproduces every published state bit for bit. Clock "wall"
+steps up to the clock whenever a joint state arrives or 1 / timer_hz has passed, at most 0.7 / timer_hz per
+batch (then a snapshot, then on), in slow motion up to ``max_catchup_steps`` behind.
+
+A divergence resets the body. Any other exception in a step is logged, counted in ``crashes``
+and ``error``, and the body is reset; after ``MAX_CRASHES_IN_A_ROW`` crashes with no good step between them
+the thread stops (``stopped``), the node keeps running and reports it, and ``stop()`` still returns.
+"""
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .fem.stability import DivergenceError, StabilityError
+from .fem.stress import compute_stress
+
+MAX_CRASHES_IN_A_ROW = 5
+INPUT_QUEUE = 1024          # samples waiting for the physics thread (~8 s of a 120 Hz stream)
+STAGES = ("inputs", "skeleton", "physics", "snapshot", "stress", "markers", "cloud", "diagnostics", "recording")
+THREAD_STAGES = ("inputs", "skeleton", "physics", "snapshot")     # the physics thread's own work
+
+
+def output_problem(scene) -> str | None:
+    """Why the scene's current state must not be published, or None. The one place the snapshot asks: the
+    scene's own check (``Scene.output_problem``) where it has one, else the finite check of the state."""
+    check = getattr(scene, "output_problem", None)
+    if check is not None:
+        return check()
+    if scene.sim_time is None:
+        return "the body has not been placed on its skeleton yet"
+    if not (np.isfinite(scene.state.u).all() and np.isfinite(scene.state.v).all()):
+        return "the state is not finite"
+    return None
+
+
+@dataclass(eq=False)
+class Snapshot:
+    """A finished state, copied: what every output of one tick shows. ``inputs_used``: how many accepted
+    joint states the steps that made it had seen (the latency's reference)."""
+    sim_time: float
+    u: np.ndarray
+    v: np.ndarray
+    steps: int
+    inputs_used: int
+    taken_at: float                      # time.perf_counter()
+    _stress: object = field(default=None, repr=False)
+
+    def stress(self, model, corotated: bool, stages: "StageClock | None" = None):
+        """The stress field of this state, computed once (the surface colours and the cloud share it)."""
+        if self._stress is None:
+            t0 = time.perf_counter()
+            # a writable copy: a read-only array is another type to numba, compiled once more for nothing
+            self._stress = compute_stress(model, self.u.copy(), corotated=corotated)
+            if stages is not None:
+                stages.add("stress", time.perf_counter() - t0)
+        return self._stress
+
+
+class StageClock:
+    """Seconds spent per stage (wall time inside it), for the busy share of each: seconds per wall second,
+    1.0 being one core's worth. Each stage is added to from one thread only."""
+
+    def __init__(self):
+        self.t0 = time.perf_counter()
+        self.totals = dict.fromkeys(STAGES, 0.0)
+        self._mark = (self.t0, dict(self.totals), time.process_time())
+
+    def add(self, stage: str, seconds: float) -> None:
+        self.totals[stage] += seconds
+
+    def shares(self) -> dict[str, float]:
+        """Busy share per stage since the previous call (or the start), and ``process`` (the whole process's
+        CPU time per wall second: up to the number of cores)."""
+        now, cpu = time.perf_counter(), time.process_time()
+        t_prev, prev, cpu_prev = self._mark
+        totals = dict(self.totals)
+        self._mark = (now, totals, cpu)
+        dt = max(now - t_prev, 1e-9)
+        out = {k: (totals[k] - prev[k]) / dt for k in STAGES}
+        out["process"] = (cpu - cpu_prev) / dt
+        return out
+
+
+class LatencyMeter:
+    """Joint-state arrival -> first surface Marker published whose state had seen it [s].
+
+    Arrivals are numbered in the order they were accepted; a published marker whose snapshot saw the first
+    ``used`` of them closes every one still open up to ``used``. The last ``keep`` latencies are kept for the
+    percentiles (bounded memory); the maximum and the count cover the whole run. Beside it, arrival -> first
+    snapshot handed over that had seen it (``latency_state_*``: the physics thread's share; the rest is the
+    wait for the marker timer and the marker's making)."""
+
+    def __init__(self, keep: int = 20000):
+        self._open: deque[tuple[int, float]] = deque(maxlen=keep)
+        self._open_state: deque[tuple[int, float]] = deque(maxlen=keep)
+        self._done: deque[float] = deque(maxlen=keep)
+        self._state: deque[float] = deque(maxlen=keep)
+        self.count = 0
+        self.max = 0.0
+        self._lock = threading.Lock()
+
+    def arrived(self, seq: int, t: float) -> None:
+        with self._lock:
+            self._open.append((seq, t))
+            self._open_state.append((seq, t))
+
+    def handed_over(self, used: int, t: float) -> None:
+        """A snapshot that had seen ``used`` arrivals was handed over at ``t``."""
+        with self._lock:
+            while self._open_state and self._open_state[0][0] <= used:
+                self._state.append(t - self._open_state.popleft()[1])
+
+    def published(self, used: int, t: float) -> None:
+        """A marker of a snapshot that had seen ``used`` arrivals was published at ``t``."""
+        with self._lock:
+            while self._open and self._open[0][0] <= used:
+                lat = t - self._open.popleft()[1]
+                self._done.append(lat)
+                self.count += 1
+                self.max = max(self.max, lat)
+
+    def restart(self) -> None:
+        """Forget the latencies measured so far (a timed run starts); arrivals still open stay open."""
+        with self._lock:
+            self._done.clear()
+            self._state.clear()
+            self.count = 0
+            self.max = 0.0
+
+    def percentiles(self) -> dict[str, float]:
+        """p50, p99 (of the last ``keep``) and max [ms] to the marker, p50 and p99 to the snapshot; zeros
+        before the first."""
+        with self._lock:
+            done = np.fromiter(self._done, float, len(self._done))
+            state = np.fromiter(self._state, float, len(self._state))
+        p50, p99 = np.percentile(done, [50, 99]) * 1e3 if done.size else (0.0, 0.0)
+        s50, s99 = np.percentile(state, [50, 99]) * 1e3 if state.size else (0.0, 0.0)
+        return {"latency_p50_ms": float(p50), "latency_p99_ms": float(p99), "latency_max_ms": self.max * 1e3,
+                "latency_state_p50_ms": float(s50), "latency_state_p99_ms": float(s99)}
+
+
+class SimLoop:
+    """The physics thread of one scene; see the module docstring."""
+
+    def __init__(self, scene, clock: str, now: Callable[[], float], timer_hz: float, max_catchup_steps: int,
+                 log: Callable[[str, str], None], name: str = "physics"):
+        if clock not in ("wall", "input"):
+            raise ValueError(f"physics.clock {clock!r} is not 'wall' or 'input'")
+        self.scene = scene
+        self.clock = clock
+        self.now = now
+        self.period = 1.0 / float(timer_hz)
+        self.max_steps = int(max_catchup_steps)
+        self.log = log                                   # log(level, text), level "error" | "warning" | "info"
+        self.stages = StageClock()
+        self.latency = LatencyMeter()
+        self.snapshot: Snapshot | None = None
+        self.divergences = 0
+        self.crashes = 0
+        self.error: str | None = None                    # the last crash, for the diagnostics
+        self.error_at = float("-inf")                    # and when (time.perf_counter())
+        self.stopped = False                             # the thread gave up (MAX_CRASHES_IN_A_ROW)
+        self.unpublishable = 0                           # batches whose end state failed output_problem
+        self.queue_full = 0                              # samples refused: INPUT_QUEUE of them waiting
+        self._accepted = 0                               # accepted inputs pushed so far (the latency's numbering)
+        self._seen = 0                                   # of them, those a step has seen
+        self._queue: deque = deque()
+        self._wake = threading.Condition()
+        self._pending = False                            # an input arrived since the thread last looked
+        self._stop = threading.Event()
+        self._in_a_row = 0
+        self._headroom = (0, 0.0)                        # (steps, busy seconds) at the previous headroom() call
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    # -- control ---------------------------------------------------------------------------------
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self, timeout: float = 10.0) -> bool:
+        """Stop and join the thread; True if it ended within ``timeout`` (a step is milliseconds)."""
+        self._stop.set()
+        with self._wake:
+            self._wake.notify_all()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    @property
+    def running(self) -> bool:
+        return self._thread.is_alive()
+
+    # -- inputs ----------------------------------------------------------------------------------
+    def take_input(self, push: Callable[[], None]) -> None:
+        """Hand one joint-state sample over: ``push()`` pushes it into the scene, on the physics thread (the
+        callback never waits for a step). Clock "wall": every sample queued is pushed before the next step;
+        clock "input": one sample is pushed, then the steps up to its stamp are done, then the next."""
+        if len(self._queue) >= INPUT_QUEUE:
+            self.queue_full += 1
+            self.log("warning", f"joint state dropped: {INPUT_QUEUE} samples wait for physics "
+                                f"({self.queue_full} dropped so far); physics cannot keep up with the input rate")
+            return
+        self._queue.append((push, time.perf_counter()))
+        with self._wake:
+            self._pending = True
+            self._wake.notify()
+
+    def _push_next(self) -> None:
+        push, arrived = self._queue.popleft()
+        t = time.perf_counter()
+        before = self.scene.inputs.accepted
+        push()
+        if self.scene.inputs.accepted > before:
+            self._accepted += 1
+            self.latency.arrived(self._accepted, arrived)
+        self.stages.add("inputs", time.perf_counter() - t)
+
+    # -- the thread ------------------------------------------------------------------------------
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                if self.clock == "input":
+                    self._follow_inputs()
+                else:
+                    self._follow_clock()
+            except (DivergenceError, StabilityError) as exc:
+                self.divergences += 1
+                self.log("error", f"{exc}; the body is reset ({self.divergences} resets so far)")
+                self._reset()
+            except Exception as exc:  # noqa: BLE001 (any failure of a step: report it, reset, go on or stop)
+                self._crashed(exc)
+
+    def _wait(self, timeout: float | None = None) -> None:
+        """Until an input arrives, ``timeout`` or 1 / timer_hz passes, or stop."""
+        with self._wake:
+            if not self._queue and not self._pending and not self._stop.is_set():
+                self._wake.wait(self.period if timeout is None else min(timeout, self.period))
+            self._pending = False
+
+    def _follow_inputs(self) -> None:
+        """Clock "input": each sample pushed, then steps up to its stamp, as replay.py does."""
+        if not self._queue:
+            self._wait()
+            return
+        self._push_next()
+        used = self._accepted
+        n = self._timed(lambda: self.scene.follow_inputs(self.max_steps))
+        if n or self.snapshot is None:
+            self._take_snapshot(used)
+
+    def _follow_clock(self) -> None:
+        """Clock "wall": the queued inputs pushed, then steps up to now, until none is due or the batch's
+        time is up. The first state that saw a new input is handed over at once, and an input no step has
+        seen yet wakes the thread when the next step is due (not a timer period later): so from an input's
+        arrival to a snapshot that used it takes about a step, whatever else the batch does."""
+        deadline = time.perf_counter() + 0.7 * self.period
+        stepped, due_in, unsent = 0, None, False
+        scene = self.scene
+        while not self._stop.is_set():
+            while self._queue:
+                self._push_next()
+            target = self.now()
+            if scene.sim_time is not None and scene.steps_due(target) <= 0:
+                if self._accepted > self._seen:
+                    due_in = scene.sim_time + scene.h - target
+                break
+            fresh = self._accepted > self._seen
+            used = self._seen = self._accepted
+            # deadline 0: advance_to does one step (or drops the gap past max_steps, or starts the clock)
+            stepped += self._timed(lambda: scene.advance_to(target, self.max_steps, deadline=0.0)) or 1
+            unsent = not fresh
+            if fresh:
+                self._take_snapshot(used)
+            if time.perf_counter() > deadline:
+                break
+        if unsent:
+            self._take_snapshot(used)
+        if stepped == 0 or time.perf_counter() <= deadline:
+            self._wait(due_in)
+
+    def _timed(self, advance: Callable[[], object]) -> int:
+        """Run ``advance`` (steps of the scene); its time goes to the skeleton and physics stages."""
+        s = self.scene
+        steps0, wall0, skel0 = s.steps_done, s.step_wall_s, s.skeleton_wall_s
+        advance()
+        n = s.steps_done - steps0
+        if n:
+            skel = s.skeleton_wall_s - skel0
+            self.stages.add("skeleton", skel)
+            self.stages.add("physics", s.step_wall_s - wall0 - skel)
+            self._in_a_row = 0
+        return n
+
+    def _take_snapshot(self, used: int) -> None:
+        t = time.perf_counter()
+        s = self.scene
+        problem = output_problem(s)
+        if problem is None:
+            u, v = s.state.u.copy(), s.state.v.copy()
+            u.flags.writeable = v.flags.writeable = False      # handed over: nobody writes it again
+            self.snapshot = Snapshot(s.sim_time, u, v, s.steps_done, used, t)
+            self.latency.handed_over(used, time.perf_counter())
+        if problem is not None and s.sim_time is not None:
+            self.unpublishable += 1
+        self.stages.add("snapshot", time.perf_counter() - t)
+
+    def _reset(self) -> None:
+        self.scene.reset()
+
+    def _crashed(self, exc: BaseException) -> None:
+        self.crashes += 1
+        self._in_a_row += 1
+        self.error = f"{type(exc).__name__}: {exc}"
+        self.error_at = time.perf_counter()
+        trace = "".join(traceback.format_exception(exc)).rstrip()
+        if self._in_a_row >= MAX_CRASHES_IN_A_ROW:
+            self.stopped = True
+            self._stop.set()
+            self.log("error", f"physics failed {self._in_a_row} times in a row and has stopped (the node keeps "
+                              f"running without new states; restart it): {self.error}\n{trace}")
+            return
+        self.log("error", f"physics step failed ({self.crashes} failures so far); the body is reset: {self.error}"
+                          f"\n{trace}")
+        try:
+            self._reset()
+        except Exception as again:  # noqa: BLE001 (a reset that fails too counts as the next failure)
+            self._crashed(again)
+
+    # -- measurements ----------------------------------------------------------------------------
+    def busy_s(self) -> float:
+        """Seconds the physics thread has worked (inputs, skeleton, physics, snapshots), waits excluded."""
+        return sum(self.stages.totals[k] for k in THREAD_STAGES)
+
+    def headroom(self) -> float:
+        """Simulated seconds per wall second the physics thread would sustain alone, over the steps since the
+        previous call: simulated time / the thread's busy time (``busy_s``). 0 before any step."""
+        steps, busy = self.scene.steps_done, self.busy_s()
+        d_steps, d_busy = steps - self._headroom[0], busy - self._headroom[1]
+        if d_steps <= 0 or d_busy <= 0:
+            return 0.0
+        self._headroom = (steps, busy)
+        return d_steps * self.scene.h / d_busy

@@ -1,0 +1,224 @@
+"""The physics thread (sim_loop.SimLoop), without ROS: input-clock determinism against the stepping it replaced,
+snapshots that are never written after hand-over, failures reported and survived, latency bookkeeping."""
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from clusterfem_ros.config import SceneConfig
+from clusterfem_ros.motion import load_motion
+from clusterfem_ros.scene import Scene
+from clusterfem_ros.sim_loop import MAX_CRASHES_IN_A_ROW, LatencyMeter, SimLoop, StageClock
+
+SMALL_MAN = dict(body__target_tets=700, warping=True)
+T0 = 1000.0                                   # stamps far from zero, as on a ROS clock
+
+
+def _samples(seconds, rate=120.0, offset=0.0):
+    m = load_motion()
+    for k in range(int(seconds * rate)):
+        q, v = m.trajectory.sample(offset + k / rate, loop=True)
+        yield T0 + k / rate, m.trajectory.names, q, v
+
+
+def _wait_for(predicate, timeout=30.0, what="condition"):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.005)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+class _Log(list):
+    def __call__(self, level, text):
+        self.append((level, text))
+
+
+def _loop(scene, clock="input", now=lambda: 0.0, **kw):
+    log = _Log()
+    loop = SimLoop(scene, clock, now, kw.pop("timer_hz", 100.0), kw.pop("max_catchup_steps", 250), log)
+    return loop, log
+
+
+def test_input_clock_on_the_thread_gives_the_states_of_push_then_follow_bit_for_bit():
+    config = SceneConfig().with_values(**SMALL_MAN)
+    direct, threaded = Scene.build(config), Scene.build(config)
+    expected = {}
+    for stamp, names, q, v in _samples(0.5):              # what the node did on its executor thread
+        direct.push_joint_state(stamp, names, q, v, now=stamp)
+        direct.follow_inputs(250)
+        expected[direct.steps_done] = direct.positions().copy()
+    loop, log = _loop(threaded)
+    seen = {}
+    loop.start()
+    try:
+        for stamp, names, q, v in _samples(0.5):
+            loop.take_input(lambda s=stamp, n=names, q=q, v=v: threaded.push_joint_state(s, n, q, v, now=s))
+            snap = loop.snapshot
+            if snap is not None:
+                seen[snap.steps] = threaded.model.rest + snap.u
+        _wait_for(lambda: loop.snapshot is not None and loop.snapshot.steps == direct.steps_done, 60, "all steps")
+    finally:
+        assert loop.stop()
+    snap = loop.snapshot
+    seen[snap.steps] = threaded.model.rest + snap.u
+    assert threaded.steps_done == direct.steps_done > 400 and log == []
+    assert np.array_equal(threaded.positions(), direct.positions())
+    for steps, x in seen.items():                   # every state handed over is one the old stepping had
+        assert np.array_equal(x, expected[steps]), steps
+    assert snap.sim_time == direct.sim_time and snap.inputs_used == direct.inputs.accepted
+
+
+def test_a_snapshot_is_never_written_after_it_is_handed_over():
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    loop, _ = _loop(scene)
+    loop.start()
+    try:
+        samples = list(_samples(0.4))
+        for stamp, names, q, v in samples[:10]:
+            loop.take_input(lambda s=stamp, n=names, q=q, v=v: scene.push_joint_state(s, n, q, v, now=s))
+        _wait_for(lambda: loop.snapshot is not None and loop.snapshot.steps > 0, 30, "a snapshot")
+        first = loop.snapshot
+        kept = first.u.copy(), first.v.copy()
+        with pytest.raises(ValueError):
+            first.u[0, 0] = 1.0                                 # read-only: no output can scribble on it
+        for stamp, names, q, v in samples[10:]:
+            loop.take_input(lambda s=stamp, n=names, q=q, v=v: scene.push_joint_state(s, n, q, v, now=s))
+        _wait_for(lambda: loop.snapshot.steps > first.steps + 200, 30, "200 more steps")
+    finally:
+        assert loop.stop()
+    assert np.array_equal(first.u, kept[0]) and np.array_equal(first.v, kept[1])
+    assert not np.array_equal(loop.snapshot.u, first.u)         # the body moved on, in other arrays
+
+
+def test_nothing_is_handed_over_before_the_body_is_placed():
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    loop, log = _loop(scene, clock="wall", now=lambda: T0)
+    loop.start()
+    try:
+        _wait_for(lambda: scene.sim_time is not None, 10, "the wall clock to start the scene")
+        _wait_for(lambda: loop.snapshot is not None, 10, "the placed body's snapshot")
+    finally:
+        assert loop.stop()
+    assert loop.snapshot.sim_time == T0 and loop.unpublishable == 0 and log == []
+
+
+def test_wall_clock_follows_the_clock_and_counts_the_stages():
+    scene = Scene.build(SceneConfig().with_values(body__kind="sphere", skeleton__source="none", warping=False))
+    t_start = time.perf_counter()
+    loop, log = _loop(scene, clock="wall", now=lambda: time.perf_counter() - t_start)
+    loop.start()
+    try:
+        _wait_for(lambda: scene.sim_time is not None and scene.sim_time > 0.2, 30, "0.2 s of physics")
+    finally:
+        assert loop.stop()
+    t_end = time.perf_counter() - t_start
+    assert scene.sim_time <= t_end + 1e-9                          # never ahead of the clock
+    assert loop.stages.totals["physics"] > 0 and loop.stages.totals["skeleton"] > 0
+    assert loop.stages.totals["physics"] + loop.stages.totals["skeleton"] == pytest.approx(scene.step_wall_s)
+    busy = sum(loop.stages.totals[k] for k in ("inputs", "skeleton", "physics", "snapshot"))
+    assert loop.stages.totals["snapshot"] > 0 and busy > scene.step_wall_s
+    assert loop.headroom() == pytest.approx(scene.steps_done * scene.h / busy)
+    assert log == []
+
+
+def test_a_failing_step_is_reported_the_body_reset_and_physics_goes_on():
+    scene = Scene.build(SceneConfig().with_values(body__kind="sphere", skeleton__source="none", warping=False))
+    real_step = scene.integrator.step
+    failures = {"left": 1}
+
+    def step(*args):
+        if failures["left"] and scene.steps_done >= 30:
+            failures["left"] -= 1
+            raise RuntimeError("injected failure")
+        return real_step(*args)
+
+    scene.integrator.step = step
+    t_start = time.perf_counter()
+    loop, log = _loop(scene, clock="wall", now=lambda: time.perf_counter() - t_start)
+    loop.start()
+    try:
+        _wait_for(lambda: scene.steps_done > 100, 30, "steps after the failure")
+    finally:
+        assert loop.stop()
+    assert loop.crashes == 1 and not loop.stopped and "injected failure" in loop.error
+    assert [lvl for lvl, _ in log] == ["error"] and "RuntimeError" in log[0][1] and "reset" in log[0][1]
+
+
+def test_failures_in_a_row_stop_the_thread_and_stop_still_returns():
+    scene = Scene.build(SceneConfig().with_values(body__kind="sphere", skeleton__source="none", warping=False))
+
+    def step(*args):
+        raise FloatingPointError("always")
+
+    scene.integrator.step = step
+    loop, log = _loop(scene, clock="wall", now=lambda: time.perf_counter())
+    loop.start()
+    _wait_for(lambda: not loop.running, 10, "the thread to give up")
+    assert loop.stopped and loop.crashes == MAX_CRASHES_IN_A_ROW
+    assert "stopped" in log[-1][1] and loop.stop(timeout=1.0)
+
+
+def test_latency_closes_every_arrival_seen_by_the_published_state():
+    meter = LatencyMeter(keep=100)
+    for seq, t in enumerate([1.000, 1.010, 1.020, 1.030], start=1):
+        meter.arrived(seq, t)
+    meter.handed_over(2, 1.025)                 # a snapshot that had seen the first two
+    meter.published(2, 1.040)                   # a marker of it
+    meter.published(2, 1.070)                   # the same state again: nothing new to close
+    meter.handed_over(4, 1.035)
+    meter.handed_over(4, 1.045)                 # a later snapshot: the first one closed them
+    meter.published(4, 1.050)
+    assert meter.count == 4
+    assert meter.max == pytest.approx(0.040)
+    p = meter.percentiles()
+    assert p["latency_max_ms"] == pytest.approx(40.0)
+    assert p["latency_p50_ms"] == pytest.approx(np.percentile([40, 30, 30, 20], 50))
+    assert p["latency_state_p99_ms"] == pytest.approx(np.percentile([25, 15, 15, 5], 99))
+
+
+def test_stage_shares_are_seconds_per_wall_second():
+    clock = StageClock()
+    time.sleep(0.05)
+    clock.add("markers", 0.01)
+    threading.Thread(target=lambda: clock.add("physics", 0.02)).start()
+    time.sleep(0.05)
+    s = clock.shares()
+    assert 0 < s["markers"] < s["physics"] <= 0.02 / 0.1 + 1e-9
+    assert s["physics"] == pytest.approx(2 * s["markers"])
+    assert clock.shares()["markers"] == 0.0           # a new window
+
+
+def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_waiting_for_the_batch():
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    clock = {"now": T0}
+    loop, log = _loop(scene, clock="wall", now=lambda: clock["now"])
+    handed = []
+    original = loop.latency.handed_over
+    loop.latency.handed_over = lambda used, t: handed.append((used, loop.snapshot.steps)) or original(used, t)
+    loop.start()
+    try:
+        _wait_for(lambda: loop.snapshot is not None, 10, "the placed body")
+        stamp, names, q, v = next(_samples(0.1))
+        loop.take_input(lambda: scene.push_joint_state(T0, names, q, v, now=T0))
+        clock["now"] = T0 + 5.5 * scene.h                         # five steps due
+        _wait_for(lambda: scene.steps_done == 5 and handed[-1][1] == 5, 10, "five steps")
+    finally:
+        assert loop.stop()
+    assert handed[0] == (0, 0)                                    # the placed body, before any input
+    assert (1, 1) in handed                                       # the first step that saw the input, at once
+    assert handed[-1] == (1, 5) and log == []
+    assert loop.latency.percentiles()["latency_state_p50_ms"] > 0
+
+
+def test_the_physics_thread_imports_no_ros():
+    import subprocess
+    import sys
+    code = ("import sys\nimport clusterfem_ros.sim_loop\n"
+            "print(','.join(sorted(m for m in sys.modules if m.split('.')[0] == 'rclpy' "
+            "or m.split('.')[0].endswith('_msgs'))))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "", f"ROS modules imported by sim_loop: {out.stdout.strip()}"
