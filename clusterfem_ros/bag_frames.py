@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from .errors import ClusterFemError
-from .recording.bag_reader import PARAMS_FILE, JointSample, read_joint_states
+from .recording.bag_reader import PARAMS_FILE, JointSample, read_joint_states, topic_in
 
 SURFACE_TOPIC = "/clusterfem/surface"
 JOINT_TOPIC = "/joint_states"
@@ -151,17 +151,20 @@ def read_bag_frames(folder: str | Path) -> BagFrames:
     surfaces, bag_urdf, topics = [], None, set()
     with open(mcap_path, "rb") as fh:
         reader = make_reader(fh)
-        for _, channel, message in reader.iter_messages(topics=[SURFACE_TOPIC, URDF_TOPIC]):
-            if channel.topic == SURFACE_TOPIC:
-                surfaces.append(decode_surface_marker(message.data))
-            elif bag_urdf is None:
-                bag_urdf = _Cdr(message.data).string()
         summary = reader.get_summary()
         if summary is not None:
             topics = {c.topic for c in summary.channels.values()}
+        # a node in a namespace records its topics under it ('/body1/clusterfem/surface')
+        surface_topic = topic_in(topics, SURFACE_TOPIC) or SURFACE_TOPIC
+        urdf_topic = topic_in(topics, URDF_TOPIC) or URDF_TOPIC
+        for _, channel, message in reader.iter_messages(topics=[surface_topic, urdf_topic]):
+            if channel.topic == surface_topic:
+                surfaces.append(decode_surface_marker(message.data))
+            elif bag_urdf is None:
+                bag_urdf = _Cdr(message.data).string()
     if not surfaces:
         raise BagFramesError(f"bag {str(folder)!r} has no {SURFACE_TOPIC} Markers (topics: {sorted(topics)}): "
                              "record with output.marker_rate_hz > 0")
-    joints = read_joint_states(folder) if JOINT_TOPIC in topics else []
+    joints = read_joint_states(folder) if topic_in(topics, JOINT_TOPIC) else []
     scene = scene_of(folder)
     return BagFrames(folder, surfaces, joints, _skeleton_urdf(scene, bag_urdf, folder), scene)

@@ -232,3 +232,13 @@ def test_the_sample_recording_replays_to_round_off_and_a_changed_physics_is_repo
     assert main([str(stiffer)]) == 1
     err = capsys.readouterr().err
     assert "the physics changed since it was recorded" in err and "record it again" in err
+
+
+def test_a_bag_topic_is_found_under_a_namespace_and_two_namespaces_are_refused():
+    from clusterfem_ros.recording.bag_reader import topic_in
+    assert topic_in({"/joint_states", "/body1/joint_states"}, "/joint_states") == "/joint_states"
+    assert topic_in({"/body1/clusterfem/surface", "/diagnostics"}, "/clusterfem/surface") == "/body1/clusterfem/surface"
+    assert topic_in({"/diagnostics"}, "/joint_states") is None
+    assert topic_in({"/my_joint_states"}, "/joint_states") is None          # a suffix of a name is not a namespace
+    with pytest.raises(ValueError, match="/a/joint_states, /b/joint_states"):
+        topic_in({"/a/joint_states", "/b/joint_states"}, "/joint_states")

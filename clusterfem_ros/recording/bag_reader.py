@@ -22,6 +22,20 @@ class JointSample:
     v: np.ndarray | None
 
 
+def topic_in(topics, name: str) -> str | None:
+    """The bag's topic for ``name`` ('/joint_states'): the name itself, or the one topic that is the name under a
+    namespace ('/body1/joint_states', as a node in a namespace records it); None when there is none. Two
+    namespaced matches are ambiguous: ValueError names them."""
+    topics = set(topics)
+    if name in topics:
+        return name
+    found = sorted(t for t in topics if t.endswith("/" + name.lstrip("/")))
+    if len(found) > 1:
+        raise ValueError(f"the bag has {len(found)} topics named {name!r} under namespaces ({', '.join(found)}): "
+                         "pass the one to read")
+    return found[0] if found else None
+
+
 def _reader(folder: Path):
     from rosbags.highlevel import AnyReader
     return AnyReader([Path(folder)])
@@ -31,7 +45,8 @@ def read_joint_states(folder: str | Path, topic: str = "/joint_states") -> list[
     """Every joint state in the bag, in recording order."""
     out = []
     with _reader(Path(folder)) as r:
-        conns = [c for c in r.connections if c.topic == topic]
+        found = topic_in((c.topic for c in r.connections), topic)
+        conns = [c for c in r.connections if c.topic == found]
         if not conns:
             raise ValueError(f"bag {str(folder)!r} has no {topic!r} topic (topics: "
                              f"{sorted({c.topic for c in r.connections})})")
@@ -48,7 +63,8 @@ def read_surfaces(folder: str | Path, topic: str = "/clusterfem/surface") -> lis
     """(stamp in ns, triangle-list points (3t, 3)) of every recorded surface Marker."""
     out = []
     with _reader(Path(folder)) as r:
-        conns = [c for c in r.connections if c.topic == topic]
+        found = topic_in((c.topic for c in r.connections), topic)
+        conns = [c for c in r.connections if c.topic == found]
         for c, _, raw in r.messages(connections=conns):
             m = r.deserialize(raw, c.msgtype)
             pts = np.array([[p.x, p.y, p.z] for p in m.points], dtype=np.float64).reshape(-1, 3)
