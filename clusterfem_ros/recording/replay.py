@@ -36,16 +36,25 @@ def _reader(folder: Path):
     return AnyReader([Path(folder)])
 
 
+class ReplayError(ValueError):
+    """A bag that cannot be replayed; the message names the bag and the record."""
+
+
 def read_joint_states(folder: str | Path, topic: str = "/joint_states") -> list[JointSample]:
-    """Every joint state in the bag, in recording order."""
+    """Every joint state in the bag, in recording order. ReplayError names the first record that does
+    not decode (the node records only what it decoded, so such a record was written by something else)."""
     out = []
     with _reader(Path(folder)) as r:
         conns = [c for c in r.connections if c.topic == topic]
         if not conns:
             raise ValueError(f"bag {str(folder)!r} has no {topic!r} topic (topics: "
                              f"{sorted({c.topic for c in r.connections})})")
-        for c, log_ns, raw in r.messages(connections=conns):
-            m = r.deserialize(raw, c.msgtype)
+        for k, (c, log_ns, raw) in enumerate(r.messages(connections=conns)):
+            try:
+                m = r.deserialize(raw, c.msgtype)
+            except Exception as exc:
+                raise ReplayError(f"bag {str(folder)!r}: {topic} record {k} (log time {log_ns} ns, {len(raw)} bytes) "
+                                  f"does not decode as {c.msgtype}: {exc}") from None
             stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
             q = np.asarray(m.position, dtype=np.float64)
             v = np.asarray(m.velocity, dtype=np.float64) if len(m.velocity) else None
@@ -102,13 +111,20 @@ def main(argv: list[str] | None = None) -> int:
                     help="largest vertex difference [m] a physics.clock = input bag may show (default 1e-6)")
     args = ap.parse_args(argv)
     from ..config import load_scene_file
-    from ..scene import Scene
     folder = Path(args.bag)
     params = folder / PARAMS_FILE
     if not params.exists():
         print(f"error: {params} is missing: only bags recorded by the clusterfem node can be replayed", file=sys.stderr)
         return 2
-    config = load_scene_file(params)
+    try:
+        return _compare(folder, load_scene_file(params), args.tolerance)
+    except Exception as exc:        # a damaged bag or parameter file: one line, not a traceback
+        print(f"error: cannot replay {folder}: {exc}", file=sys.stderr)
+        return 2
+
+
+def _compare(folder: Path, config, tolerance: float) -> int:
+    from ..scene import Scene
     exact = config["physics.clock"] == "input"
     if not exact:
         print("note: the bag was recorded with physics.clock = wall; its surfaces depend on timing and are "
@@ -120,9 +136,9 @@ def main(argv: list[str] | None = None) -> int:
     diffs = [float(np.abs(got[t] - p).max()) for t, p in surfaces if t in got and got[t].shape == p.shape]
     worst = max(diffs) if diffs else float("nan")
     print(f"compared {len(diffs)} surfaces; max vertex difference {worst:.3g} m")
-    if exact and not (len(diffs) == len(surfaces) and worst <= args.tolerance):
+    if exact and not (len(diffs) == len(surfaces) and worst <= tolerance):
         print(f"error: the replay differs from the recording ({len(diffs)} of {len(surfaces)} surfaces compared, "
-              f"max difference {worst:.3g} m > --tolerance {args.tolerance:g} m): the physics changed since it was "
+              f"max difference {worst:.3g} m > --tolerance {tolerance:g} m): the physics changed since it was "
               "recorded; record it again with the same scene file to update it", file=sys.stderr)
         return 1
     return 0
