@@ -2,7 +2,10 @@
 
 Physics runs on its own timer, decoupled from message arrival; every output is computed only when
 somebody consumes it (a subscriber or the recording). Bad input is counted, warned about (throttled)
-and never stops the node; a diverging body is reset, never published.
+and never stops the node; a diverging body is reset, never published. A joint state is size-checked,
+decoded and judged before it is recorded; the recording never raises into a callback: a full queue
+drops and counts (recording.max_queue_mb), a write failure stops the recording with an ERROR log and
+an ERROR diagnostic while the simulation goes on.
 """
 from __future__ import annotations
 
