@@ -65,6 +65,24 @@ def killed_bag(folder, messages: int):
     return folder / f"{folder.name}_0.mcap"
 
 
+# -- 1. what the node records of a joint state ---------------------------------------------------------
+def test_the_recorded_extent_drops_a_senders_tail_and_the_name_count_needs_no_decoding():
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import JointState
+
+    from msg_adapters.joint_state import joint_state_cdr_extent, joint_state_name_count
+    for frame in ("", "abc", "world"):
+        for n in (0, 1, 4):
+            data = joint_state_cdr(NAMES[:n], np.arange(n, dtype=float), np.ones(n) if n % 2 else None, 7, frame)
+            assert joint_state_name_count(data) == n and joint_state_cdr_extent(data + b"\xffjunk") == len(data)
+            assert deserialize_message(data, JointState).name == NAMES[:n]
+    for bad in (b"garbage!", b"\x00\x01\x00\x00" + b"\xff" * 40):
+        with pytest.raises(ValueError):
+            joint_state_name_count(bad)
+        with pytest.raises(ValueError):
+            joint_state_cdr_extent(bad)
+
+
 # -- 3. one large message: linear, bounded, one report per message ---------------------------------------
 class NoTouching(list):
     """A name list that fails if anything looks at its names (only its length is allowed)."""

@@ -22,7 +22,7 @@ from visualization_msgs.msg import Marker
 
 from msg_adapters.colormap import map_scalars
 from msg_adapters.diagnostics import diagnostic_array
-from msg_adapters.joint_state import joint_state_fields, joint_state_msg_cdr, joint_state_name_count
+from msg_adapters.joint_state import joint_state_cdr_extent, joint_state_fields, joint_state_name_count
 from msg_adapters.marker import surface_marker_cdr
 from msg_adapters.pointcloud import stress_cloud_cdr
 
@@ -183,8 +183,8 @@ class ClusterFemNode(Node):
                 self._warn_input("too_many_names", f"joint state with {n_names} names dropped (input.max_names "
                                  f"{self.config['input.max_names']})", scene.inputs.rejected["too_many_names"])
                 return
-            msg = deserialize_message(data, JointState)
-            stamp, names, q, v = joint_state_fields(msg)
+            stamp, names, q, v = joint_state_fields(deserialize_message(data, JointState))
+            exact = data[:joint_state_cdr_extent(data)]     # without a tail strict bag readers refuse
         except Exception as exc:
             scene.inputs.count("malformed")
             self._warn_input("malformed", f"joint state rejected: {exc}; fix the publisher",
@@ -194,7 +194,7 @@ class ClusterFemNode(Node):
             stamp = now_ns * 1e-9
         problems = scene.push_joint_state(stamp, names, q, v, now=now_ns * 1e-9)
         if scene.inputs.reached_stream:               # the receive time is what a replay passes as 'now'
-            self._record(JOINTS_TOPIC, joint_state_msg_cdr(msg), now_ns)
+            self._record(JOINTS_TOPIC, exact, now_ns)
         for kind, message in problems:
             self._warn_input(kind, message, scene.inputs.rejected.get(kind, 0))
         if self.config["physics.clock"] == "input":
