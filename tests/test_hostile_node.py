@@ -186,3 +186,44 @@ def test_a_bare_start_keeps_dds_on_this_machine_unless_told_otherwise():
     assert default_transport(env) is None and env == {"FASTDDS_BUILTIN_TRANSPORTS": "DEFAULT"}
     env = {"FASTDDS_DEFAULT_PROFILES_FILE": "/etc/my_profile.xml"}
     assert default_transport(env) is None and "FASTDDS_BUILTIN_TRANSPORTS" not in env
+
+
+def _udp_inodes() -> set[str]:
+    inodes = set()
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        with open(table) as f:
+            inodes |= {line.split()[9] for line in f.readlines()[1:]}
+    return inodes
+
+
+def _socket_inodes(pid: int) -> set[str]:
+    out = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            out.add(target[8:-1])
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/net/udp").exists(), reason="needs Linux /proc")
+def test_a_bare_node_opens_no_udp_socket_and_says_how_to_reach_a_network(tmp_path):
+    """Started without scripts/env.sh (FASTDDS_BUILTIN_TRANSPORTS unset), as a console script would be."""
+    environ = {k: v for k, v in os.environ.items() if k != "FASTDDS_BUILTIN_TRANSPORTS"}
+    environ.update(PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(190 + os.getpid() % 10))
+    proc = subprocess.Popen([sys.executable, "-m", "clusterfem_ros.nodes.clusterfem_node", "--ros-args",
+                             "-p", "body.kind:=sphere", "-p", "skeleton.source:=none"],
+                            cwd=tmp_path, env=environ, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        lines = []
+        for line in proc.stdout:
+            lines.append(line)
+            if "DDS: shared memory only" in line:
+                break
+        assert "FASTDDS_BUILTIN_TRANSPORTS=DEFAULT" in lines[-1], "".join(lines)
+        assert not _socket_inodes(proc.pid) & _udp_inodes()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
