@@ -13,33 +13,19 @@ import pytest
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 
-from clusterfem_ros.nodes.testing import RosWorld
 from msg_adapters.joint_state import joint_state_cdr
 from tests.test_hostile_inputs import full_disk_after
+from tests.test_node_skeleton import SMALL_MAN, _points, world  # noqa: F401  (world: the fixture)
 from tests.test_recording_signals import rosbags_count
 
 pytestmark = pytest.mark.ros
 ROOT = Path(__file__).resolve().parents[1]
-SMALL_MAN = {"body.kind": "jelly_man", "body.target_tets": 700, "skeleton.source": "builtin", "warping": False,
-             "output.marker_rate_hz": 20.0, "output.stress_rate_hz": 5.0, "output.diagnostics_rate_hz": 5.0}
-
-
-@pytest.fixture
-def world():
-    with RosWorld() as w:
-        yield w
 
 
 def _sim(world, **values):
     from clusterfem_ros.nodes.clusterfem_node import ClusterFemNode
     return world.add(ClusterFemNode(context=world.context, parameter_overrides=[
         Parameter(k, value=v) for k, v in {**SMALL_MAN, **values}.items()]))
-
-
-def _points(raw):
-    from visualization_msgs.msg import Marker
-    m = deserialize_message(raw, Marker)
-    return np.array([[p.x, p.y, p.z] for p in m.points])
 
 
 class Sender:
