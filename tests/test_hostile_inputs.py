@@ -148,6 +148,16 @@ def test_joint_speed_glitches_and_absurd_velocities_are_rejected():
     assert s.push(0.06, np.array([0.7, 0, 0.35, 0]))[0][0] == "joint_speed"   # 50 m/s is not
 
 
+def test_split_publishers_microseconds_apart_are_not_too_fast():
+    s = stream()
+    for k in range(5):                                              # legs at 100 Hz, arms 10 us later
+        t = 0.01 * k
+        assert s.push(t, np.array([0, 0, 0.2 * k, 0.3 * (k - 1) if k else 0.0])) == []
+        assert s.push(t + 1e-5, np.array([0, 0, 0.2 * k, 0.3 * k])) == []       # knee: 30 rad/s over 10 ms
+    (kind, text), = s.push(0.05, np.array([0, 0, 0.8, 1.7]))        # knee: 0.5 rad in 10 ms is 50 rad/s
+    assert kind == "joint_speed" and "'knee' moved 0.5 in 0.00999 s" in text
+
+
 def test_motion_faster_than_the_limit_restarts_the_stream_after_max_age():
     s = stream(max_age=0.495)
     s.push(0.0, np.zeros(4))

@@ -22,8 +22,8 @@ Range checks (rejected, counted by the caller; both limits are optional):
 * ``root_range``: the prismatic joints (the root's translation in our URDFs) further than
   ``max_root_distance`` [m] from the origin. Never accepted later: a body that far away is a broken
   publisher or a scene that needs a larger limit, not motion.
-* ``joint_speed``: a joint moving faster than ``max_joint_speed`` [rad/s or m/s] from the newest accepted
-  sample (unwrapped angles; a prismatic jump beyond ``teleport_distance`` is a teleport instead), or a
+* ``joint_speed``: a joint moving faster than ``max_joint_speed`` [rad/s or m/s] since the accepted sample
+  that last moved it (unwrapped angles; a prismatic jump beyond ``teleport_distance`` is a teleport instead), or a
   reported velocity above it. Capture glitches (a thigh flipping 175 deg in one frame) are dropped. So that
   real motion faster than the limit can never lock the stream out, a sample still rejected for speed
   ``max_age`` seconds after the first rejection of that run restarts the stream from it (``restart``; the
@@ -86,6 +86,7 @@ class JointStreamInterpolator:
         self.restart_after = int(restart_after)
         self.max_root_distance, self.max_joint_speed = float(max_root_distance), float(max_joint_speed)
         self._speeding_since: float | None = None     # stamp of the first sample of a run rejected for speed
+        self._moved_at = np.zeros(n)                  # per joint: stamp of the sample that last changed it
         self._t: deque[float] = deque(maxlen=capacity)
         self._q: deque[np.ndarray] = deque(maxlen=capacity)
         self._v: deque[np.ndarray | None] = deque(maxlen=capacity)
@@ -118,6 +119,9 @@ class JointStreamInterpolator:
                                              f"(> teleport_distance {self.teleport_distance:g} m): not "
                                              "interpolated across; older samples dropped"))
                 self._t.clear(), self._q.clear(), self._v.clear()
+            self._moved_at[q != prev] = stamp
+        else:
+            self._moved_at[:] = stamp
         self._t.append(stamp)
         self._q.append(q)
         self._v.append(v)
@@ -201,15 +205,18 @@ class JointStreamInterpolator:
             return ("joint_speed", f"joint {self.joint_names[k]!r} reports velocity {v[k]:.4g} (max_joint_speed "
                                    f"{self.max_joint_speed:g}): sample dropped")
         if self._t and np.isfinite(self.max_joint_speed):
-            prev, dt = self._q[-1], stamp - self._t[-1]
+            prev = self._q[-1]
             if np.linalg.norm(q[self.prismatic] - prev[self.prismatic]) > self.teleport_distance:
                 return None                      # a teleport: reported by _store, the body is re-placed
             step = np.abs(q - prev)
             step[self.revolute] = np.abs(wrap_angle(q[self.revolute] - prev[self.revolute]))
-            k = int(np.argmax(step))
-            if step[k] > self.max_joint_speed * dt:
-                return ("joint_speed", f"joint {self.joint_names[k]!r} moved {step[k]:.4g} in {dt:.3g} s "
-                                       f"({step[k] / dt:.4g}/s > max_joint_speed {self.max_joint_speed:g}): "
+            # per joint, the time since the sample that last moved it: split publishers (arms and legs in
+            # separate messages microseconds apart) each move their own joints over their own period
+            dt = stamp - self._moved_at
+            k = int(np.argmax(step - self.max_joint_speed * dt))
+            if step[k] > self.max_joint_speed * dt[k]:
+                return ("joint_speed", f"joint {self.joint_names[k]!r} moved {step[k]:.4g} in {dt[k]:.3g} s "
+                                       f"({step[k] / dt[k]:.4g}/s > max_joint_speed {self.max_joint_speed:g}): "
                                        "sample dropped as a capture glitch")
         return None
 
