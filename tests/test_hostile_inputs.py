@@ -252,6 +252,21 @@ def test_the_byte_budget_drops_and_counts_instead_of_waiting_or_growing(tmp_path
         Rosbag2McapWriter(tmp_path / "c", max_queue_bytes=0)
 
 
+def test_replaying_a_bag_with_an_undecodable_joint_state_is_one_error_line(tmp_path, capsys):
+    from clusterfem_ros.config import SceneConfig, scene_file_text
+    from clusterfem_ros.recording.replay import PARAMS_FILE, ReplayError, main, read_joint_states
+    with Rosbag2McapWriter(tmp_path / "b") as w:                    # written by something other than the node
+        w.add_topic(TOPIC, "sensor_msgs/msg/JointState")
+        w.write(TOPIC, 1_000_000_000, joint_cdr(0))
+        w.write(TOPIC, 1_000_000_001, b"\x00\x01\x00\x00" + b"\xff" * 40)
+    (tmp_path / "b" / PARAMS_FILE).write_text(scene_file_text(SceneConfig()))
+    with pytest.raises(ReplayError, match=r"/joint_states record 1 \(log time 1000000001 ns, 44 bytes\) does not"):
+        read_joint_states(tmp_path / "b")
+    assert main([str(tmp_path / "b")]) == 2
+    errors = [x for x in capsys.readouterr().err.splitlines() if x.startswith("error")]
+    assert len(errors) == 1 and "record 1" in errors[0]
+
+
 # -- 6. start-up errors from files -----------------------------------------------------------------------
 def test_a_garbage_msh_is_a_mesh_error_naming_the_file_not_an_exit(tmp_path):
     from clusterfem_ros.fem.mesh_io import read_mesh

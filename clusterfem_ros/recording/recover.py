@@ -119,8 +119,12 @@ def recover_bag(folder: Union[str, Path], work_dir: Union[str, Path, None] = Non
         except OSError as copy_exc:
             raise RecoveryError(f"recovered bag written to {new_path} but copying it over {path} failed "
                                 f"({copy_exc}): copy it there yourself, with {tmp / 'metadata.yaml'}") from copy_exc
-    shutil.copyfile(tmp / "metadata.yaml", folder / "metadata.yaml.recovered")
-    os.replace(folder / "metadata.yaml.recovered", folder / "metadata.yaml")
+    try:
+        os.replace(tmp / "metadata.yaml", folder / "metadata.yaml")
+    except OSError as exc:
+        if exc.errno != errno.EXDEV:
+            raise
+        shutil.copyfile(tmp / "metadata.yaml", folder / "metadata.yaml")   # in place: no second file on a full disk
     shutil.rmtree(tmp)
     return RecoveryReport(path, len(messages), counts, False, stopped_by)
 
