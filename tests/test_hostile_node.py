@@ -160,6 +160,12 @@ def test_start_up_errors_are_one_line_and_exit_2_with_the_traceback_on_debug(tmp
     assert "unknown scene parameter 'material.youngs_modulus': did you mean 'material.young_modulus'?" in lines[0]
     run = _start(["--ros-args", "-p", "physics.step:=5.0"], tmp_path)
     assert run.returncode == 2 and "physics.step" in run.stderr and "Traceback" not in run.stderr, run.stderr
+    for text in ("just a string\n", "clusterfem:\n  youngs_modulus: 3\n"):
+        params.write_text(text)
+        run = _start(["--ros-args", "--params-file", str(params)], tmp_path)
+        assert run.returncode == 2 and "ros__parameters" in run.stderr and "Traceback" not in run.stderr, run.stderr
+    run = _start(["--ros-args", "--params-file", str(tmp_path / "missing.yaml")], tmp_path)
+    assert run.returncode == 2 and "missing.yaml" in run.stderr and "Traceback" not in run.stderr, run.stderr
     run = _start(["--debug", "--ros-args", "-p", "physics.step:=5.0"], tmp_path)
     assert run.returncode != 0 and "Traceback" in run.stderr and "physics.step" in run.stderr
 

@@ -3,8 +3,10 @@ from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
 
 import rclpy
+import yaml
 from rclpy.executors import ExternalShutdownException
 
 DEBUG_FLAG, DEBUG_ENV = "--debug", "CLUSTERFEM_DEBUG"
@@ -53,10 +55,11 @@ def run_node(make_node, args=None) -> None:
     debug = DEBUG_FLAG in argv or os.environ.get(DEBUG_ENV, "") not in ("", "0")
     argv = [a for a in argv if a != DEBUG_FLAG]
     note = default_transport()
-    rclpy.init(args=argv)
     node = None
     try:
         try:
+            check_params_files(argv)
+            rclpy.init(args=argv)
             node = make_node()
         except Exception as exc:
             if debug:
@@ -74,3 +77,23 @@ def run_node(make_node, args=None) -> None:
                 node.close()
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def check_params_files(argv: list[str]) -> None:
+    """Refuse a ``--params-file`` that rcl would take silently although it sets nothing (a YAML that is a
+    string or a list, a node section without a ``ros__parameters`` mapping); ValueError naming the file."""
+    for flag, path in zip(argv, argv[1:]):
+        if flag != "--params-file":
+            continue
+        try:
+            doc = yaml.safe_load(Path(path).read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise ValueError(f"cannot read params file {path!r}: {exc}") from None
+        layout = "write '<node name>:' / '  ros__parameters:' / '    name: value'"
+        if not isinstance(doc, dict) or not doc:
+            raise ValueError(f"params file {path!r} holds {'nothing' if not doc else 'a ' + type(doc).__name__}, "
+                             f"not node sections: {layout}")
+        bad = [name for name, sec in doc.items()
+               if not (isinstance(sec, dict) and isinstance(sec.get("ros__parameters"), dict))]
+        if bad:
+            raise ValueError(f"params file {path!r}: sections {bad} have no 'ros__parameters:' mapping: {layout}")
