@@ -206,7 +206,7 @@ def test_a_full_disk_stops_the_writer_with_the_error_and_recovery_keeps_what_was
     assert rosbags_count(tmp_path / "b") == {TOPIC: report.messages}
 
 
-def test_recovery_on_a_full_disk_says_where_it_needs_space_or_uses_a_work_dir(tmp_path, monkeypatch):
+def test_recovery_on_a_full_disk_says_where_it_needs_space_or_uses_a_work_dir(tmp_path, monkeypatch, capsys):
     (tmp_path / "disk").mkdir()
     folder = tmp_path / "disk" / "bag"
     path = killed_bag(folder, 500)
@@ -220,9 +220,11 @@ def test_recovery_on_a_full_disk_says_where_it_needs_space_or_uses_a_work_dir(tm
     with pytest.raises(RecoveryError, match=rf"needs about .* MB free in {tmp_path / 'disk'} .*work_dir"):
         recover_bag(folder)
     assert path.stat().st_size == size and not list((tmp_path / "disk").glob("*.recovering"))
+    from clusterfem_ros.recording.recover import main
+    assert main([str(folder)]) == 2 and "needs about" in capsys.readouterr().err
     (tmp_path / "spare").mkdir()
-    report = recover_bag(folder, work_dir=tmp_path / "spare")
-    assert report.messages == 500 and rosbags_count(folder) == {TOPIC: 500}
+    assert main([str(folder), "--work-dir", str(tmp_path / "spare")]) == 0
+    assert "500 messages kept" in capsys.readouterr().out and rosbags_count(folder) == {TOPIC: 500}
     assert list((tmp_path / "spare").iterdir()) == []
 
 
