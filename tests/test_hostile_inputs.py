@@ -206,6 +206,20 @@ def test_a_full_disk_stops_the_writer_with_the_error_and_recovery_keeps_what_was
     assert rosbags_count(tmp_path / "b") == {TOPIC: report.messages}
 
 
+def test_a_bag_folder_deleted_mid_run_stops_the_writer_with_the_error(tmp_path):
+    w = Rosbag2McapWriter(tmp_path / "b", flush_interval_s=0.01)
+    w.add_topic(TOPIC, "sensor_msgs/msg/JointState")
+    (tmp_path / "b").rename(tmp_path / "gone")                      # as rm -r does to the path, atomically
+    for k in range(100_000):                                        # the next flush rewrites metadata.yaml: fails
+        if w.error is not None:
+            break
+        w.write(TOPIC, 1_000_000_000 + k, joint_cdr(k))
+        w._thread.join(0.001)
+    assert isinstance(w.error, FileNotFoundError) and "metadata.yaml" in str(w.error)
+    with pytest.raises(RuntimeError, match="the I/O thread failed"):
+        w.close()
+
+
 def test_recovery_on_a_full_disk_says_where_it_needs_space_or_uses_a_work_dir(tmp_path, monkeypatch, capsys):
     (tmp_path / "disk").mkdir()
     folder = tmp_path / "disk" / "bag"
