@@ -6,6 +6,8 @@ A scene says what exists: outputs and features it does not ask for are neither b
 """
 from __future__ import annotations
 
+import difflib
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -82,6 +84,16 @@ PARAMS: tuple[Param, ...] = (
     Param("input.max_age", 1.0, "reject joint states older than this relative to the newest [s]", 0.0, 3600.0),
     Param("input.max_future", 0.5, "reject joint states stamped this far ahead of the clock [s]", 0.0, 3600.0),
     Param("input.teleport_distance", 0.5, "a root jump larger than this between samples is a teleport [m]", 0.0, 100.0),
+    # 40 rad/s: above the fastest joint rates of walking, running and kicking (knee and hip peak near 25-30 rad/s),
+    # below capture glitches (a thigh flipping 175 deg in one 120 Hz frame is ~370 rad/s). Throwing arms
+    # (shoulder rotation up to ~150 rad/s) need a larger value.
+    Param("input.max_joint_speed", 40.0, "a joint state implying a joint faster than this since the last accepted one, "
+          "or reporting a velocity above it, is rejected (joint_speed) [rad/s revolute, m/s prismatic]; rejected "
+          "for longer than input.max_age, the stream restarts from the newest sample", 0.1, 1.0e6),
+    Param("input.max_root_distance", 1000.0, "a joint state placing the root (the prismatic joints) further than "
+          "this from the world origin is rejected (root_range) [m]", 0.1, 1.0e7),
+    Param("input.max_names", 1000, "a joint state with more names than this is rejected (too_many_names) before "
+          "any per-name work", 1, 1000000),
     Param("output.frame_id", "world", "frame of every published message"),
     Param("output.marker_rate_hz", 30.0, "surface Marker rate (0 = off)", 0.0, 1000.0),
     Param("output.stress_rate_hz", 10.0, "stress PointCloud2 rate (0 = off)", 0.0, 1000.0),
@@ -91,6 +103,8 @@ PARAMS: tuple[Param, ...] = (
     Param("recording.enabled", False, "record inputs and outputs to an MCAP bag"),
     Param("recording.dir", "bags", "folder for recordings (a timestamped bag folder is made inside)"),
     Param("recording.prefix", "clusterfem", "bag folder name prefix"),
+    Param("recording.max_queue_mb", 64.0, "bytes of messages waiting for the bag's disk writer [MB]; beyond, messages "
+          "are dropped from the recording and counted (recording_dropped), memory never grows", 1.0, 4096.0),
 )
 _BY_NAME = {p.name: p for p in PARAMS}
 
@@ -99,12 +113,22 @@ class ConfigError(ClusterFemError, ValueError):
     """A scene parameter with an invalid value; the message names it, the value and the valid range."""
 
 
+FRAME_ID_MAX = 256
+_FRAME_ID = re.compile(r"[A-Za-z_/][A-Za-z0-9_/]*")
+
+
+def unknown_name_error(name: str) -> ConfigError:
+    """The error for a parameter name that is not a scene parameter, naming the nearest known one."""
+    close = difflib.get_close_matches(name, _BY_NAME, n=1, cutoff=0.6) or \
+        [n for n in _BY_NAME if n.split(".")[-1] == name.split(".")[-1]]
+    hint = f": did you mean {close[0]!r}?" if close else ": see config.PARAMS for the scene parameters"
+    return ConfigError(f"unknown scene parameter {name!r}{hint}")
+
+
 def check_value(name: str, value: Any) -> Any:
     """Validate one parameter; returns the value coerced to the default's type."""
     if name not in _BY_NAME:
-        close = [n for n in _BY_NAME if n.split(".")[-1] == name.split(".")[-1]]
-        hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise ConfigError(f"unknown scene parameter {name!r}{hint}")
+        raise unknown_name_error(name)
     p = _BY_NAME[name]
     d = p.default
     try:
@@ -141,6 +165,10 @@ def check_value(name: str, value: Any) -> Any:
         raise ConfigError(f"{name} = nan: give a finite number")
     if isinstance(d, list) and p.item is float and not all(x - x == 0.0 for x in value):
         raise ConfigError(f"{name} = {value}: give finite numbers")
+    if name == "output.frame_id" and not (len(value) <= FRAME_ID_MAX and _FRAME_ID.fullmatch(value)):
+        shown = value if len(value) <= 40 else f"{value[:40]}... ({len(value)} characters)"
+        raise ConfigError(f"{name} = {shown!r}: give a frame name of at most {FRAME_ID_MAX} letters, digits, '_' "
+                          "and '/' (not starting with a digit), e.g. 'world'")
     return value
 
 
@@ -220,11 +248,17 @@ def load_scene_file(path: str | Path, node_name: str = NODE_NAME) -> SceneConfig
         doc = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"cannot read scene file {str(path)!r}: {exc}") from exc
-    section = (doc or {}).get(node_name) or (doc or {}).get("/**") or {}
-    params = section.get("ros__parameters")
-    if params is None:
-        raise ConfigError(f"{str(path)!r} has no '{node_name}: ros__parameters:' section")
-    return from_mapping(_flatten(params))
+    if not isinstance(doc, dict):
+        raise ConfigError(f"scene file {str(path)!r} holds a {type(doc).__name__}, not a mapping: write "
+                          f"'{node_name}:' / '  ros__parameters:' / '    name: value'")
+    section = doc.get(node_name) or doc.get("/**") or {}
+    params = section.get("ros__parameters") if isinstance(section, dict) else None
+    if not isinstance(params, dict):
+        raise ConfigError(f"{str(path)!r} has no '{node_name}: ros__parameters:' mapping of parameters")
+    try:
+        return from_mapping(_flatten(params))
+    except ConfigError as exc:
+        raise ConfigError(f"{str(path)!r}: {exc}") from None
 
 
 def scene_file_text(config: SceneConfig, node_name: str = NODE_NAME) -> str:

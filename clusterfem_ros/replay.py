@@ -58,13 +58,20 @@ def main(argv: list[str] | None = None) -> int:
                     help="largest vertex difference [m] a physics.clock = input bag may show (default 1e-6)")
     args = ap.parse_args(argv)
     from .config import load_scene_file
-    from .scene import Scene
     folder = Path(args.bag)
     params = folder / PARAMS_FILE
     if not params.exists():
         print(f"error: {params} is missing: only bags recorded by the clusterfem node can be replayed", file=sys.stderr)
         return 2
-    config = load_scene_file(params)
+    try:
+        return _compare(folder, load_scene_file(params), args.tolerance)
+    except Exception as exc:        # a damaged bag or parameter file: one line, not a traceback
+        print(f"error: cannot replay {folder}: {exc}", file=sys.stderr)
+        return 2
+
+
+def _compare(folder: Path, config, tolerance: float) -> int:
+    from .scene import Scene
     exact = config["physics.clock"] == "input"
     if not exact:
         print("note: the bag was recorded with physics.clock = wall; its surfaces depend on timing and are "
@@ -76,13 +83,12 @@ def main(argv: list[str] | None = None) -> int:
     diffs = [float(np.abs(got[t] - p).max()) for t, p in surfaces if t in got and got[t].shape == p.shape]
     worst = max(diffs) if diffs else float("nan")
     print(f"compared {len(diffs)} surfaces; max vertex difference {worst:.3g} m")
-    if exact and not (len(diffs) == len(surfaces) and worst <= args.tolerance):
+    if exact and not (len(diffs) == len(surfaces) and worst <= tolerance):
         print(f"error: the replay differs from the recording ({len(diffs)} of {len(surfaces)} surfaces compared, "
-              f"max difference {worst:.3g} m > --tolerance {args.tolerance:g} m): the physics changed since it was "
+              f"max difference {worst:.3g} m > --tolerance {tolerance:g} m): the physics changed since it was "
               "recorded; record it again with the same scene file to update it", file=sys.stderr)
         return 1
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

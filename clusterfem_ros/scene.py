@@ -47,6 +47,7 @@ class StepReport:
 class InputCounters:
     accepted: int = 0
     rejected: dict = field(default_factory=dict)      # kind -> count
+    reached_stream: bool = False      # the last sample passed the joint map (accepted or judged by the stream)
 
     def count(self, kind: str) -> None:
         self.rejected[kind] = self.rejected.get(kind, 0) + 1
@@ -164,7 +165,7 @@ class Scene:
         skeleton = None
         source = config["skeleton.source"]
         if source != "none":
-            from .skeleton.kinematics import Skeleton
+            from .skeleton.kinematics import Skeleton, UrdfError
             if source == "builtin":
                 from .skeleton.humanoid import default_humanoid
                 urdf_xml = default_humanoid().urdf
@@ -173,7 +174,12 @@ class Scene:
             elif urdf_xml is None:
                 raise ValueError("skeleton.source is 'robot_description': pass the URDF text received on that "
                                  "topic (the node waits for it)")
-            skeleton = Skeleton.from_urdf_string(urdf_xml)
+            try:
+                skeleton = Skeleton.from_urdf_string(urdf_xml)
+            except UrdfError as exc:               # name the file the user can fix
+                if source != "urdf_file":
+                    raise
+                raise UrdfError(f"skeleton.urdf_file {config['skeleton.urdf_file']!r}: {exc}") from exc
         kind = config["body.kind"]
         fixed = None
         if kind == "jelly_man":
@@ -231,11 +237,13 @@ class Scene:
                                      bone_names=sk.bone_names, sliding_levels=c["binding.sliding_levels"],
                                      points=[a for a in self.anchors if isinstance(a, PointConstraint)],
                                      lines=[a for a in self.anchors if isinstance(a, LineConstraint)])
-        self.joints = JointMap(sk.joint_names, q0)
+        self.joints = JointMap(sk.joint_names, q0, max_names=c["input.max_names"])
         self.stream = JointStreamInterpolator(sk.joint_names, revolute=sk.revolute_mask(),
                                               max_age=c["input.max_age"], max_future=c["input.max_future"],
                                               teleport_distance=c["input.teleport_distance"],
-                                              prismatic=~sk.revolute_mask())
+                                              prismatic=~sk.revolute_mask(),
+                                              max_root_distance=c["input.max_root_distance"],
+                                              max_joint_speed=c["input.max_joint_speed"])
 
     # -- inputs ----------------------------------------------------------------------------------
     def push_joint_state(self, stamp: float, names, positions, velocities=None,
@@ -247,6 +255,7 @@ class Scene:
             self.inputs.count("no_skeleton")
             return [("no_skeleton", "joint state received but this scene has no skeleton (skeleton.source = none)")]
         result = self.joints.update(names, positions, velocities)
+        self.inputs.reached_stream = result.accepted      # the stream's state may change: a replay needs it
         problems = list(result.problems)
         first = result.accepted and not self.stream.ready
         if result.accepted:

@@ -7,6 +7,7 @@ velocity or effort) and `rosbags` rejects such records ("CDR message size mismat
 """
 from __future__ import annotations
 
+import struct
 from typing import Optional, Sequence
 
 import numpy as np
@@ -72,3 +73,54 @@ def joint_state_cdr(names: Sequence[str], positions: np.ndarray, velocities: Opt
     w.array_seq(v, "<f8", 8)
     w.u32(0)  # effort
     return w.getvalue()
+
+
+def _cdr_order(data: bytes) -> str:
+    if len(data) < 20 or data[0] != 0 or data[1] not in (0, 1):
+        raise ValueError(f"not CDR bytes (first bytes {bytes(data[:4])!r}, length {len(data)})")
+    return "<" if data[1] == 1 else ">"
+
+
+def _string_end(data: bytes, at: int, order: str, what: str) -> int:
+    """Offset after the CDR string at body-aligned offset ``at``."""
+    at += -(at - 4) % 4
+    if at + 4 > len(data):
+        raise ValueError(f"{what} runs past the end of a {len(data)}-byte message")
+    return at + 4 + struct.unpack_from(order + "I", data, at)[0]
+
+
+def joint_state_name_count(data: bytes) -> int:
+    """The number of names a serialized JointState declares, read from its first bytes without decoding
+    it, so a receiver can refuse an oversized message before any per-name work. ValueError if the bytes
+    are not a CDR JointState prefix."""
+    return struct.unpack_from(_cdr_order(data) + "I", data, _name_count_at(data))[0]
+
+
+def _name_count_at(data: bytes) -> int:
+    at = _string_end(data, 12, _cdr_order(data), "header.frame_id")
+    at += -(at - 4) % 4
+    if at + 4 > len(data):
+        raise ValueError(f"the name count runs past the end of a {len(data)}-byte message")
+    return at
+
+
+def joint_state_cdr_extent(data: bytes) -> int:
+    """The length of the JointState that ``data`` serializes, without what a sender appended after it
+    (strict readers such as rosbags refuse such a tail). ``data[:extent]`` is what to record."""
+    order = _cdr_order(data)
+    at = _name_count_at(data)
+    (n,) = struct.unpack_from(order + "I", data, at)
+    at += 4
+    for k in range(n):
+        at = _string_end(data, at, order, f"name {k}")
+    for field in ("position", "velocity", "effort"):
+        at += -(at - 4) % 4
+        if at + 4 > len(data):
+            raise ValueError(f"{field} runs past the end of a {len(data)}-byte message")
+        (count,) = struct.unpack_from(order + "I", data, at)
+        at += 4
+        if count:
+            at += -(at - 4) % 8 + 8 * count
+    if at > len(data):
+        raise ValueError(f"the effort sequence runs past the end of a {len(data)}-byte message")
+    return at

@@ -20,8 +20,10 @@ def read_mesh(path: str | Path, orient: bool = False, scale: float = 1.0) -> Tet
         raise MeshError(f"mesh file {str(path)!r} does not exist")
     try:
         m = meshio.read(str(path))
-    except Exception as exc:  # meshio raises many types; name the file and the reason
-        raise MeshError(f"cannot read mesh file {str(path)!r}: {exc}") from exc
+    except (Exception, SystemExit) as exc:  # meshio raises many types, and exits on some bad .msh files
+        why = f"meshio gave up (exit status {exc.code})" if isinstance(exc, SystemExit) else f"{exc}"
+        raise MeshError(f"cannot read mesh file {str(path)!r} as {path.suffix or 'a mesh'}: {why}; export it "
+                        "again as a Gmsh 2.2/4.1 .msh, .vtu or .vtk volume mesh") from None
     blocks = [c.data for c in m.cells if c.type == "tetra"]
     if not blocks:
         kinds = sorted({c.type for c in m.cells}) or ["none"]

@@ -6,11 +6,17 @@ recording never stall a step. Every output is computed only when somebody consum
 recording). Bad input is counted, warned about (throttled) and never stops the node; a diverging body is
 reset, never published; a failing step is reported on the log and the diagnostics (ERROR).
 
+A joint state is size-checked and decoded in the callback, judged on the physics thread
+(Scene.push_joint_state), and recorded only once judged; the recording never raises into a callback: a full
+queue drops and counts (recording.max_queue_mb), a write failure stops the recording with an ERROR log and an
+ERROR diagnostic while the simulation goes on.
+
 Several bodies share a ROS graph by namespace: every topic but /diagnostics is relative, and the
 diagnostics status is named after the node's fully qualified name.
 """
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -24,7 +30,7 @@ from visualization_msgs.msg import Marker
 
 from msg_adapters.colormap import map_scalars
 from msg_adapters.diagnostics import diagnostic_array
-from msg_adapters.joint_state import joint_state_fields
+from msg_adapters.joint_state import joint_state_cdr_extent, joint_state_fields, joint_state_name_count
 from msg_adapters.marker import surface_marker_cdr
 from msg_adapters.pointcloud import stress_cloud_cdr
 
@@ -47,7 +53,13 @@ class ClusterFemNode(Node):
         self.scene: Scene | None = None
         self.recorder = None
         self.physics: SimLoop | None = None   # the physics thread, once the scene is built
-        self.counts: dict[str, int] = {}      # messages per topic published (outputs) or received (inputs)
+        self.recording_error = ""             # why recording stopped early ('' while it runs or is off)
+        self._dropped_at_stop = 0             # messages the recorder's byte budget dropped, once it is closed
+        self._record_lock = threading.Lock()  # _record runs on the executor and on the physics thread
+        self.counts: dict[str, int] = {}      # messages per topic published (outputs) or taken in (inputs)
+        self.received = 0                     # joint states received; taken in + refused + before the scene
+        self.before_scene = 0                 # joint states received before the scene was built (ignored)
+        self._warned: dict[str, float] = {}   # input problem kind -> when it was last logged
         self._stats = {"t_wall": time.perf_counter(), "steps": 0}
         self._rtf = 0.0
         self._window: dict[str, float] = {}   # headroom and stage shares over the real-time factor's window
@@ -93,7 +105,7 @@ class ClusterFemNode(Node):
         from ..recording.rosbag2_mcap import Rosbag2McapWriter, default_bag_path
         c = self.config
         path = default_bag_path(c["recording.prefix"], root=c["recording.dir"])
-        self.recorder = Rosbag2McapWriter(path)
+        self.recorder = Rosbag2McapWriter(path, max_queue_bytes=int(c["recording.max_queue_mb"] * 1e6))
         # bags name topics fully qualified, as rosbag2 does (namespace and remapping applied)
         self._bag_topics = {t: self.resolve_topic_name(t) for t in (JOINTS_TOPIC, SURFACE_TOPIC, STRESS_TOPIC, DIAG_TOPIC)}
         for topic, msg_type, qos in ((JOINTS_TOPIC, "sensor_msgs/msg/JointState", "sensor_data"),
@@ -139,44 +151,95 @@ class ClusterFemNode(Node):
         """Stop physics, then finalise the recording (idempotent); called on every way out."""
         self.stop_physics()
         if self.recorder is not None:
-            self.recorder.close()
+            rec, self.recorder = self.recorder, None
+            try:
+                rec.close()
+            except Exception as exc:
+                self._recording_failed(exc, rec)
+                return
+            self._dropped_at_stop = rec.dropped
             self.get_logger().info(f"recording finalised: {self.recording_path}")
-            self.recorder = None
+
+    def _recording_failed(self, exc: BaseException, rec) -> None:
+        """Stop recording after a write failure (disk full, folder gone): log it, say it in the diagnostics
+        (ERROR) and let the simulation go on. The bag keeps every chunk flushed before the failure."""
+        self.recorder = None
+        self._dropped_at_stop = rec.dropped
+        self.recording_error = f"{type(exc).__name__}: {exc}"
+        try:
+            rec.close(timeout_s=1.0)
+        except Exception:                   # the same failure, raised once more by close()
+            pass
+        self.get_logger().error(
+            f"recording stopped: {self.recording_error}; the simulation goes on without it. {self.recording_path} "
+            "keeps what was flushed before: once its disk has space, complete it with 'python -m "
+            f"clusterfem_ros.recording.recover {self.recording_path}' (--work-dir DIR to use another disk)")
 
     # -- inputs ----------------------------------------------------------------------------------
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _record(self, topic: str, data: bytes, log_ns: int | None = None) -> None:
-        self.counts[topic] = self.counts.get(topic, 0) + 1
-        if self.recorder is not None:
-            self.recorder.write(self._bag_topics[topic], self.get_clock().now().nanoseconds if log_ns is None
-                                else log_ns, data)
+        """Count a message taken in or published and queue it for the bag; never raises (a write failure
+        stops recording, see _recording_failed; a full queue drops the message and counts it). Called on the
+        executor thread (outputs) and on the physics thread (joint states): one at a time."""
+        with self._record_lock:
+            self.counts[topic] = self.counts.get(topic, 0) + 1
+            rec = self.recorder
+            if rec is None:
+                return
+            try:
+                rec.write(self._bag_topics[topic], self.get_clock().now().nanoseconds if log_ns is None else log_ns,
+                          data)
+            except Exception as exc:
+                self._recording_failed(rec.error or exc, rec)
+                return
+            if rec.error is not None:
+                self._recording_failed(rec.error, rec)
+
+    def _warn_input(self, kind: str, message: str, count: int) -> None:
+        """One warning per kind of input problem every 2 s at most, with the count so far."""
+        t = time.monotonic()
+        if t - self._warned.get(kind, -1e9) >= 2.0:
+            self._warned[kind] = t
+            self.get_logger().warning(f"{message} [{kind}: {count} so far]")
 
     def _on_joint_state(self, data: bytes) -> None:
+        """Check the size and decode here; the physics thread judges it (Scene.push_joint_state) and records what
+        reached the joint stream: the samples a replay needs to take the same decisions. Refused messages are
+        counted, not recorded."""
         now_ns = self.get_clock().now().nanoseconds
-        self._record(JOINTS_TOPIC, data, now_ns)        # the receive time is what a replay passes as 'now'
+        self.received += 1
         scene = self.scene
         if scene is None:
+            self.before_scene += 1
             return
         try:
+            n_names = joint_state_name_count(data)     # refuse a huge message before decoding it
+            if n_names > self.config["input.max_names"]:
+                scene.inputs.count("too_many_names")
+                self._warn_input("too_many_names", f"joint state with {n_names} names dropped (input.max_names "
+                                 f"{self.config['input.max_names']})", scene.inputs.rejected["too_many_names"])
+                return
             stamp, names, q, v = joint_state_fields(deserialize_message(data, JointState))
+            exact = data[:joint_state_cdr_extent(data)]     # without a tail strict bag readers refuse
         except Exception as exc:
             scene.inputs.count("malformed")
-            self.get_logger().warning(f"joint state rejected: {exc}; fix the publisher", throttle_duration_sec=2.0)
+            self._warn_input("malformed", f"joint state rejected: {exc}; fix the publisher",
+                             scene.inputs.rejected["malformed"])
             return
         if stamp == 0.0:
             stamp = now_ns * 1e-9
-        # queued for the physics thread, which pushes it (and, on the input clock, steps up to its stamp)
-        self.physics.take_input(lambda: self._push_sample(scene, stamp, names, q, v, now_ns))
+        # queued for the physics thread, which judges it, records it if the joint stream took it in, and (on the
+        # input clock) steps up to its stamp
+        self.physics.take_input(lambda: self._push_sample(scene, stamp, names, q, v, now_ns, exact))
 
-    def _push_sample(self, scene: Scene, stamp: float, names, q, v, now_ns: int) -> None:
-        for kind, message in scene.push_joint_state(stamp, names, q, v, now=now_ns * 1e-9):
-            if kind == "unknown_joint":
-                self.get_logger().warning(message)          # reported once per name by the joint map
-            else:
-                self.get_logger().warning(f"{message} [{kind}: {scene.inputs.rejected.get(kind, 0)} so far]",
-                                          throttle_duration_sec=2.0)
+    def _push_sample(self, scene: Scene, stamp: float, names, q, v, now_ns: int, exact: bytes) -> None:
+        problems = scene.push_joint_state(stamp, names, q, v, now=now_ns * 1e-9)
+        if scene.inputs.reached_stream:               # the receive time is what a replay passes as 'now'
+            self._record(JOINTS_TOPIC, exact, now_ns)
+        for kind, message in problems:
+            self._warn_input(kind, message, scene.inputs.rejected.get(kind, 0))
 
     # -- outputs ---------------------------------------------------------------------------------
     def _snapshot_for(self, pub) -> Snapshot | None:
@@ -274,6 +337,17 @@ class ClusterFemNode(Node):
             values.update({"physics_failures": loop.crashes, "physics_stopped": loop.stopped,
                            "physics_error": loop.error or "", "unpublishable_states": loop.unpublishable,
                            "inputs_dropped_queue_full": loop.queue_full})
+        values["joint_states_received"] = self.received
+        values["joint_states_before_scene"] = self.before_scene
+        rec = self.recorder
+        if rec is not None and rec.error is not None:
+            self._recording_failed(rec.error, rec)
+            rec = None
+        if self.config["recording.enabled"]:
+            values.update({"recording": "stopped" if self.recording_error else "on" if rec is not None else "closed",
+                           "recording_dropped": rec.dropped if rec is not None else self._dropped_at_stop,
+                           "recording_queue_bytes": rec.queued_bytes if rec is not None else 0,
+                           "recording_error": self.recording_error})
         return values
 
     def _energy(self, snap: Snapshot | None) -> float:
@@ -300,6 +374,9 @@ class ClusterFemNode(Node):
         level = "ERROR" if failed else ("OK" if finite and not values["inputs_rejected"] and not self.divergences
                                         and not values.get("physics_failures") else "WARN")
         message = ("physics stopped: " if loop.stopped else "physics failed: ") + loop.error if failed else ""
+        if self.recording_error:
+            level = "ERROR"
+            message = (message + "; " if message else "") + f"recording stopped: {self.recording_error}"
         values = {k: (v if not isinstance(v, float) or np.isfinite(v) else -1.0) for k, v in values.items()}
         me = self.get_fully_qualified_name().lstrip("/")     # "clusterfem", or "<namespace>/clusterfem"
         msg = diagnostic_array(self._stamp(), f"{me}: simulation", me, values, level, message)

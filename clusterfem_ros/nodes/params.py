@@ -4,11 +4,20 @@ from __future__ import annotations
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 
-from ..config import PARAMS, ConfigError, SceneConfig, check_value, from_mapping
+from ..config import PARAMS, ConfigError, SceneConfig, check_value, from_mapping, unknown_name_error
 
-# Parameters a running node can take; everything else shapes the model and needs a restart.
+_KNOWN = {p.name for p in PARAMS}
+
+# Parameters a running node can take; everything else shapes the model and needs a restart. They only
+# change how outputs look and how often they come; live, the rates have tighter bounds than at start-up:
+# diagnostics cannot be switched off (monitoring must see the node), markers and clouds no faster than a
+# display refreshes. output.frame_id is bounded for every source (config.check_value).
 LIVE = {"output.marker_rate_hz", "output.stress_rate_hz", "output.diagnostics_rate_hz", "output.colormap",
         "output.stress_max", "output.frame_id"}
+LIVE_BOUNDS = {"output.diagnostics_rate_hz": (0.1, 10.0), "output.marker_rate_hz": (0.0, 60.0),
+               "output.stress_rate_hz": (0.0, 30.0)}
+# names a params file may hold besides the scene parameters (rclpy's own)
+ROS_NAMES = {"use_sim_time", "start_type_description_service"}
 
 
 def descriptor(p) -> ParameterDescriptor:
@@ -39,11 +48,19 @@ def declare_scene_parameters(node: Node, on_live_change) -> SceneConfig:
                 return SetParametersResult(successful=False, reason=(
                     f"{prm.name} shapes the model and cannot change while running: restart the node with "
                     f"the new value (live parameters: {', '.join(sorted(LIVE))})"))
+            lo, hi = LIVE_BOUNDS.get(prm.name, (None, None))
+            if started["done"] and lo is not None and not lo <= prm.value <= hi:
+                return SetParametersResult(successful=False, reason=(
+                    f"{prm.name} = {prm.value!r}: a running node takes [{lo:g}, {hi:g}] only; start the node "
+                    "with the value to go beyond"))
         if started["done"]:
             on_live_change({prm.name: prm.value for prm in params})
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(check)
+    for name in getattr(node, "_parameter_overrides", {}):     # a params file's misspelt name is refused
+        if name not in _KNOWN and name not in ROS_NAMES and not name.startswith("qos_overrides."):
+            raise unknown_name_error(name)
     node.declare_parameters("", [(p.name, p.default, descriptor(p)) for p in PARAMS])
     values = {p.name: node.get_parameter(p.name).value for p in PARAMS}
     started["done"] = True

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import ClusterFemError
+
 PARAMS_FILE = "scene_parameters.yaml"
 
 
@@ -20,6 +22,10 @@ class JointSample:
     names: list
     q: np.ndarray
     v: np.ndarray | None
+
+
+class BagReadError(ClusterFemError, ValueError):
+    """A bag record that cannot be read back; the message names the bag and the record."""
 
 
 def topic_in(topics, name: str) -> str | None:
@@ -42,7 +48,8 @@ def _reader(folder: Path):
 
 
 def read_joint_states(folder: str | Path, topic: str = "/joint_states") -> list[JointSample]:
-    """Every joint state in the bag, in recording order."""
+    """Every joint state in the bag, in recording order. BagReadError names the first record that does not
+    decode (the node records only what it decoded, so such a record was written by something else)."""
     out = []
     with _reader(Path(folder)) as r:
         found = topic_in((c.topic for c in r.connections), topic)
@@ -50,8 +57,12 @@ def read_joint_states(folder: str | Path, topic: str = "/joint_states") -> list[
         if not conns:
             raise ValueError(f"bag {str(folder)!r} has no {topic!r} topic (topics: "
                              f"{sorted({c.topic for c in r.connections})})")
-        for c, log_ns, raw in r.messages(connections=conns):
-            m = r.deserialize(raw, c.msgtype)
+        for k, (c, log_ns, raw) in enumerate(r.messages(connections=conns)):
+            try:
+                m = r.deserialize(raw, c.msgtype)
+            except Exception as exc:
+                raise BagReadError(f"bag {str(folder)!r}: {found} record {k} (log time {log_ns} ns, {len(raw)} bytes) "
+                                   f"does not decode as {c.msgtype}: {exc}") from None
             stamp = m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
             q = np.asarray(m.position, dtype=np.float64)
             v = np.asarray(m.velocity, dtype=np.float64) if len(m.velocity) else None

@@ -13,6 +13,15 @@ Durability: the I/O thread closes the open chunk, writes, flushes and fsyncs it 
 `flush_interval_s` (and whenever a chunk fills up), then rewrites metadata.yaml. After SIGKILL the
 file holds every chunk up to the last flush, without summary/footer: `recover_bag()` completes it.
 
+Memory: with `max_queue_bytes` set, the queue waiting for the I/O thread holds at most that many bytes
+of messages: `write()` drops (and counts in `dropped`, `dropped_bytes`) what does not fit instead of
+waiting, so a flood or a slow disk never blocks the caller and never grows memory. Without it, `write()`
+waits while more than MAX_PENDING messages are queued (what an offline copy such as recovery wants).
+
+Failures: an I/O error (disk full, folder removed or read-only) ends the I/O thread; `error` holds it at
+once (for the caller to log and stop recording), `write()` then raises RuntimeError and `close()` raises
+it once. The file keeps every chunk flushed before the error, for `recover_bag()`.
+
 Signals: `close()` takes no lock the caller could already hold; it asks the I/O thread to finish
 (summary, footer, metadata.yaml) and joins it, so it is safe in a SIGTERM/SIGINT handler (also
 when the handler interrupted `write()` or another `close()`).
@@ -59,7 +68,7 @@ class Rosbag2McapWriter:
 
     def __init__(self, folder: Union[str, Path], storage_name: Optional[str] = None,
                  chunk_size: int = CHUNK_SIZE, flush_interval_s: float = FLUSH_INTERVAL_S,
-                 compression: str = "zstd") -> None:
+                 compression: str = "zstd", max_queue_bytes: Optional[int] = None) -> None:
         self.folder = Path(folder)
         if self.folder.exists() and any(self.folder.iterdir()):
             raise FileExistsError(f"bag folder {self.folder} exists and is not empty: choose a new folder "
@@ -68,6 +77,8 @@ class Rosbag2McapWriter:
             raise ValueError(f"flush_interval_s {flush_interval_s} must be > 0")
         if compression not in _COMPRESSIONS:
             raise ValueError(f"compression {compression!r}: choose one of {list(_COMPRESSIONS)}")
+        if max_queue_bytes is not None and max_queue_bytes < 1:
+            raise ValueError(f"max_queue_bytes {max_queue_bytes} must be >= 1 (None: no byte budget)")
         self.folder.mkdir(parents=True, exist_ok=True)
         self.path = self.folder / f"{storage_name or self.folder.name}_0.mcap"
         self._flush_interval = flush_interval_s
@@ -78,6 +89,11 @@ class Rosbag2McapWriter:
         self._topic_lock = threading.Lock()  # add_topic only; never taken by write()/close()
         self._close_requested = False
         self._error: Optional[BaseException] = None
+        self._max_queue_bytes = max_queue_bytes
+        self._bytes_in = 0    # queued by callers; bytes_out by the I/O thread: each counter has one writer
+        self._bytes_out = 0
+        self.dropped = 0      # messages refused by the byte budget, and their bytes
+        self.dropped_bytes = 0
         # I/O thread side
         self._info = BagInfo(storage_file=self.path.name)
         self._file = open(self.path, "xb")
@@ -96,13 +112,24 @@ class Rosbag2McapWriter:
     def closed(self) -> bool:
         return self._close_requested and not self._thread.is_alive()
 
+    @property
+    def error(self) -> Optional[BaseException]:
+        """The I/O thread's failure (None while it works): recording has stopped, the file waits for recover_bag."""
+        return None if isinstance(self._error, _Reported) else self._error
+
+    @property
+    def queued_bytes(self) -> int:
+        """Bytes of messages queued and not yet handed to the MCAP writer."""
+        return self._bytes_in - self._bytes_out
+
     def add_topic(self, name: str, msg_type: str, qos: str = "reliable") -> int:
         """Register a topic (once; again with the same type returns the same channel id)."""
         full = normalize_type(msg_type)
         return self._add_channel(name, full, message_definition(full), [qos_profile(qos)], type_hash(full))
 
-    def write(self, topic: str, log_time_ns: int, cdr_bytes: bytes, publish_time_ns: Optional[int] = None) -> None:
-        """Queue one CDR-serialized message (log time = receive time, ns since the epoch)."""
+    def write(self, topic: str, log_time_ns: int, cdr_bytes: bytes, publish_time_ns: Optional[int] = None) -> bool:
+        """Queue one CDR-serialized message (log time = receive time, ns since the epoch). Returns False
+        when the byte budget dropped it (counted in ``dropped``)."""
         self._check_open()
         entry = self._topics.get(topic)
         if entry is None:
@@ -115,9 +142,18 @@ class Rosbag2McapWriter:
         if log_time_ns < 0:
             raise ValueError(f"log time {log_time_ns} ns is negative")
         publish = log_time_ns if publish_time_ns is None else int(publish_time_ns)
-        while len(self._ops) > MAX_PENDING and self._thread.is_alive():  # back-pressure, no lock
-            time.sleep(_IDLE_SLEEP_S)
-        self._ops.append(("msg", entry[0], topic, log_time_ns, publish, bytes(cdr_bytes)))
+        data = bytes(cdr_bytes)
+        if self._max_queue_bytes is not None:
+            if self.queued_bytes + len(data) > self._max_queue_bytes or len(self._ops) > MAX_PENDING:
+                self.dropped += 1
+                self.dropped_bytes += len(data)
+                return False
+        else:
+            while len(self._ops) > MAX_PENDING and self._thread.is_alive():  # back-pressure, no lock
+                time.sleep(_IDLE_SLEEP_S)
+        self._bytes_in += len(data)
+        self._ops.append(("msg", entry[0], topic, log_time_ns, publish, data))
+        return True
 
     def flush(self, timeout_s: float = 10.0) -> None:
         """Block until everything queued so far is written, in a closed chunk, and fsync'ed."""
@@ -183,6 +219,7 @@ class Rosbag2McapWriter:
                     op = self._ops.popleft()
                     if op[0] == "msg":
                         _, channel, topic, log_ns, pub_ns, data = op
+                        self._bytes_out += len(data)
                         info = infos[topic]
                         self._mcap.add_message(channel_id=channel, log_time=log_ns, data=data,
                                                publish_time=pub_ns, sequence=info.count)
@@ -218,6 +255,11 @@ class Rosbag2McapWriter:
         except BaseException as exc:  # keep the error for the caller; the file is left for recover_bag
             self._error = exc
             self._close_requested = True
+            self._ops.clear()         # what cannot be written any more is not kept in memory
+            try:
+                self._file.close()    # flushes what it can; the chunks already synced stay readable
+            except OSError:
+                pass
 
     def _sync(self) -> None:
         self._file.flush()

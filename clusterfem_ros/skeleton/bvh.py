@@ -210,6 +210,10 @@ def parse_bvh(text: str, source: str = "<bvh>", unit_m: float = CMU_UNIT_M, up: 
                        f"'Frame Time: {ft_txt}' as a count and seconds") from None
     if n_frames < 1 or not (np.isfinite(frame_time) and frame_time > 0):
         raise BvhError(f"{source}:{motion_line + 2}: {n_frames} frames of {frame_time} s: need >= 1 frame, time > 0")
+    room = len(lines) - (motion_line + 3)        # one line per frame: the file bounds the count before allocating
+    if n_frames > room:
+        raise BvhError(f"{source}:{motion_line + 2}: 'Frames: {n_frames}' but only {room} lines follow: the "
+                       "count is wrong or the file is truncated; fix the Frames line")
     frames = np.empty((n_frames, n_channels))
     k = motion_line + 3
     for f in range(n_frames):

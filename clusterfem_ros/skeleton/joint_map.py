@@ -3,15 +3,18 @@
 Policy (what a node needs to warn well and keep running):
 
 * a joint missing from a message keeps its last value (split publishers, partial messages);
-* an unknown name is reported once (``unknown_joint``; ``JointMapResult.new_unknown`` lists the names
-  first seen in this message) and otherwise ignored;
-* fatal, the message is dropped (``accepted`` False): names and positions of different length
-  (``length_mismatch``), a name given twice (``duplicate_joint``), no known joint at all (``no_known_joint``);
+* unknown names are reported once (one ``unknown_joint`` problem per message that brings new ones;
+  ``JointMapResult.new_unknown`` lists them) and otherwise ignored; at most ``MAX_REMEMBERED_UNKNOWN``
+  names are remembered, so a stream of ever new names cannot grow memory (beyond, they are reported again);
+* fatal, the message is dropped (``accepted`` False): more than ``max_names`` names (``too_many_names``,
+  before any per-name work), names and positions of different length (``length_mismatch``), a name given
+  twice (``duplicate_joint``), no known joint at all (``no_known_joint``);
 * repaired: a non-finite position leaves that joint at its last value (``non_finite``); velocities of
   the wrong length or with a non-finite entry are dropped (``bad_velocity``) and v is None.
 
 v is returned only when the message gives a finite velocity for every skeleton joint; otherwise it is
 None and the interpolator derives velocities by finite differences. Units: radians and metres (and /s).
+Every check is linear in the message size.
 """
 from __future__ import annotations
 
@@ -20,7 +23,9 @@ from typing import Sequence
 
 import numpy as np
 
-FATAL = frozenset({"length_mismatch", "duplicate_joint", "no_known_joint"})
+FATAL = frozenset({"too_many_names", "length_mismatch", "duplicate_joint", "no_known_joint"})
+MAX_REMEMBERED_UNKNOWN = 1000
+_SHOWN = 5          # names quoted in one message
 
 
 @dataclass
@@ -37,7 +42,7 @@ class JointMapResult:
 class JointMap:
     """Holds the last known q of ``joint_names`` and merges JointState-like messages into it."""
 
-    def __init__(self, joint_names: Sequence[str], q0: np.ndarray | None = None):
+    def __init__(self, joint_names: Sequence[str], q0: np.ndarray | None = None, max_names: int = 100_000):
         self.joint_names = list(joint_names)
         if len(set(self.joint_names)) != len(self.joint_names):
             dup = sorted({n for n in self.joint_names if self.joint_names.count(n) > 1})
@@ -48,34 +53,40 @@ class JointMap:
         if q0.shape != (n,) or not np.isfinite(q0).all():
             raise ValueError(f"q0 must be {n} finite values (one per joint), got shape {q0.shape}")
         self.q = q0
+        if max_names < 1:
+            raise ValueError(f"max_names = {max_names} must be >= 1")
+        self.max_names = int(max_names)
         self.unknown: set[str] = set()
 
     def update(self, names: Sequence[str], positions, velocities=None) -> JointMapResult:
         """Merge one message; see the module docstring for what is kept, repaired or rejected."""
-        names = list(names)
+        names = names if isinstance(names, list) else list(names)
+        if len(names) > self.max_names:
+            return self._rejected("too_many_names", f"joint state has {len(names)} names (max_names "
+                                  f"{self.max_names}): message dropped; raise input.max_names if this is real")
         pos = np.asarray(positions, dtype=np.float64).reshape(-1)
         vel = None if velocities is None else np.asarray(velocities, dtype=np.float64).reshape(-1)
         n = len(self.joint_names)
-
-        def reject(kind: str, text: str) -> JointMapResult:
-            return JointMapResult(False, self.q.copy(), None, np.zeros(n, dtype=bool), [(kind, text)])
-
+        reject = self._rejected
         if pos.size != len(names):
             return reject("length_mismatch", f"joint state has {len(names)} names but {pos.size} positions: "
                           "send one position per name (message dropped)")
         if len(set(names)) != len(names):
-            dup = sorted({x for x in names if names.count(x) > 1})
-            return reject("duplicate_joint", f"joint state names {dup} more than once: send each joint once "
-                          "(message dropped)")
+            seen: set[str] = set()
+            dup = sorted({x for x in names if x in seen or seen.add(x)})
+            return reject("duplicate_joint", f"joint state names {dup[:_SHOWN]} more than once: send each joint "
+                          "once (message dropped)")
         problems: list[tuple[str, str]] = []
         new_unknown = [x for x in names if x not in self._index and x not in self.unknown]
-        for x in new_unknown:
-            self.unknown.add(x)
-            problems.append(("unknown_joint", f"joint {x!r} is not in the skeleton ({n} joints): ignored "
-                                              "(reported once per name)"))
+        if new_unknown:
+            room = MAX_REMEMBERED_UNKNOWN - len(self.unknown)
+            self.unknown.update(new_unknown[:max(room, 0)])
+            more = f" and {len(new_unknown) - _SHOWN} more" if len(new_unknown) > _SHOWN else ""
+            problems.append(("unknown_joint", f"joints {new_unknown[:_SHOWN]}{more} are not in the skeleton ({n} "
+                                              "joints): ignored (reported once per name)"))
         known = [(k, self._index[x]) for k, x in enumerate(names) if x in self._index]
         if not known:
-            out = reject("no_known_joint", f"joint state names none of the skeleton's joints (got {names[:5]}): "
+            out = reject("no_known_joint", f"joint state names none of the skeleton's joints (got {names[:_SHOWN]}): "
                          "check the publisher's joint names against the URDF (message dropped)")
             out.problems = problems + out.problems
             out.new_unknown = new_unknown
@@ -109,3 +120,7 @@ class JointMap:
                 v[i] = vel[k]
         self.q = q
         return JointMapResult(True, q.copy(), v, updated, problems, new_unknown)
+
+    def _rejected(self, kind: str, text: str) -> JointMapResult:
+        n = len(self.joint_names)
+        return JointMapResult(False, self.q.copy(), None, np.zeros(n, dtype=bool), [(kind, text)])

@@ -17,6 +17,18 @@ samples with increasing stamps restart the stream from them (reported as ``resta
 larger than ``teleport_distance`` between consecutive samples is accepted but reported (``teleport``)
 and interpolation does not sweep across it: the older samples are dropped.
 
+Range checks (rejected, counted by the caller; both limits are optional):
+
+* ``root_range``: the prismatic joints (the root's translation in our URDFs) further than
+  ``max_root_distance`` [m] from the origin. Never accepted later: a body that far away is a broken
+  publisher or a scene that needs a larger limit, not motion.
+* ``joint_speed``: a joint moving faster than ``max_joint_speed`` [rad/s or m/s] since the accepted sample
+  that last moved it (unwrapped angles; a prismatic jump beyond ``teleport_distance`` is a teleport instead), or a
+  reported velocity above it. Capture glitches (a thigh flipping 175 deg in one frame) are dropped. So that
+  real motion faster than the limit can never lock the stream out, a sample still rejected for speed
+  ``max_age`` seconds after the first rejection of that run restarts the stream from it (``restart``; the
+  body is re-placed on the skeleton).
+
 Arrays: q, v (n,) float64 [rad, m, rad/s, m/s]; stamps float seconds. The buffer holds at most
 ``capacity`` samples.
 """
@@ -30,7 +42,7 @@ import numpy as np
 
 from ..errors import ClusterFemError
 
-FATAL = frozenset({"out_of_order", "stale", "future", "bad_sample"})
+FATAL = frozenset({"out_of_order", "stale", "future", "bad_sample", "root_range", "joint_speed"})
 
 
 class StaleSample(ClusterFemError, ValueError):
@@ -53,7 +65,8 @@ class JointStreamInterpolator:
 
     def __init__(self, joint_names: Sequence[str], revolute: np.ndarray | None = None, *, max_age: float = 1.0,
                  max_future: float = 0.5, teleport_distance: float = 0.5, prismatic: np.ndarray | None = None,
-                 horizon: float = 0.0, capacity: int = 256, restart_after: int = 3):
+                 horizon: float = 0.0, capacity: int = 256, restart_after: int = 3,
+                 max_root_distance: float = float("inf"), max_joint_speed: float = float("inf")):
         self.joint_names = list(joint_names)
         n = len(self.joint_names)
         self.revolute = np.ones(n, bool) if revolute is None else np.asarray(revolute, dtype=bool).reshape(-1)
@@ -65,11 +78,17 @@ class JointStreamInterpolator:
                           ("horizon", horizon)):
             if not (np.isfinite(val) and val >= 0):
                 raise ValueError(f"{name} = {val!r} must be a finite time/distance >= 0")
+        for name, val in (("max_root_distance", max_root_distance), ("max_joint_speed", max_joint_speed)):
+            if not val > 0:
+                raise ValueError(f"{name} = {val!r} must be > 0 (inf: no limit)")
         if capacity < 2 or restart_after < 1:
             raise ValueError(f"capacity = {capacity} must be >= 2 and restart_after = {restart_after} >= 1")
         self.max_age, self.max_future = float(max_age), float(max_future)
         self.teleport_distance, self.horizon = float(teleport_distance), float(horizon)
         self.restart_after = int(restart_after)
+        self.max_root_distance, self.max_joint_speed = float(max_root_distance), float(max_joint_speed)
+        self._speeding_since: float | None = None     # stamp of the first sample of a run rejected for speed
+        self._moved_at = np.zeros(n)                  # per joint: stamp of the sample that last changed it
         self._t: deque[float] = deque(maxlen=capacity)
         self._q: deque[np.ndarray] = deque(maxlen=capacity)
         self._v: deque[np.ndarray | None] = deque(maxlen=capacity)
@@ -102,6 +121,9 @@ class JointStreamInterpolator:
                                              f"(> teleport_distance {self.teleport_distance:g} m): not "
                                              "interpolated across; older samples dropped"))
                 self._t.clear(), self._q.clear(), self._v.clear()
+            self._moved_at[q != prev] = stamp
+        else:
+            self._moved_at[:] = stamp
         self._t.append(stamp)
         self._q.append(q)
         self._v.append(v)
@@ -151,12 +173,54 @@ class JointStreamInterpolator:
                 self._rejected = []
                 self._t.clear(), self._q.clear(), self._v.clear()
                 for s, qq, vv in kept:
-                    self._store(s, qq, vv, problems)
+                    if self._range_problem(s, qq, vv) is None or self._t:   # the first must be in range
+                        self._store(s, qq, vv, problems)
                 return [(kind, text), ("restart", f"{len(kept)} consecutive samples from {kept[0][0]:.6f} s agree "
                                                   "with each other: the stream restarts from them")]
         self._rejected.clear()
+        limit = self._range_problem(stamp, q, v)
+        if limit is not None:
+            if limit[0] == "root_range" or self._speeding_since is None or stamp - self._speeding_since < self.max_age:
+                if limit[0] == "joint_speed" and self._speeding_since is None:
+                    self._speeding_since = stamp
+                return [limit]
+            problems += [limit, ("restart", f"joint speeds above max_joint_speed {self.max_joint_speed:g} for "
+                                            f"{stamp - self._speeding_since:.3g} s (>= max_age {self.max_age:g} s): "
+                                            "the stream restarts from this sample; raise the limit if this motion "
+                                            "is real")]
+            self._t.clear(), self._q.clear(), self._v.clear()
+        self._speeding_since = None
         self._store(stamp, q, v, problems)
         return problems
+
+    def _range_problem(self, stamp: float, q: np.ndarray, v: np.ndarray | None) -> tuple[str, str] | None:
+        """The ``root_range`` or ``joint_speed`` problem of a sample that passed the time checks, or None."""
+        if self.prismatic.any():
+            with np.errstate(over="ignore"):           # 1e300 m: inf, and refused as such
+                dist = float(np.linalg.norm(q[self.prismatic]))
+            if dist > self.max_root_distance:
+                return ("root_range", f"root is {dist:.4g} m from the origin (max_root_distance "
+                                      f"{self.max_root_distance:g} m): sample dropped; fix the publisher or raise "
+                                      "input.max_root_distance")
+        if v is not None and np.abs(v).max(initial=0.0) > self.max_joint_speed:
+            k = int(np.argmax(np.abs(v)))
+            return ("joint_speed", f"joint {self.joint_names[k]!r} reports velocity {v[k]:.4g} (max_joint_speed "
+                                   f"{self.max_joint_speed:g}): sample dropped")
+        if self._t and np.isfinite(self.max_joint_speed):
+            prev = self._q[-1]
+            if np.linalg.norm(q[self.prismatic] - prev[self.prismatic]) > self.teleport_distance:
+                return None                      # a teleport: reported by _store, the body is re-placed
+            step = np.abs(q - prev)
+            step[self.revolute] = np.abs(wrap_angle(q[self.revolute] - prev[self.revolute]))
+            # per joint, the time since the sample that last moved it: split publishers (arms and legs in
+            # separate messages microseconds apart) each move their own joints over their own period
+            dt = stamp - self._moved_at
+            k = int(np.argmax(step - self.max_joint_speed * dt))
+            if step[k] > self.max_joint_speed * dt[k]:
+                return ("joint_speed", f"joint {self.joint_names[k]!r} moved {step[k]:.4g} in {dt[k]:.3g} s "
+                                       f"({step[k] / dt[k]:.4g}/s > max_joint_speed {self.max_joint_speed:g}): "
+                                       "sample dropped as a capture glitch")
+        return None
 
     def push_or_raise(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None,
                       now: float | None = None) -> list[tuple[str, str]]:

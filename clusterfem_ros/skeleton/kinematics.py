@@ -77,9 +77,9 @@ def _parse_tree(xml: str) -> tuple[dict[str, _Link], dict[str, dict]]:
         if name is None or kind is None or p is None or c is None:
             raise UrdfError(f"URDF joint {name!r} lacks a name, type, parent or child: fix the URDF")
         o = j.find("origin")
-        xyz = np.array([float(x) for x in (o.get("xyz", "0 0 0") if o is not None else "0 0 0").split()])
+        xyz = _numbers(o.get("xyz", "0 0 0") if o is not None else "0 0 0", f"joint {name!r} <origin xyz>")
         a = j.find("axis")
-        axis = np.array([float(x) for x in (a.get("xyz", "1 0 0") if a is not None else "1 0 0").split()])
+        axis = _numbers(a.get("xyz", "1 0 0") if a is not None else "1 0 0", f"joint {name!r} <axis xyz>")
         if kind in SCALAR_KINDS and not (axis.shape == (3,) and np.linalg.norm(axis) > 0):
             raise UrdfError(f"URDF joint {name!r} has axis {axis.tolist()}: give a non-zero 3-vector")
         joints[name] = {"type": kind, "parent": p.get("link"), "child": c.get("link"), "xyz": xyz,
@@ -88,9 +88,20 @@ def _parse_tree(xml: str) -> tuple[dict[str, _Link], dict[str, dict]]:
     links: dict[str, _Link] = {}
     for link in root.findall("link"):
         m = link.find("inertial/mass")
-        links[link.get("name")] = _Link(link.get("name"), float(m.get("value")) if m is not None else None,
-                                        child_of.get(link.get("name")))
+        mass = None if m is None else _numbers(m.get("value", ""), f"link {link.get('name')!r} <mass value>", 1)[0]
+        links[link.get("name")] = _Link(link.get("name"), mass, child_of.get(link.get("name")))
     return links, joints
+
+
+def _numbers(text: str, where: str, count: int = 3) -> np.ndarray:
+    """``count`` finite numbers from a URDF attribute; UrdfError naming the element and the text otherwise."""
+    try:
+        out = np.array([float(x) for x in text.split()])
+    except ValueError:
+        out = None
+    if out is None or out.shape != (count,) or not np.isfinite(out).all():
+        raise UrdfError(f"URDF {where} = {text!r}: give {count} finite number{'s' if count > 1 else ''}")
+    return out
 
 
 class Skeleton:

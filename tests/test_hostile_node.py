@@ -1,0 +1,221 @@
+"""Hostile and careless participants on the node's ROS graph (issue 19), launch-free: garbage and absurd
+joint states while recording, a disk that fills up under the recording, live parameter abuse, start-up
+errors and the DDS default of a bare start."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
+
+from msg_adapters.joint_state import joint_state_cdr
+from tests.test_hostile_inputs import full_disk_after
+from tests.test_node_skeleton import SMALL_MAN, _points, world  # noqa: F401  (world: the fixture)
+from tests.test_recording_signals import rosbags_count
+
+pytestmark = pytest.mark.ros
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _sim(world, **values):
+    from clusterfem_ros.nodes.clusterfem_node import ClusterFemNode
+    return world.add(ClusterFemNode(context=world.context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in {**SMALL_MAN, **values}.items()]))
+
+
+class Sender:
+    """Publishes raw bytes on joint_states and waits until the node counted what it was meant to."""
+
+    def __init__(self, world, sim):
+        from sensor_msgs.msg import JointState
+        self.world, self.sim = world, sim
+        self.node = world.node("hostile_publisher")
+        self.pub = self.node.create_publisher(JointState, "joint_states", 10)
+        self.names = sim.scene.skeleton.joint_names
+        self.q0 = sim.scene.skeleton.neutral()
+        world.wait_for(lambda: self.pub.get_subscription_count() > 0, 10, "joint_states matched")
+
+    def now_ns(self) -> int:
+        return self.node.get_clock().now().nanoseconds
+
+    def cdr(self, q=None, v=None, names=None) -> bytes:
+        return joint_state_cdr(self.names if names is None else names, self.q0 if q is None else q, v,
+                               stamp=self.now_ns())
+
+    def until(self, counted, make, what: str) -> None:
+        """Send ``make()`` until ``counted()`` grows (best-effort transport)."""
+        before = counted()
+        for _ in range(5):
+            self.pub.publish(make())
+            try:
+                self.world.wait_for(lambda: counted() > before, 4.0, what)
+                return
+            except AssertionError:
+                continue
+        raise AssertionError(f"{what} was never counted")
+
+    def rejected(self, kind: str, make) -> None:
+        self.until(lambda: self.sim.scene.inputs.rejected.get(kind, 0), make, kind)
+
+    def good(self) -> None:
+        self.until(lambda: self.sim.scene.inputs.accepted, self.cdr, "an accepted joint state")
+
+
+def test_garbage_huge_and_absurd_joint_states_are_counted_never_recorded_and_never_kill_the_node(world, tmp_path):
+    from visualization_msgs.msg import Marker
+    sim = _sim(world, **{"recording.enabled": True, "recording.dir": str(tmp_path), "input.max_names": 30_000})
+    markers = world.collect(Marker, "clusterfem/surface")
+    s = Sender(world, sim)
+    s.good()
+    s.rejected("malformed", lambda: b"garbage!")                               # killed a recording node
+    s.rejected("malformed", lambda: b"\x00\x01\x00\x00" + b"\xff" * 40)        # a valid CDR header
+    s.rejected("too_many_names", lambda: s.cdr(names=[f"x{i}" for i in range(30_001)], q=np.zeros(30_001)))
+    strangers = [f"stranger_{i}" for i in range(20_000)]
+    s.rejected("unknown_joint", lambda: s.cdr(names=s.names + strangers,
+                                              q=np.concatenate([s.q0, np.zeros(len(strangers))])))
+    assert sim.scene.inputs.rejected["unknown_joint"] == 1                     # one report for 20,000 names
+    far = s.q0.copy()
+    far[s.names.index("root_x")] = 1e9
+    s.rejected("root_range", lambda: s.cdr(q=far))
+    s.rejected("joint_speed", lambda: s.cdr(v=np.full(len(s.names), 1e12)))
+    s.good()
+    n = len(markers)
+    world.wait_for(lambda: len(markers) >= n + 5, 20, "markers after the hostile inputs")
+    for raw in markers[n:]:
+        pts = _points(raw)
+        assert np.isfinite(pts).all() and np.abs(pts).max() < 10.0             # never at x = 1e9
+    assert sim.divergences == 0 and sim.recorder is not None and not sim.recording_error
+    world.executor.shutdown(timeout_sec=5.0)
+    recorded = sim.counts["joint_states"]
+    sim.close()
+    counts = rosbags_count(sim.recording_path)                                 # every record decodes
+    assert counts["/joint_states"] == recorded
+    from clusterfem_ros.recording.bag_reader import read_joint_states
+    samples = read_joint_states(sim.recording_path)
+    assert len(samples) == recorded and max(len(x.names) for x in samples) <= 30_000
+    assert sim.received >= recorded + 3       # garbage, headed garbage and the oversized one were not recorded
+
+
+def test_a_full_disk_stops_recording_with_an_error_and_the_simulation_goes_on(world, tmp_path, monkeypatch):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from visualization_msgs.msg import Marker
+
+    from msg_adapters.diagnostics import diagnostic_values
+    full_disk_after(monkeypatch, 150_000)
+    sim = _sim(world, **{"recording.enabled": True, "recording.dir": str(tmp_path)})
+    markers = world.collect(Marker, "clusterfem/surface")
+    diags = world.collect(DiagnosticArray, "/diagnostics")
+    s = Sender(world, sim)
+    s.good()
+    world.wait_for(lambda: sim.recording_error != "", 60, "the disk to fill up")
+    assert "No space left on device" in sim.recording_error and sim.recorder is None
+    n, d = len(markers), len(diags)
+    world.wait_for(lambda: len(markers) >= n + 10 and len(diags) >= d + 2, 30, "outputs after the failure")
+    status = deserialize_message(diags[-1], DiagnosticArray).status[0]
+    values = diagnostic_values(deserialize_message(diags[-1], DiagnosticArray))
+    assert status.level == b"\x02" and values["recording"] == "stopped"
+    assert "No space left" in values["recording_error"]
+    s.good()                                                                    # inputs still taken
+    monkeypatch.undo()
+    world.executor.shutdown(timeout_sec=5.0)
+    sim.close()
+    from clusterfem_ros.recording.recover import recover_bag
+    report = recover_bag(sim.recording_path)
+    assert report.messages > 0 and sum(rosbags_count(sim.recording_path).values()) == report.messages
+
+
+def test_live_parameters_are_bounded(world):
+    sim = _sim(world)
+    bad = {"output.diagnostics_rate_hz": 0.0, "output.marker_rate_hz": 1000.0, "output.stress_rate_hz": 500.0,
+           "output.frame_id": "x" * 1_000_000}
+    for name, value in bad.items():
+        (result,) = sim.set_parameters([Parameter(name, value=value)])
+        assert not result.successful, name
+        assert name in result.reason and ("a running node takes" in result.reason or "at most 256" in result.reason)
+    assert sim.config["output.diagnostics_rate_hz"] == 5.0 and sim.config["output.frame_id"] == "world"
+    ok = [Parameter("output.marker_rate_hz", value=30.0), Parameter("output.frame_id", value="map")]
+    assert all(r.successful for r in sim.set_parameters(ok))
+    assert sim.config["output.marker_rate_hz"] == 30.0 and sim.config["output.frame_id"] == "map"
+
+
+def _start(args: list[str], tmp_path: Path, **env) -> subprocess.CompletedProcess:
+    environ = {k: v for k, v in os.environ.items() if k != "FASTDDS_BUILTIN_TRANSPORTS"}
+    environ.update(PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(150 + os.getpid() % 40), **env)
+    return subprocess.run([sys.executable, "-m", "clusterfem_ros.nodes.clusterfem_node", *args], cwd=tmp_path,
+                          env=environ, capture_output=True, text=True, timeout=300)
+
+
+def test_start_up_errors_are_one_line_and_exit_2_with_the_traceback_on_debug(tmp_path):
+    params = tmp_path / "scene.yaml"
+    params.write_text("clusterfem:\n  ros__parameters:\n    material:\n      youngs_modulus: 1.0e5\n")
+    run = _start(["--ros-args", "--params-file", str(params)], tmp_path)
+    assert run.returncode == 2, run.stderr
+    lines = [x for x in run.stderr.splitlines() if x.strip()]
+    assert len(lines) == 1 and "Traceback" not in run.stderr, run.stderr
+    assert "unknown scene parameter 'material.youngs_modulus': did you mean 'material.young_modulus'?" in lines[0]
+    run = _start(["--ros-args", "-p", "physics.step:=5.0"], tmp_path)
+    assert run.returncode == 2 and "physics.step" in run.stderr and "Traceback" not in run.stderr, run.stderr
+    for text in ("just a string\n", "clusterfem:\n  youngs_modulus: 3\n"):
+        params.write_text(text)
+        run = _start(["--ros-args", "--params-file", str(params)], tmp_path)
+        assert run.returncode == 2 and "ros__parameters" in run.stderr and "Traceback" not in run.stderr, run.stderr
+    run = _start(["--ros-args", "--params-file", str(tmp_path / "missing.yaml")], tmp_path)
+    assert run.returncode == 2 and "missing.yaml" in run.stderr and "Traceback" not in run.stderr, run.stderr
+    run = _start(["--debug", "--ros-args", "-p", "physics.step:=5.0"], tmp_path)
+    assert run.returncode != 0 and "Traceback" in run.stderr and "physics.step" in run.stderr
+
+
+def test_a_bare_start_keeps_dds_on_this_machine_unless_told_otherwise():
+    from clusterfem_ros.nodes.spinning import default_transport
+    env: dict = {}
+    assert "FASTDDS_BUILTIN_TRANSPORTS=DEFAULT" in default_transport(env) and env["FASTDDS_BUILTIN_TRANSPORTS"] == "SHM"
+    env = {"FASTDDS_BUILTIN_TRANSPORTS": "DEFAULT"}
+    assert default_transport(env) is None and env == {"FASTDDS_BUILTIN_TRANSPORTS": "DEFAULT"}
+    env = {"FASTDDS_DEFAULT_PROFILES_FILE": "/etc/my_profile.xml"}
+    assert default_transport(env) is None and "FASTDDS_BUILTIN_TRANSPORTS" not in env
+
+
+def _udp_inodes() -> set[str]:
+    inodes = set()
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        with open(table) as f:
+            inodes |= {line.split()[9] for line in f.readlines()[1:]}
+    return inodes
+
+
+def _socket_inodes(pid: int) -> set[str]:
+    out = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            out.add(target[8:-1])
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/net/udp").exists(), reason="needs Linux /proc")
+def test_a_bare_node_opens_no_udp_socket_and_says_how_to_reach_a_network(tmp_path):
+    """Started without scripts/env.sh (FASTDDS_BUILTIN_TRANSPORTS unset), as a console script would be."""
+    environ = {k: v for k, v in os.environ.items() if k != "FASTDDS_BUILTIN_TRANSPORTS"}
+    environ.update(PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(190 + os.getpid() % 10))
+    proc = subprocess.Popen([sys.executable, "-m", "clusterfem_ros.nodes.clusterfem_node", "--ros-args",
+                             "-p", "body.kind:=sphere", "-p", "skeleton.source:=none"],
+                            cwd=tmp_path, env=environ, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        lines = []
+        for line in proc.stdout:
+            lines.append(line)
+            if "DDS: shared memory only" in line:
+                break
+        assert "FASTDDS_BUILTIN_TRANSPORTS=DEFAULT" in lines[-1], "".join(lines)
+        assert not _socket_inodes(proc.pid) & _udp_inodes()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
