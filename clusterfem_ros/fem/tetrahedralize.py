@@ -120,8 +120,15 @@ def _mesh_once(v: np.ndarray, f: np.ndarray, edge: float, diag: float) -> TetMes
     # the envelope (how far the tet surface may stray from the input) grows with the edge length, so a
     # coarse body is not forced to keep every wrinkle of the surface
     eps = float(np.clip(0.1 * edge / diag, 1e-3, 2e-2))
-    tv, tt = pytetwild.tetrahedralize(v, f.astype(np.int32), edge_length_abs=float(edge), epsilon=eps,
-                                      num_threads=1)
+    # fTetWild writes a debug file (__tracked_surface.stl) into the working directory: give it a scratch one
+    here = os.getcwd()
+    with tempfile.TemporaryDirectory(prefix="clusterfem_ftetwild_") as scratch:
+        os.chdir(scratch)
+        try:
+            tv, tt = pytetwild.tetrahedralize(v, f.astype(np.int32), edge_length_abs=float(edge), epsilon=eps,
+                                              num_threads=1)
+        finally:
+            os.chdir(here)
     if len(tt) == 0:
         return TetMesh(np.asarray(tv, dtype=np.float64).reshape(-1, 3), np.empty((0, 4), dtype=np.int64))
     return remove_unreferenced(orient(TetMesh(tv, tt)))
