@@ -245,10 +245,11 @@ class Scene:
                                               prismatic=~sk.revolute_mask())
 
     def _refuse_islands(self) -> None:
-        """A piece of a surface body that no level and no anchor reaches would fall away: refuse it."""
+        """A piece of a surface body that no bone reaches (no vertex in the innermost level: relative levels
+        bind the skin of any piece at its outer level) and no anchor holds would be dragged, not carried:
+        refuse it."""
         from .body.surface_body import unbound_islands
-        driven = np.zeros(self.model.n_vertices, dtype=bool)
-        driven[self.binding.bound] = True
+        driven = self.binding.level == 0
         driven[[a.vertex for a in self.anchors]] = True
         islands = unbound_islands(self.model.mesh.tets, self.model.n_vertices, driven)
         if islands:

@@ -148,6 +148,14 @@ def test_relative_levels_give_thin_and_thick_parts_a_core():
         bind_to_skeleton(x, starts, ends, [0.5, 1.5], surface_depth=depth)
 
 
+def test_a_piece_of_the_mesh_no_bone_reaches_is_refused(surface, tmp_path, cache, monkeypatch):
+    m = trimesh.load(surface)
+    apart = trimesh.util.concatenate([m, trimesh.Trimesh(m.vertices * 0.5 + [0.0, 0.0, 100.0], m.faces)])
+    apart.export(tmp_path / "two_pieces.stl")
+    with pytest.raises(ValueError, match=r"1 piece\(s\) of the surface body are reached by no bone.*anchors"):
+        _build(tmp_path / "two_pieces.stl", cache, monkeypatch, **{"body.target_tets": 1200})
+
+
 def test_islands_no_bone_reaches_are_found():
     tets = np.array([[0, 1, 2, 3], [4, 5, 6, 7]])
     driven = np.zeros(8, dtype=bool)
