@@ -81,6 +81,8 @@ PARAMS: tuple[Param, ...] = (
     Param("binding.level_radii", [0.035, 0.06], "nested constraint levels: distance to the bone axis [m], increasing"),
     Param("binding.relative_levels", False, "binding.level_radii are fractions (0, 1] of the local flesh thickness, "
           "bone to skin, instead of metres (surface bodies: thin fingers and thick thighs both get a core)"),
+    Param("binding.skip_bones", [], "bones that bind no flesh (their flesh goes to the nearest other bone), e.g. a "
+          "capture's noisy finger bones; [] = every bone binds", item=str),
     Param("binding.kp", [4.0e4, 4.0e3], "per-level position gain [1/s^2]"),
     Param("binding.kd", [400.0, 120.0], "per-level velocity gain [1/s]"),
     Param("binding.kinematic_core", False, "prescribe the innermost level exactly instead of by forces"),

@@ -228,7 +228,14 @@ class Scene:
         starts, ends = sk.bone_segments(q0)
         _say(progress, f"binding {self.model.n_vertices} vertices to {len(sk.bone_names)} bones")
         depth = self.surface_body.depth if c["binding.relative_levels"] else None
-        self.binding = bind_to_skeleton(self.model.rest, starts, ends, c["binding.level_radii"],
+        mask = None
+        if c["binding.skip_bones"]:
+            unknown = [b for b in c["binding.skip_bones"] if b not in sk.bone_names]
+            if unknown:
+                raise ValueError(f"binding.skip_bones names {unknown}, which are not bones of this skeleton; its bones "
+                                 f"are {', '.join(sk.bone_names)}")
+            mask = np.array([b not in c["binding.skip_bones"] for b in sk.bone_names])
+        self.binding = bind_to_skeleton(self.model.rest, starts, ends, c["binding.level_radii"], mask,
                                         rest_rotation=poses.rotation, rest_translation=poses.translation,
                                         bone_names=sk.bone_names, warn=False, surface_depth=depth)
         if self.surface_body is not None:

@@ -134,6 +134,13 @@ def test_auto_fit_puts_the_bones_inside(surface, cache, monkeypatch):
                          scene.skeleton.bone_names, 0.0) == []
 
 
+def test_skipped_bones_bind_no_flesh(surface, cache, monkeypatch):
+    scene = _build(surface, cache, monkeypatch, **{"binding.skip_bones": ["upper"]})
+    assert (scene.binding.bone == scene.skeleton.bone_names.index("lower")).all()
+    with pytest.raises(ValueError, match=r"binding.skip_bones names \['uper'\].*its bones are lower, upper"):
+        _build(surface, cache, monkeypatch, **{"binding.skip_bones": ["uper"]})
+
+
 def test_relative_levels_give_thin_and_thick_parts_a_core():
     # one bone along x; a thin part (skin at 1 cm) and a thick part (skin at 10 cm), vertices at 3 depths each
     starts, ends = np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]])
