@@ -230,3 +230,20 @@ def test_surface_parameters_are_cross_checked():
                                    "binding.relative_levels": True, "binding.level_radii": [0.5, 2.0]})
     with pytest.raises(ConfigError, match="one angle per joint"):
         SceneConfig().with_values({"skeleton.bind_joints": ["a", "b"], "skeleton.bind_angles": [0.1]})
+
+
+def test_the_character_scene_file_loads_and_names_its_data(monkeypatch, tmp_path):
+    from pathlib import Path
+
+    from clusterfem_ros.body.fit import find_data_file
+    from clusterfem_ros.config import load_scene_file
+    root = Path(__file__).resolve().parents[1]
+    c = load_scene_file(root / "config" / "character_walk.yaml")
+    assert c["body.kind"] == "surface" and c["skeleton.source"] == "robot_description"
+    assert len(c["skeleton.bind_joints"]) == len(c["skeleton.bind_angles"]) == 6
+    monkeypatch.setenv("CLUSTERFEM_DATA", str(tmp_path))
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "makehuman_base.obj").write_text("v 0 0 0\n")
+    assert find_data_file(c["body.surface_file"]) == tmp_path / "meshes" / "makehuman_base.obj"
+    with pytest.raises(FitError, match=r"'meshes/absent.obj' is neither a path nor found under .*character_data.md"):
+        find_data_file("meshes/absent.obj", "config/character_data.md")
