@@ -72,7 +72,8 @@ PARAMS: tuple[Param, ...] = (
           "of an A-pose mesh on a T-pose skeleton)", item=str),
     Param("skeleton.bind_angles", [], "per joint of skeleton.bind_joints, its bind angle [rad] (or position [m])"),
     Param("skeleton.fit", "auto", "how the surface sits on the skeleton: 'auto' scales it so the skeleton spans 93 % "
-          "of its height and centres it; 'manual' uses body.surface_unit and skeleton.fit_offset", choices=("auto", "manual")),
+          "of its height, centres it, then moves and scales it so the bones lie 1 cm under the skin (least squares); "
+          "'manual' uses body.surface_unit and skeleton.fit_offset", choices=("auto", "manual")),
     Param("skeleton.fit_up", "Z", "the surface file's up axis (Y for most modelling tools)", choices=("X", "Y", "Z")),
     Param("skeleton.fit_forward", "X", "the surface file's forward axis (the way the character faces)", choices=("X", "Y", "Z")),
     Param("skeleton.fit_offset", [0.0, 0.0, 0.0], "with skeleton.fit 'manual': where the file's origin goes in the "

@@ -247,3 +247,12 @@ def test_the_character_scene_file_loads_and_names_its_data(monkeypatch, tmp_path
     assert find_data_file(c["body.surface_file"]) == tmp_path / "meshes" / "makehuman_base.obj"
     with pytest.raises(FitError, match=r"'meshes/absent.obj' is neither a path nor found under .*character_data.md"):
         find_data_file("meshes/absent.obj", "config/character_data.md")
+
+
+def test_a_bind_capture_of_another_skeleton_is_refused(tmp_path):
+    from clusterfem_ros.skeleton.kinematics import Skeleton
+    bvh = tmp_path / "other.bvh"
+    bvh.write_text("HIERARCHY\nROOT hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Zrotation Yrotation Xrotation\n"
+                   " End Site\n {\n  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 1\nFrame Time: 0.01\n0 0 0\n")
+    with pytest.raises(FitError, match=r"capture of another skeleton: it has no joint lift, bend"):
+        bind_configuration(Skeleton.from_urdf_string(_urdf()), "first_frame", bvh_file=str(bvh))

@@ -78,8 +78,11 @@ def bind_configuration(skeleton, pose: str = "neutral", joints: Sequence[str] = 
         from ..skeleton.bvh import load_bvh
         from ..skeleton.bvh_to_urdf import bvh_trajectory
         traj = bvh_trajectory(load_bvh(bvh_file), skip_tpose=False, despike=False)
-        _unknown_names("joints", skeleton.joint_names, traj.names,
-                       f"the skeleton (its joints are missing from {str(bvh_file)!r}, so it is another skeleton:)")
+        missing = [n for n in skeleton.joint_names if n not in traj.names]
+        if missing:
+            raise FitError(f"skeleton.bind_bvh {str(bvh_file)!r} is a capture of another skeleton: it has no joint "
+                           f"{', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}; give the BVH the player "
+                           "plays, or skeleton.bind_pose 'neutral'")
         q0 = traj.positions[0]
         q = np.array([q0[traj.names.index(n)] for n in skeleton.joint_names])
     elif pose != "neutral":
