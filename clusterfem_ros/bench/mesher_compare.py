@@ -44,7 +44,11 @@ def run_tetgen(v: np.ndarray, f: np.ndarray, edge: float) -> tuple[np.ndarray, n
 
 
 def _measure(mesher: str, v: np.ndarray, f: np.ndarray, edge: float, diag: float, out) -> None:
-    """Run one mesher (in a child process: TetGen can abort the process on self-intersecting input)."""
+    """Run one mesher (in a child process: TetGen can abort the process on self-intersecting input; in a scratch
+    folder: both write debug files into the working directory)."""
+    import os
+    import tempfile
+    os.chdir(tempfile.mkdtemp(prefix="clusterfem_mesher_"))
     t0 = time.perf_counter()
     try:
         if mesher == "fTetWild":
