@@ -19,7 +19,8 @@ setup(
     package_data={"clusterfem_ros": ["data/*.csv"], "clusterfem_ros.skeleton": ["data/*.yaml"]},
     # Only what pip should really fetch: rclpy and the message packages come from the ROS install
     # (wheels or apt), and listing them here would pull a second copy.
-    install_requires=["numpy", "scipy", "numba", "pin", "mcap", "meshio", "pyyaml", "matplotlib", "imageio", "imageio-ffmpeg"],
+    install_requires=["numpy", "scipy", "numba", "pin", "mcap", "meshio", "pyyaml", "matplotlib", "imageio",
+                      "imageio-ffmpeg", "trimesh", "rtree", "pytetwild", "pyvista", "fast_simplification"],
     zip_safe=True,
     maintainer="clusterfem_ros maintainers",
     maintainer_email="clusterfem@example.com",

@@ -18,7 +18,7 @@ import yaml
 from .errors import ClusterFemError
 
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg", "modal")
-BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh")
+BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh", "surface")
 SKELETONS = ("builtin", "urdf_file", "robot_description", "none")
 COLORMAPS = ("turbo", "viridis", "coolwarm")
 NODE_NAME = "clusterfem"
@@ -38,7 +38,11 @@ class Param:
 PARAMS: tuple[Param, ...] = (
     Param("body.kind", "jelly_man", "soft body: built around the skeleton, a paper shape, or a mesh file", choices=BODIES),
     Param("body.mesh_file", "", "volume mesh (.msh/.vtu/.vtk/.mesh) when body.kind is 'mesh', in the skeleton's rest pose"),
-    Param("body.target_tets", 4800, "approximate tet count of the jelly man", 100, 400000),
+    Param("body.target_tets", 4800, "approximate tet count of the jelly man, or of a surface body (within 20 %)", 100, 400000),
+    Param("body.surface_file", "", "triangle surface (.obj/.stl/.ply/.glb) of a character when body.kind is 'surface': a path, "
+          "or a path under $CLUSTERFEM_DATA or ../shared/data; tetrahedralized with fTetWild, cached"),
+    Param("body.surface_group", "", "the OBJ group of body.surface_file to use ('' = the whole file)"),
+    Param("body.surface_unit", 1.0, "metres per unit of body.surface_file (0.1 for decimetres, 0.01 for cm)", 1.0e-6, 1.0e3),
     Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
@@ -66,7 +70,25 @@ PARAMS: tuple[Param, ...] = (
     Param("physics.gravity", -9.81, "gravity along world z [m/s^2]", -100.0, 100.0),
     Param("skeleton.source", "builtin", "skeleton URDF: built-in humanoid, a file, the robot_description topic, or none", choices=SKELETONS),
     Param("skeleton.urdf_file", "", "URDF path when skeleton.source is 'urdf_file'"),
+    Param("skeleton.bind_pose", "neutral", "pose a surface body was modelled in: the URDF's zero pose, or frame 0 of "
+          "skeleton.bind_bvh (the capture the player plays)", choices=("neutral", "first_frame")),
+    Param("skeleton.bind_bvh", "", "BVH file whose frame 0 is the bind pose when skeleton.bind_pose is 'first_frame'"),
+    Param("skeleton.bind_joints", [], "joints set to skeleton.bind_angles on top of skeleton.bind_pose (e.g. the arms "
+          "of an A-pose mesh on a T-pose skeleton)", item=str),
+    Param("skeleton.bind_angles", [], "per joint of skeleton.bind_joints, its bind angle [rad] (or position [m])"),
+    Param("skeleton.fit", "auto", "how the surface sits on the skeleton: 'auto' scales it so the skeleton spans 93 % "
+          "of its height, centres it, then moves and scales it so the bones lie 1 cm under the skin (least squares); "
+          "'manual' uses body.surface_unit and skeleton.fit_offset", choices=("auto", "manual")),
+    Param("skeleton.fit_up", "Z", "the surface file's up axis (Y for most modelling tools)", choices=("X", "Y", "Z")),
+    Param("skeleton.fit_forward", "X", "the surface file's forward axis (the way the character faces)", choices=("X", "Y", "Z")),
+    Param("skeleton.fit_offset", [0.0, 0.0, 0.0], "with skeleton.fit 'manual': where the file's origin goes in the "
+          "skeleton's bind-pose frame [m]"),
+    Param("skeleton.fit_tolerance", 0.02, "a bone may leave the surface body by this much before the fit is refused [m]", 0.0, 1.0),
     Param("binding.level_radii", [0.035, 0.06], "nested constraint levels: distance to the bone axis [m], increasing"),
+    Param("binding.relative_levels", False, "binding.level_radii are fractions (0, 1] of the local flesh thickness, "
+          "bone to skin, instead of metres (surface bodies: thin fingers and thick thighs both get a core)"),
+    Param("binding.skip_bones", [], "bones that bind no flesh (their flesh goes to the nearest other bone), e.g. a "
+          "capture's noisy finger bones; [] = every bone binds", item=str),
     Param("binding.kp", [4.0e4, 4.0e3], "per-level position gain [1/s^2]"),
     Param("binding.kd", [400.0, 120.0], "per-level velocity gain [1/s]"),
     Param("binding.kinematic_core", False, "prescribe the innermost level exactly instead of by forces"),
@@ -225,6 +247,26 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
         raise ConfigError("body.kind = 'mesh' needs body.mesh_file: the path of a volume mesh")
     if out["skeleton.source"] == "urdf_file" and not out["skeleton.urdf_file"]:
         raise ConfigError("skeleton.source = 'urdf_file' needs skeleton.urdf_file: the path of a URDF")
+    if out["body.kind"] == "surface":
+        if not out["body.surface_file"]:
+            raise ConfigError("body.kind = 'surface' needs body.surface_file: the path of a triangle surface mesh")
+        if out["skeleton.source"] == "none":
+            raise ConfigError("body.kind = 'surface' is bound to a skeleton: set skeleton.source")
+    if out["binding.relative_levels"]:
+        if out["body.kind"] != "surface":
+            raise ConfigError(f"binding.relative_levels is true but body.kind = {out['body.kind']!r}: relative levels "
+                              "need a surface body (body.kind 'surface'); give level_radii in metres instead")
+        if radii[-1] > 1.0:
+            raise ConfigError(f"binding.level_radii = {radii} with binding.relative_levels: give fractions of the "
+                              "flesh thickness in (0, 1], e.g. [0.35, 0.6]")
+    if len(out["skeleton.bind_joints"]) != len(out["skeleton.bind_angles"]):
+        raise ConfigError(f"skeleton.bind_joints has {len(out['skeleton.bind_joints'])} names and "
+                          f"skeleton.bind_angles {len(out['skeleton.bind_angles'])} values: give one angle per joint")
+    if len(out["skeleton.fit_offset"]) != 3:
+        raise ConfigError(f"skeleton.fit_offset = {out['skeleton.fit_offset']}: give x, y, z [m]")
+    if out["skeleton.fit_up"] == out["skeleton.fit_forward"]:
+        raise ConfigError(f"skeleton.fit_up and skeleton.fit_forward are both {out['skeleton.fit_up']!r}: give two "
+                          "different axes")
     if out["body.kind"] == "jelly_man" and out["skeleton.source"] == "none":
         raise ConfigError("body.kind = 'jelly_man' is built around a skeleton: set skeleton.source")
     return SceneConfig(out)

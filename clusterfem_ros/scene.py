@@ -69,8 +69,9 @@ def _say(progress: Callable[[str], None] | None, text: str) -> None:
 
 class Scene:
     def __init__(self, config: SceneConfig, mesh: TetMesh, fixed: np.ndarray, skeleton=None,
-                 urdf_xml: str | None = None, progress: Callable[[str], None] | None = None):
+                 urdf_xml: str | None = None, progress: Callable[[str], None] | None = None, surface=None):
         self.config = config
+        self.surface_body = surface     # body.surface_body.SurfaceBody of a surface body: bind pose, depth
         self.h = float(config["physics.step"])
         _say(progress, f"assembling {mesh.n_tets} tets / {mesh.n_vertices} vertices")
         self.model = build_model(mesh, _material(config), fixed=fixed,
@@ -197,6 +198,11 @@ class Scene:
             mesh = jelly_man_mesh(spec, target_tets=config["body.target_tets"])
         elif kind == "mesh":
             mesh = read_mesh(config["body.mesh_file"])
+        elif kind == "surface":
+            from .body.surface_body import build_surface_body
+            surface = build_surface_body(config, skeleton, progress)
+            return cls(config, surface.mesh, np.zeros(surface.mesh.n_vertices, dtype=bool), skeleton=skeleton,
+                       urdf_xml=urdf_xml, progress=progress, surface=surface)
         else:
             mesh = paper_mesh(kind, config["body.scale"])
         if skeleton is None and kind != "mesh" and config["body.fix_bottom"]:
@@ -225,13 +231,23 @@ class Scene:
         from .skeleton.joint_stream import JointStreamInterpolator
         c = self.config
         sk = self.skeleton
-        q0 = sk.neutral()
+        q0 = sk.neutral() if self.surface_body is None else self.surface_body.bind_q
         poses = sk.forward(q0, np.zeros(sk.nv))
         starts, ends = sk.bone_segments(q0)
         _say(progress, f"binding {self.model.n_vertices} vertices to {len(sk.bone_names)} bones")
-        self.binding = bind_to_skeleton(self.model.rest, starts, ends, c["binding.level_radii"],
+        depth = self.surface_body.depth if c["binding.relative_levels"] else None
+        mask = None
+        if c["binding.skip_bones"]:
+            unknown = [b for b in c["binding.skip_bones"] if b not in sk.bone_names]
+            if unknown:
+                raise ValueError(f"binding.skip_bones names {unknown}, which are not bones of this skeleton; its bones "
+                                 f"are {', '.join(sk.bone_names)}")
+            mask = np.array([b not in c["binding.skip_bones"] for b in sk.bone_names])
+        self.binding = bind_to_skeleton(self.model.rest, starts, ends, c["binding.level_radii"], mask,
                                         rest_rotation=poses.rotation, rest_translation=poses.translation,
-                                        bone_names=sk.bone_names, warn=False)
+                                        bone_names=sk.bone_names, warn=False, surface_depth=depth)
+        if self.surface_body is not None:
+            self._refuse_islands()
         gains = LevelGains(kp=tuple(c["binding.kp"]), kd=tuple(c["binding.kd"]))
         self.driver = SkeletonDriver(self.binding, self.model.rest, gains, kinematic=c["binding.kinematic_core"],
                                      bone_names=sk.bone_names, sliding_levels=c["binding.sliding_levels"],
@@ -244,6 +260,21 @@ class Scene:
                                               prismatic=~sk.revolute_mask(),
                                               max_root_distance=c["input.max_root_distance"],
                                               max_joint_speed=c["input.max_joint_speed"])
+
+    def _refuse_islands(self) -> None:
+        """A piece of a surface body that no bone reaches (no vertex in the innermost level: relative levels
+        bind the skin of any piece at its outer level) and no anchor holds would be dragged, not carried:
+        refuse it."""
+        from .body.surface_body import unbound_islands
+        driven = self.binding.level == 0
+        driven[[a.vertex for a in self.anchors]] = True
+        islands = unbound_islands(self.model.mesh.tets, self.model.n_vertices, driven)
+        if islands:
+            size, index = islands[0]
+            centre = self.model.rest[index].mean(axis=0)
+            raise ValueError(f"{len(islands)} piece(s) of the surface body are reached by no bone and no anchor; the "
+                             f"first has {size} vertices around ({', '.join(f'{x:.3f}' for x in centre)}) m: raise "
+                             "binding.level_radii, or hold it with anchors.points / anchors.bones")
 
     # -- inputs ----------------------------------------------------------------------------------
     def push_joint_state(self, stamp: float, names, positions, velocities=None,

@@ -8,6 +8,11 @@ last radius are free flesh (level -1). The paper speaks of distance to the bone 
 the segment, so flesh beyond a bone's end (a fingertip, the top of the head) is not bound by an
 infinite line.
 
+On a real character (``surface_depth`` given: each vertex's distance to the body's surface) the radii are
+fractions of the local flesh thickness instead of metres: a vertex's relative depth is
+``d / (d + depth)``, 0 on the bone and 1 on the skin, so a finger and a thigh both get a core of the same
+share of their thickness.
+
 Array conventions: vertices (n, 3) float64 [m]; bones (nb, 3) segment ends [m]; rest placements
 ``rest_rotation`` (nb, 3, 3) and ``rest_translation`` (nb, 3) map bone-local to world: x = R c + p.
 """
@@ -84,7 +89,8 @@ def _check_array(name: str, a, shape: tuple) -> np.ndarray:
 def bind_to_skeleton(rest_vertices: np.ndarray, starts: np.ndarray, ends: np.ndarray,
                      level_radii: Sequence[float], bone_mask: np.ndarray | None = None, *,
                      rest_rotation: np.ndarray | None = None, rest_translation: np.ndarray | None = None,
-                     bone_names: Sequence[str] | None = None, warn: bool = True) -> Binding:
+                     bone_names: Sequence[str] | None = None, warn: bool = True,
+                     surface_depth: np.ndarray | None = None) -> Binding:
     """Bind every vertex to its nearest bone and sort it into nested levels by distance.
 
     ``starts``/``ends`` (nb, 3) are the bone segments in the rest pose; ``bone_mask`` (nb,) bool picks the
@@ -92,7 +98,8 @@ def bind_to_skeleton(rest_vertices: np.ndarray, starts: np.ndarray, ends: np.nda
     are the bone frames at rest (default: identity rotation at the segment start). Raises ValueError on
     bad radii or when no vertex at all is within the outermost radius; a bone without any vertex in the
     innermost level, or a level that adds no vertex, is reported in ``Binding.warnings`` (and as a
-    ``UserWarning`` when ``warn``).
+    ``UserWarning`` when ``warn``). With ``surface_depth`` (n,) [m] the radii are fractions in (0, 1] of the
+    flesh thickness (see the module docstring).
     """
     x = _check_array("rest_vertices", rest_vertices, (None, 3))
     s = _check_array("bone starts", starts, (None, 3))
@@ -108,6 +115,12 @@ def bind_to_skeleton(rest_vertices: np.ndarray, starts: np.ndarray, ends: np.nda
         raise ValueError("level_radii is empty: give at least one radius in metres, e.g. (0.03, 0.05)")
     if not (np.isfinite(r).all() and (r > 0).all()):
         raise ValueError(f"level_radii {r.tolist()} must be positive finite distances in metres")
+    unit = "m"
+    if surface_depth is not None:
+        unit = "of the flesh thickness"
+        if (r > 1).any():
+            raise ValueError(f"level_radii {r.tolist()} are fractions of the flesh thickness on a surface body: "
+                             "give values in (0, 1], e.g. (0.35, 0.6)")
     if r.size > 1 and not (np.diff(r) > 0).all():
         k = int(np.flatnonzero(np.diff(r) <= 0)[0])
         raise ValueError(f"level_radii must increase (nested levels): radius {k + 1} = {r[k + 1]:g} m is not "
@@ -129,11 +142,16 @@ def bind_to_skeleton(rest_vertices: np.ndarray, starts: np.ndarray, ends: np.nda
     dist[:, ~mask] = np.inf
     bone = np.argmin(dist, axis=1).astype(np.int64)
     d = dist[np.arange(x.shape[0]), bone]
-    level = np.searchsorted(r, d, side="left").astype(np.int64)     # d <= r[k] -> level k
+    rel = d
+    if surface_depth is not None:
+        depth = _check_array("surface_depth", surface_depth, (x.shape[0],))
+        total = d + depth
+        rel = np.where(total > 0, d / np.where(total > 0, total, 1.0), 0.0)
+    level = np.searchsorted(r, rel, side="left").astype(np.int64)     # rel <= r[k] -> level k
     level[level >= r.size] = -1
     if not (level >= 0).any():
-        raise ValueError(f"no vertex lies within the outermost level radius {r[-1]:g} m of any bone "
-                         f"(nearest vertex at {d.min():.3g} m): the skeleton is outside the body or the "
+        raise ValueError(f"no vertex lies within the outermost level radius {r[-1]:g} {unit} of any bone "
+                         f"(nearest vertex at {rel.min():.3g} {unit}): the skeleton is outside the body or the "
                          "radii are too small")
     local = np.einsum("nji,nj->ni", R0[bone], x - p0[bone])
     axis_local = np.stack([np.einsum("bji,bj->bi", R0, s - p0), np.einsum("bji,bj->bi", R0, e - p0)], axis=1)
@@ -141,11 +159,11 @@ def bind_to_skeleton(rest_vertices: np.ndarray, starts: np.ndarray, ends: np.nda
     notes: list[str] = []
     inner = np.bincount(bone[level == 0], minlength=nb)
     for b in np.flatnonzero(mask & (inner == 0)):
-        notes.append(f"{names[b]} has no vertex within the innermost radius {r[0]:g} m: it drives no flesh "
+        notes.append(f"{names[b]} has no vertex within the innermost radius {r[0]:g} {unit}: it drives no flesh "
                      "directly; raise level_radii[0] or exclude it with bone_mask")
     counts = np.bincount(level[level >= 0], minlength=r.size)
     for k in np.flatnonzero(counts == 0):
-        notes.append(f"level {k} (radius {r[k]:g} m) holds no vertex: the radii skip over the mesh spacing; "
+        notes.append(f"level {k} (radius {r[k]:g} {unit}) holds no vertex: the radii skip over the mesh spacing; "
                      "merge it with a neighbour or spread the radii")
     if warn:
         for n in notes:

@@ -1,0 +1,258 @@
+"""Surface bodies (body.kind surface): surface -> tets -> fitted, bound body -> motion; the cache; bad input."""
+import numpy as np
+import pytest
+
+from clusterfem_ros.body.binding import bind_to_skeleton
+from clusterfem_ros.body.fit import FitError, bind_configuration
+from clusterfem_ros.body.surface_body import unbound_islands
+from clusterfem_ros.config import ConfigError, SceneConfig
+from clusterfem_ros.fem.tetrahedralize import SurfaceError, surface_to_tets, tet_quality
+from clusterfem_ros.skeleton.trajectory import JointTrajectory
+from clusterfem_ros.skeleton.urdf_builder import UrdfBuilder
+
+trimesh = pytest.importorskip("trimesh")
+
+TARGET = 900
+# file units: centimetres, Y up, facing +Z (as modelling tools write them)
+TO_FILE = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])   # ROS (x, y, z) -> file (y, z, x)
+
+
+def _urdf() -> str:
+    """Two bones along z: 'lower' from -0.25 m to 0, 'upper' from 0 to 0.25 m, bent by joint 'bend' (about x)."""
+    b = UrdfBuilder("capsule_figure")
+    b.link("world", helper=True)
+    b.link("lower")
+    b.chain("world", "lower", [("lift", "prismatic", (0, 0, 1))], xyz=(0, 0, -0.25))
+    b.link("upper")
+    b.chain("lower", "upper", [("bend", "revolute", (1, 0, 0))], xyz=(0, 0, 0.25))
+    b.tip("upper", (0, 0, 0.25))
+    return b.to_string()
+
+
+@pytest.fixture(scope="module")
+def surface(tmp_path_factory):
+    """A closed capsule 0.8 m tall, radius 0.1 m, around the two bones, written in cm with Y up."""
+    folder = tmp_path_factory.mktemp("surface")
+    c = trimesh.creation.capsule(height=0.6, radius=0.1, count=[16, 16])        # along z, centred at 0
+    path = folder / "capsule.stl"
+    trimesh.Trimesh(100.0 * c.vertices @ TO_FILE.T, c.faces).export(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("tet_cache")
+
+
+def _config(surface, **values) -> SceneConfig:
+    base = {"body.kind": "surface", "body.surface_file": str(surface), "body.surface_unit": 0.01,
+            "body.target_tets": TARGET, "skeleton.source": "robot_description",
+            "skeleton.fit": "manual", "skeleton.fit_up": "Y", "skeleton.fit_forward": "Z",
+            "binding.relative_levels": True, "binding.level_radii": [0.5, 1.0]}
+    return SceneConfig().with_values({**base, **values})
+
+
+def _build(surface, cache, monkeypatch, **values):
+    from clusterfem_ros.scene import Scene
+    monkeypatch.setenv("CLUSTERFEM_CACHE", str(cache))
+    c = _config(surface, **values)
+    return Scene.build(c, urdf_xml=_urdf())
+
+
+def test_tet_count_is_within_20_percent_and_quality_is_reported(surface, cache):
+    r = surface_to_tets(surface, TARGET, cache=cache)
+    assert abs(r.mesh.n_tets / TARGET - 1) <= 0.2
+    assert (r.mesh.volumes() > 0).all()
+    # the tets fill the faceted capsule (whose volume is ~3 % under pi r^2 h + 4/3 pi r^3, in cm^3)
+    enclosed = trimesh.load(surface).volume
+    assert enclosed == pytest.approx(np.pi * 10.0 ** 2 * 60.0 + 4.0 / 3.0 * np.pi * 10.0 ** 3, rel=0.04)
+    assert r.mesh.volumes().sum() == pytest.approx(enclosed, rel=0.04)
+    assert (r.min_dihedral_deg, r.min_radius_ratio) == pytest.approx(tet_quality(r.mesh.vertices, r.mesh.tets))
+    assert 0.0 < r.min_dihedral_deg < 70.6 and 0.0 < r.min_radius_ratio <= 1.0
+
+
+def test_tet_quality_of_a_regular_tet_is_ideal():
+    v = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float)
+    dihedral, ratio = tet_quality(v, np.array([[0, 1, 2, 3]]))
+    assert dihedral == pytest.approx(np.degrees(np.arccos(1 / 3)), abs=1e-9)
+    assert ratio == pytest.approx(1.0, abs=1e-12)
+
+
+def test_the_second_build_reads_the_cache(surface, cache, tmp_path):
+    first = surface_to_tets(surface, TARGET, cache=cache)
+    again = surface_to_tets(surface, TARGET, cache=cache)
+    assert again.cached and again.attempts == 0 and again.cache_file == first.cache_file
+    assert np.array_equal(again.mesh.vertices, first.mesh.vertices) and np.array_equal(again.mesh.tets, first.mesh.tets)
+    # another request, or another file content, is another entry
+    other = surface.parent / "capsule_moved.stl"
+    m = trimesh.load(surface)
+    trimesh.Trimesh(m.vertices + 1.0, m.faces).export(other)
+    from clusterfem_ros.fem.tetrahedralize import _key
+    assert _key(other, "", TARGET, 0.2) != _key(surface, "", TARGET, 0.2) != _key(surface, "", 2 * TARGET, 0.2)
+
+
+def test_surface_body_walks_one_second_deterministically(surface, cache, monkeypatch):
+    runs = []
+    for _ in range(2):
+        scene = _build(surface, cache, monkeypatch)
+        assert scene.surface_body.tets.cached or len(runs) == 0
+        # every vertex is driven (levels reach the skin); the inner half of the flesh is level 0
+        assert (scene.binding.level >= 0).all() and (scene.binding.level == 0).sum() > 0
+        names = scene.skeleton.joint_names
+        t = np.linspace(0.0, 1.0, 121)
+        q = np.zeros((t.size, len(names)))
+        q[:, names.index("bend")] = 0.6 * np.sin(2 * np.pi * t)
+        q[:, names.index("lift")] = 0.1 * t
+        traj = JointTrajectory(t, names, q, revolute=np.array([n == "bend" for n in names]))
+        rest = scene.model.rest
+        top, bottom = rest[:, 2] > 0.3, rest[:, 2] < -0.3
+        for tk in t:
+            qk, vk = traj.sample(tk)
+            scene.push_joint_state(tk, names, qk, vk)
+            scene.follow_inputs()
+            if tk == pytest.approx(0.25):       # bent by 0.6 rad about +x: the top swings towards -y
+                x = scene.positions()
+                assert x[top, 1].mean() < -0.1 and abs(x[bottom, 1].mean()) < 0.02
+        runs.append(scene.positions().copy())
+        assert scene.sim_time == pytest.approx(1.0)
+        assert np.isfinite(runs[-1]).all()
+        assert abs(scene.volume_error()) < 0.05
+        # straight again at t = 1 and lifted by 0.1 m: both ends carried up
+        for part in (top, bottom):
+            assert runs[-1][part, 2].mean() - rest[part, 2].mean() == pytest.approx(0.1, abs=0.03)
+    assert np.array_equal(runs[0], runs[1])
+
+
+def test_auto_fit_puts_the_bones_inside(surface, cache, monkeypatch):
+    scene = _build(surface, cache, monkeypatch, **{"skeleton.fit": "auto"})
+    fit = scene.surface_body.fit
+    assert 0.005 < fit.scale < 0.02
+    from clusterfem_ros.body.fit import bones_outside
+    from clusterfem_ros.fem.tet_mesh import boundary_triangles
+    starts, ends = scene.skeleton.bone_segments(scene.surface_body.bind_q)
+    assert bones_outside(scene.model.rest, boundary_triangles(scene.model.mesh), starts, ends,
+                         scene.skeleton.bone_names, 0.0) == []
+
+
+def test_skipped_bones_bind_no_flesh(surface, cache, monkeypatch):
+    scene = _build(surface, cache, monkeypatch, **{"binding.skip_bones": ["upper"]})
+    assert (scene.binding.bone == scene.skeleton.bone_names.index("lower")).all()
+    with pytest.raises(ValueError, match=r"binding.skip_bones names \['uper'\].*its bones are lower, upper"):
+        _build(surface, cache, monkeypatch, **{"binding.skip_bones": ["uper"]})
+
+
+def test_relative_levels_give_thin_and_thick_parts_a_core():
+    # one bone along x; a thin part (skin at 1 cm) and a thick part (skin at 10 cm), vertices at 3 depths each
+    starts, ends = np.array([[0.0, 0, 0]]), np.array([[1.0, 0, 0]])
+    d = np.array([0.002, 0.005, 0.01, 0.02, 0.05, 0.1])
+    x = np.column_stack([[0.2, 0.2, 0.2, 0.8, 0.8, 0.8], d, np.zeros(6)])
+    depth = np.array([0.008, 0.005, 0.0, 0.08, 0.05, 0.0])
+    b = bind_to_skeleton(x, starts, ends, [0.3, 0.6], surface_depth=depth, warn=False)
+    assert b.level.tolist() == [0, 1, -1, 0, 1, -1]
+    metres = bind_to_skeleton(x, starts, ends, [0.03, 0.06], warn=False)          # the jelly man's way
+    assert metres.level.tolist() == [0, 0, 0, 0, 1, -1]
+    with pytest.raises(ValueError, match="fractions of the flesh thickness"):
+        bind_to_skeleton(x, starts, ends, [0.5, 1.5], surface_depth=depth)
+
+
+def test_a_piece_of_the_mesh_no_bone_reaches_is_refused(surface, tmp_path, cache, monkeypatch):
+    m = trimesh.load(surface)
+    apart = trimesh.util.concatenate([m, trimesh.Trimesh(m.vertices * 0.5 + [0.0, 0.0, 100.0], m.faces)])
+    apart.export(tmp_path / "two_pieces.stl")
+    with pytest.raises(ValueError, match=r"1 piece\(s\) of the surface body are reached by no bone.*anchors"):
+        _build(tmp_path / "two_pieces.stl", cache, monkeypatch, **{"body.target_tets": 1200})
+
+
+def test_islands_no_bone_reaches_are_found():
+    tets = np.array([[0, 1, 2, 3], [4, 5, 6, 7]])
+    driven = np.zeros(8, dtype=bool)
+    driven[1] = True
+    islands = unbound_islands(tets, 8, driven)
+    assert len(islands) == 1 and islands[0][0] == 4 and islands[0][1].tolist() == [4, 5, 6, 7]
+    driven[6] = True
+    assert unbound_islands(tets, 8, driven) == []
+
+
+# -- bad input: refused at start, with the value and the way out --------------------------------------
+
+def test_a_file_that_is_not_a_mesh_is_refused(tmp_path, cache):
+    bad = tmp_path / "notes.obj"
+    bad.write_text("these are my notes, not a mesh\n")
+    with pytest.raises(SurfaceError, match="notes.obj.*no triangle surface"):
+        surface_to_tets(bad, TARGET, cache=cache)
+    with pytest.raises(SurfaceError, match="does not exist"):
+        surface_to_tets(tmp_path / "missing.stl", TARGET, cache=cache)
+
+
+def test_an_open_surface_the_mesher_cannot_close_is_refused(tmp_path, cache):
+    x, y = np.meshgrid(np.linspace(-1, 1, 8), np.linspace(-1, 1, 8))
+    v = np.column_stack([x.ravel(), y.ravel(), 0.5 * (x ** 2 - y ** 2).ravel()])      # a saddle sheet
+    i = np.arange(64).reshape(8, 8)
+    f = np.vstack([np.column_stack([i[:-1, :-1].ravel(), i[1:, :-1].ravel(), i[:-1, 1:].ravel()]),
+                   np.column_stack([i[1:, :-1].ravel(), i[1:, 1:].ravel(), i[:-1, 1:].ravel()])])
+    trimesh.Trimesh(v, f).export(tmp_path / "saddle.stl")
+    with pytest.raises(SurfaceError, match="open surface .* cannot close"):
+        surface_to_tets(tmp_path / "saddle.stl", 300, cache=cache)
+    flat = tmp_path / "flat.stl"
+    trimesh.Trimesh(v * [1, 1, 0], f).export(flat)
+    with pytest.raises(SurfaceError, match="encloses no volume"):
+        surface_to_tets(flat, 300, cache=cache)
+
+
+def test_a_mesh_100_times_too_big_for_its_skeleton_is_refused(surface, cache, monkeypatch):
+    with pytest.raises(FitError, match=r"1\d\d times the size of its skeleton.*body\.surface_unit near 0\.00\d"):
+        _build(surface, cache, monkeypatch, **{"body.surface_unit": 1.0})
+
+
+def test_a_skeleton_outside_the_mesh_is_refused_naming_each_bone(surface, cache, monkeypatch):
+    with pytest.raises(FitError, match=r"2 of 2 bones leave the body.*(lower|upper) \(\d+\.\d cm outside\)"):
+        _build(surface, cache, monkeypatch, **{"skeleton.fit_offset": [0.5, 0.0, 0.0]})
+
+
+def test_a_bind_pose_naming_unknown_joints_is_refused(surface, cache, monkeypatch):
+    with pytest.raises(FitError, match=r"'bned' \(did you mean 'bend'\?\)"):
+        _build(surface, cache, monkeypatch, **{"skeleton.bind_joints": ["bned"], "skeleton.bind_angles": [0.3]})
+    from clusterfem_ros.skeleton.kinematics import Skeleton
+    sk = Skeleton.from_urdf_string(_urdf())
+    q = bind_configuration(sk, "neutral", ["bend"], [0.3])
+    assert q[sk.joint_names.index("bend")] == 0.3
+    with pytest.raises(FitError, match="needs skeleton.bind_bvh"):
+        bind_configuration(sk, "first_frame")
+
+
+def test_surface_parameters_are_cross_checked():
+    with pytest.raises(ConfigError, match="needs body.surface_file"):
+        SceneConfig().with_values({"body.kind": "surface"})
+    with pytest.raises(ConfigError, match="relative levels need a surface body"):
+        SceneConfig().with_values({"binding.relative_levels": True, "binding.level_radii": [0.3, 0.6]})
+    with pytest.raises(ConfigError, match=r"fractions of the flesh thickness in \(0, 1\]"):
+        SceneConfig().with_values({"body.kind": "surface", "body.surface_file": "x.obj",
+                                   "binding.relative_levels": True, "binding.level_radii": [0.5, 2.0]})
+    with pytest.raises(ConfigError, match="one angle per joint"):
+        SceneConfig().with_values({"skeleton.bind_joints": ["a", "b"], "skeleton.bind_angles": [0.1]})
+
+
+def test_the_character_scene_file_loads_and_names_its_data(monkeypatch, tmp_path):
+    from pathlib import Path
+
+    from clusterfem_ros.body.fit import find_data_file
+    from clusterfem_ros.config import load_scene_file
+    root = Path(__file__).resolve().parents[1]
+    c = load_scene_file(root / "config" / "character_walk.yaml")
+    assert c["body.kind"] == "surface" and c["skeleton.source"] == "robot_description"
+    assert len(c["skeleton.bind_joints"]) == len(c["skeleton.bind_angles"]) == 6
+    monkeypatch.setenv("CLUSTERFEM_DATA", str(tmp_path))
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "makehuman_base.obj").write_text("v 0 0 0\n")
+    assert find_data_file(c["body.surface_file"]) == tmp_path / "meshes" / "makehuman_base.obj"
+    with pytest.raises(FitError, match=r"'meshes/absent.obj' is neither a path nor found under .*character_data.md"):
+        find_data_file("meshes/absent.obj", "config/character_data.md")
+
+
+def test_a_bind_capture_of_another_skeleton_is_refused(tmp_path):
+    from clusterfem_ros.skeleton.kinematics import Skeleton
+    bvh = tmp_path / "other.bvh"
+    bvh.write_text("HIERARCHY\nROOT hips\n{\n OFFSET 0 0 0\n CHANNELS 3 Zrotation Yrotation Xrotation\n"
+                   " End Site\n {\n  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 1\nFrame Time: 0.01\n0 0 0\n")
+    with pytest.raises(FitError, match=r"capture of another skeleton: it has no joint lift, bend"):
+        bind_configuration(Skeleton.from_urdf_string(_urdf()), "first_frame", bvh_file=str(bvh))
