@@ -1,4 +1,8 @@
-"""Stiffness warping (eq. 10) on the constant clusters: per-vertex rotations R_i, then, with w = x + zeta v,
+"""The paper's per-vertex stiffness warping, kept for comparison (``warping_model = "vertex"``); the default is
+per-element corotation (element_warping.py), the gradient of an energy, which this model is not: on an
+inverting sliver or a torn vertex at the scene's damping it fed energy in (bench/stability_table.py).
+
+Stiffness warping (eq. 10) on the constant clusters: per-vertex rotations R_i, then, with w = x + zeta v,
 
     f_i = -sum_j 1/2 (R_i K_ij R_i^T + R_j K_ij R_j^T) (w_j - w_i - R_i (x0_j - x0_i))  -  xi m_i v_i.
 
