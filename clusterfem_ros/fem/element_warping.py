@@ -42,8 +42,9 @@ from numba import prange
 from .assembly import shape_gradients
 from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .model import FemModel
-from .numba_config import PARALLEL_MIN_VERTICES, SERIAL, compiled, serial_and_parallel
-from .warping import LANES, _chunk_start, _lane_accepted, _polar_lanes, _scalar_rotation
+from .numba_config import SERIAL, compiled, serial_and_parallel
+from .warping import (LANES, _check, _chunk_start, _lane_accepted, _pick, _polar_lanes, _scalar_rotation,
+                      output_rows)
 
 WARPING_MODELS = ("element", "vertex")
 
@@ -271,24 +272,10 @@ class ElementFrames:
         return self.rot, self.F, self.scratch, self.how, self.tmp, self.fe, self.e
 
 
-def _pick(n: int, threads: bool | None, serial, parallel):
-    use = n >= PARALLEL_MIN_VERTICES if threads is None else threads
-    return parallel if use else serial
-
-
-def _checked(model: FemModel, name: str, a: np.ndarray) -> np.ndarray:
-    a = np.ascontiguousarray(a, dtype=np.float64)
-    if a.shape != (model.n_vertices, 3):
-        raise ValueError(f"{name} has shape {a.shape}, expected ({model.n_vertices}, 3) for this mesh")
-    if not np.isfinite(a).all():
-        raise ValueError(f"{name} has non-finite entries: the state diverged; reset it before warping")
-    return a
-
-
 def element_rotations(model: FemModel, u: np.ndarray, frames: ElementFrames | None = None,
                       threads: bool | None = None) -> np.ndarray:
     """R_e for every element, (m, 3, 3), of the displacement u (n, 3); ``frames`` keeps the warm start."""
-    u = _checked(model, "u", u)
+    (u,) = _check(model, u=u)
     frames = ElementFrames.from_model(model) if frames is None else frames
     kern = _pick(model.n_vertices, threads, element_pass_serial, element_pass_parallel)
     kern(frames.elems, u, frames.w, frames.work, False)
@@ -298,14 +285,11 @@ def element_rotations(model: FemModel, u: np.ndarray, frames: ElementFrames | No
 def element_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None, frames: ElementFrames | None = None,
                   out: np.ndarray | None = None, threads: bool | None = None) -> np.ndarray:
     """Element-warped elastic + damping force, (n, 3) (module docstring), including -xi M v."""
-    u = _checked(model, "u", u)
-    v = _checked(model, "v", np.zeros_like(u) if v is None else v)
+    (u,) = _check(model, u=u)
+    (v,) = _check(model, v=np.zeros_like(u) if v is None else v)
     frames = ElementFrames.from_model(model) if frames is None else frames
     n = model.n_vertices
-    if out is None:
-        out = np.empty((n, 3))
-    elif out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
-        raise ValueError(f"out must be a C-contiguous ({n}, 3) float64 array, got {out.dtype} {out.shape}")
+    out = output_rows(n, out)
     kern = _pick(n, threads, element_kernel_serial, element_kernel_parallel)
     m = model.material
     kern(frames.elems, frames.gather, frames.rest, u, v, frames.w, np.repeat(model.mass, 3), float(m.zeta),

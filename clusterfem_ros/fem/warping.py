@@ -534,6 +534,15 @@ class AssembledWarp:
         return f - m.xi * self.model.mass[:, None] * v
 
 
+def output_rows(n: int, out: np.ndarray | None) -> np.ndarray:
+    """``out`` checked as a force's (n, 3) C-contiguous float64 destination, or a new one."""
+    if out is None:
+        return np.empty((n, 3))
+    if out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous ({n}, 3) float64 array, got {out.dtype} {out.shape}")
+    return out
+
+
 def _pick(n: int, threads: bool | None, serial, parallel):
     use = n >= PARALLEL_MIN_VERTICES if threads is None else threads
     return parallel if use else serial
@@ -568,10 +577,7 @@ def warped_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None, fr
     v, = _check(model, v=np.zeros_like(u) if v is None else v)
     frames = VertexFrames.from_model(model) if frames is None else frames
     n = model.n_vertices
-    if out is None:
-        out = np.empty((n, 3))
-    elif out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
-        raise ValueError(f"out must be a C-contiguous ({n}, 3) float64 array, got {out.dtype} {out.shape}")
+    out = output_rows(n, out)
     kern = _pick(n, threads, warped_kernel_serial, warped_kernel_parallel)
     m = model.material
     kern(frames.gradients, frames.slices, frames.rest, u, v, frames.w, np.repeat(model.mass, 3), float(m.zeta),
