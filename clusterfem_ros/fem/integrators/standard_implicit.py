@@ -36,7 +36,8 @@ checked after it is taken: if some R_i turned by more than ``max_rotation`` (rad
 from its start as 2, 4, ... equal sub-steps (prescribed vertices and attachment targets advanced within
 the step), up to ``max_substeps``, which is then taken whatever the turn (a vertex torn from its
 neighbours keeps turning fast: the torn bar ran bounded at h / 64 although some R_i turned 0.1-0.3 rad per
-sub-step). StepInfo.substeps reports the count. Near incompressibility is refused at set-up: with
+sub-step). StepInfo.substeps reports the count. With the vertex model, near incompressibility is refused at
+set-up (the element model ran nu = 0.499 bounded on the stability table, so it is not refused): with
 nu = 0.499 the warped implicit step diverged at every step tried (h / 64 with up to 64 sub-steps
 included), as the held rotations miss the dR/dx coupling through the volumetric stiffness, which grows
 as 1 / (1 - 2 nu); nu <= WARP_MAX_NU = 0.49 stayed bounded.
