@@ -8,8 +8,8 @@ undamped (xi = zeta = 0) and at the scene's default damping (fem/material.py). A
 case's step is run again at h / 10, h / 100 (the step where it is accepted), so every hard case is also
 seen running. "+warp" is the per-element warping (fem/element_warping.py), "+warp vertex" the paper's
 per-vertex one (fem/warping.py). The sliver cases hold one tet at 1e-3 .. 1e-5 of a regular tet's volume
-(one vertex moved towards its opposite face) at h = 1 ms. Per run we track the energy E = kinetic + elastic (linear 1/2 u.K u; the corotated
-element energy for warped methods) against the budget: initial energy + work of gravity and external
+(one vertex moved towards its opposite face) at h = 1 ms. Per run we track the energy E = kinetic + elastic
+(linear 1/2 u.K u; the corotated element energy for warped methods) against the budget: initial energy + work of gravity and external
 forces (f . du per step) + the energy a prescribed vertex injects when it is set (E after - E before).
 For the explicit methods the kinetic energy is taken at the velocity synchronised with u (see ``energy`` in
 ``_run``): symplectic Euler's own v lags half a sub-step and its energy oscillates above the true one.
@@ -191,7 +191,8 @@ def _run(method: str, case: Case, scale: float, steps: int, max_substeps: int, d
     warped = bool(options.get("warp"))
     corot = ElementCorotation(model) if warped else None
     # the element model's own energy: its rotations, followed from step to step like the integrator's
-    frames = ElementFrames.from_model(model) if warped and options.get("warping_model", "element") == "element" else None
+    element = warped and options.get("warping_model", "element") == "element"
+    frames = ElementFrames.from_model(model) if element else None
 
     held = model.fixed.copy()
     end = np.flatnonzero(np.isclose(model.rest[:, 0], LENGTH))[:1]
@@ -282,7 +283,8 @@ def main(argv: list[str] | None = None) -> int:
                         if r.message:
                             notes.append(f"{case.name} / {scale:g} / {damping} / {method} / h = {r.h:g}: "
                                          f"{r.message}")
-    meshes = ", ".join(f"scale {s:g}: {bar_mesh(s).n_tets} tets / {bar_mesh(s).n_vertices} vertices" for s in args.scales)
+    meshes = ", ".join(f"scale {s:g}: {bar_mesh(s).n_tets} tets / {bar_mesh(s).n_vertices} vertices"
+                       for s in args.scales)
     print(f"Hard cases: {meshes} (slivers: same grid), {args.steps} steps, explicit limit {args.max_substeps} "
           f"sub-steps, bounded = max E / budget <= {ENERGY_SLACK}\n")
     print(table(HEADERS, rows))

@@ -20,13 +20,20 @@ The paper's per-vertex warping (fem/warping.py, ``warping_model = "vertex"``) ha
 neighbouring rotations differ sharply (a torn vertex, an inverting sliver) it fed energy in.
 
 Rotations: the warping's lane polar iteration (fem/warping.py: scaled Newton, then Newton-Schulz, LANES
-elements at once) on R_e^T F_e, R_e the element's rotation from the previous call (polar(R^T F) = R^T polar(F)
-for any rotation R: near the identity while elements turn little between calls, so fewer passes); an inverted or nearly flat element (det F <= 1e-3 |F|^3 / 3^1.5) or a lane
-that did not converge takes the scalar path, Mueller et al. (2016)'s iteration warm-started from the
-element's previous rotation, which follows one branch of the nearest proper rotation continuously through
-inversion. Chunks of LANES elements are independent: the threaded build runs them in parallel. Each
-element writes its four vertex forces to its own rows; a second pass gathers them per vertex in element
-order, so serial and threaded builds give the same bits (no atomics, no colouring).
+elements at once) on R_e^T F_e, R_e the element's rotation from the previous call (polar(R^T F) =
+R^T polar(F) for any rotation R: near the identity while elements turn little between calls, so fewer
+passes); an inverted or nearly flat element (det F <= 1e-3 |F|^3 / 3^1.5) or a lane that did not converge
+takes the scalar path, Mueller et al. (2016)'s iteration warm-started from the element's previous rotation,
+which follows one branch of the nearest proper rotation continuously through inversion. Chunks of LANES
+elements are independent: the threaded build runs them in parallel. Each element writes its four vertex
+forces to its own rows; a second pass gathers them per vertex in element order, so serial and threaded
+builds give the same bits (no atomics, no colouring).
+
+A bounded shadow energy needs the step below the tangent's critical step. Under moderate deformation the
+corotated tangent's eigenvalues are K's, but an element stretched several times its size stiffens in its
+twist modes (2 mu + (2 lambda tr(S - I) - 4 mu) / (s_i + s_j), s the singular values: 2.1x K's largest at
+s = (10, 1, 1), nu = 0.3), so the explicit step planned from K can be too long there: undamped, the bar with
+a vertex torn 0.5 m away ran bounded at safety 0.2 and grew at 0.8 (tests/test_hard_cases.py).
 
 ``element_force`` and ``element_rotations`` are the checked public entries; ``ElementFrames`` holds the
 element data and workspace; fem/corotational.py (numpy) is the twin the tests compare against.
@@ -149,9 +156,15 @@ def _chunk_forces(k0, nl, tets, g, vol, lam, mu, w, rot, fe):
         p20 = r20 * s00 + r21 * s01 + r22 * s02
         p21 = r20 * s01 + r21 * s11 + r22 * s12
         p22 = r20 * s02 + r21 * s12 + r22 * s22
-        f10, f11, f12 = p00 * g10 + p01 * g11 + p02 * g12, p10 * g10 + p11 * g11 + p12 * g12, p20 * g10 + p21 * g11 + p22 * g12
-        f20, f21, f22 = p00 * g20 + p01 * g21 + p02 * g22, p10 * g20 + p11 * g21 + p12 * g22, p20 * g20 + p21 * g21 + p22 * g22
-        f30, f31, f32 = p00 * g30 + p01 * g31 + p02 * g32, p10 * g30 + p11 * g31 + p12 * g32, p20 * g30 + p21 * g31 + p22 * g32
+        f10 = p00 * g10 + p01 * g11 + p02 * g12
+        f11 = p10 * g10 + p11 * g11 + p12 * g12
+        f12 = p20 * g10 + p21 * g11 + p22 * g12
+        f20 = p00 * g20 + p01 * g21 + p02 * g22
+        f21 = p10 * g20 + p11 * g21 + p12 * g22
+        f22 = p20 * g20 + p21 * g21 + p22 * g22
+        f30 = p00 * g30 + p01 * g31 + p02 * g32
+        f31 = p10 * g30 + p11 * g31 + p12 * g32
+        f32 = p20 * g30 + p21 * g31 + p22 * g32
         fe[e, 1, 0], fe[e, 1, 1], fe[e, 1, 2] = f10, f11, f12
         fe[e, 2, 0], fe[e, 2, 1], fe[e, 2, 2] = f20, f21, f22
         fe[e, 3, 0], fe[e, 3, 1], fe[e, 3, 2] = f30, f31, f32
