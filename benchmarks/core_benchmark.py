@@ -1,6 +1,9 @@
 """Issue-2 benchmark: ms/step of the clustered and standard methods on the paper's three objects.
 
-    python -m benchmarks.core_benchmark [--step 1e-3] [--scale 1.0] [--sizes 1,2,4]
+    python -m benchmarks.core_benchmark [--step 1e-3] [--scale 1.0] [--sizes 1,2,4] [--warping-only]
+
+First table: the warped step's cost against the linear one (per-element and per-vertex warping) on the jelly
+man (the default scene's body, free, from a twisted state) and the paper's shapes (``warping_cost``).
 
 Every method runs the same scene (the object's bottom fixed, gravity, same material and step) and
 is timed after warm-up (JIT compilation excluded). All methods and kernel pieces of a shape are timed in
@@ -272,6 +275,66 @@ def stream_by_size(scales: list[float]) -> list[list[object]]:
 
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg")
 
+WARPINGS = {"linear": {}, "warped, element": {"warp": True, "warping_model": "element"},
+            "warped, vertex": {"warp": True, "warping_model": "vertex"}}
+
+
+def twisted_state(model) -> State:
+    """The body twisted about its vertical axis, 0.5 rad from bottom to top, plus a shear of 5 %: rotations and
+    strains like a moving body's, so the polar iterations take their usual number of passes (at rest they stop
+    after one)."""
+    x = model.rest
+    z = (x[:, 2] - x[:, 2].min()) / np.ptp(x[:, 2])
+    th = 0.5 * z
+    c, sn = np.cos(th), np.sin(th)
+    state = State.rest(model)
+    state.u[:, 0] = c * x[:, 0] - sn * x[:, 1] - x[:, 0] + 0.05 * np.ptp(x[:, 2]) * z
+    state.u[:, 1] = sn * x[:, 0] + c * x[:, 1] - x[:, 1]
+    return state
+
+
+def warping_cost(model, h: float, reps: int = 50) -> dict:
+    """The clustered step's compiled part (serial, inside numba) linear and with each warping model, timed
+    interleaved from the twisted state (twisted_state): median seconds per step by name and the paired ratios
+    (name, 'linear')."""
+    calls, lam = {}, None
+    for label, opts in WARPINGS.items():
+        integ = make_integrator("clustered", model, threads=False, **opts, **({"lam_max": lam} if lam else {}))
+        lam = integ.lam_max
+        state, control = twisted_state(model), Control()
+        fn, args = integ.compiled_step(state, control, h)
+        fn(*args)                                           # compiled or loaded before timing
+        calls[label] = in_numba(fn, args, reps)
+    return summarize(per_call(interleaved_seconds(calls), dict.fromkeys(calls, reps)), "linear", list(WARPINGS)[1:])
+
+
+def jelly_man_model(target_tets: int):
+    """The default scene's jelly man (benchmarks/jelly_report.build_scene), or None without the skeleton package."""
+    from .jelly_report import build_scene
+    try:
+        return build_scene(target_tets, 0.01, 1e-3)[2]
+    except ImportError:
+        return None
+
+
+def warping_rows(h: float, target_tets: int) -> list[list[object]]:
+    """warping_cost on the jelly man and the paper's shapes, as table rows."""
+    bodies = [("jelly man", jelly_man_model(target_tets))]
+    for name in PAPER_SHAPES:
+        mesh = paper_mesh(name)
+        bodies.append((name, build_model(mesh, MATERIAL, fixed=mesh.vertices[:, 2] < mesh.vertices[:, 2].min() + 1e-9)))
+    rows = []
+    for name, model in bodies:
+        if model is None:
+            continue
+        print(f"  timing warping on {name} ...", file=sys.stderr, flush=True)
+        t = warping_cost(model, h)
+        us = lambda k: f"{t[k] * 1e6:.1f}"  # noqa: E731
+        rows.append([name, model.n_vertices, model.mesh.n_tets, us("linear"),
+                     f"{us('warped, element')} ({t['warped, element', 'linear']:.2f}x)",
+                     f"{us('warped, vertex')} ({t['warped, vertex', 'linear']:.2f}x)"])
+    return rows
+
 
 def bench_shape(name: str, h: float, scale: float, reps: int = 200) -> dict:
     """Every method's step and the kernel pieces on one shape, timed interleaved (timing.interleaved_seconds):
@@ -307,6 +370,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--step", type=float, default=1e-3, help="physics step h in seconds (default 1e-3)")
     ap.add_argument("--scale", type=float, default=1.0, help="mesh refinement factor (1 = the paper's sizes)")
+    ap.add_argument("--warping-only", action="store_true",
+                    help="print only the warped-step cost table (jelly man and the paper's shapes)")
+    ap.add_argument("--tets", type=int, default=4800, help="the jelly man's approximate tet count (default 4800)")
     ap.add_argument("--sizes", default="1,2,4",
                     help="sphere scales for the kernel/stream-by-size table (comma-separated; '' skips it)")
     args = ap.parse_args(argv)
@@ -316,6 +382,13 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--sizes {args.sizes!r}: expected comma-separated numbers such as 1,2,4")
     print(f"material E={MATERIAL.E:g} Pa nu={MATERIAL.nu} rho={MATERIAL.rho:g} xi={MATERIAL.xi} "
           f"zeta={MATERIAL.zeta:g}; h = {args.step:g} s; numba threads off (serial kernels)", flush=True)
+    print("\nwarped step cost: the clustered step's compiled part (serial, timed inside numba) from a twisted state, "
+          "us per step, ratio to the linear step in brackets (paired medians of interleaved rounds); 'element': "
+          "per-element corotation (fem/element_warping.py), 'vertex': the paper's per-vertex warping (fem/warping.py)")
+    print(table(["body", "verts", "tets", "linear us", "warped, element us", "warped, vertex us"],
+                warping_rows(args.step, args.tets)))
+    if args.warping_only:
+        return 0
     rows, rows_raw, ok = [], [], True
     print("  warming up (one untimed pass: the first shape timed in a fresh process ran ~1.8x slow)",
           file=sys.stderr, flush=True)

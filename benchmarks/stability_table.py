@@ -1,11 +1,18 @@
 """Hard cases x methods: does each method stay bounded, or refuse at set-up with a clear message?
 
-    python -m benchmarks.stability_table [--scale 2] [--steps 300] [--max-substeps 1000]
+    python -m benchmarks.stability_table [--scales 1 2] [--steps 300] [--max-substeps 1000]
 
 Scene: a 0.4 x 0.1 x 0.1 m bar clamped at x = 0 under gravity, h = 10 ms, E = 1 MPa, nu = 0.3 (tip sag about 4 cm), unless the
-case changes it. Per run we track the energy E = kinetic + elastic (linear 1/2 u.K u; the corotated
-element energy for warped methods) against the budget: initial energy + work of gravity and external
+case changes it. Every case runs on the coarse (scale 1, 160 tets) and the fine bar (scale 2, 1280 tets),
+undamped (xi = zeta = 0) and at the scene's default damping (fem/material.py). A method refused at the
+case's step is run again at h / 10, h / 100 (the step where it is accepted), so every hard case is also
+seen running. "+warp" is the per-element warping (fem/element_warping.py), "+warp vertex" the paper's
+per-vertex one (fem/warping.py). The sliver cases hold one tet at 1e-3 .. 1e-5 of a regular tet's volume
+(one vertex moved towards its opposite face) at h = 1 ms. Per run we track the energy E = kinetic + elastic
+(linear 1/2 u.K u; the corotated element energy for warped methods) against the budget: initial energy + work of gravity and external
 forces (f . du per step) + the energy a prescribed vertex injects when it is set (E after - E before).
+For the explicit methods the kinetic energy is taken at the velocity synchronised with u (see ``energy`` in
+``_run``): symplectic Euler's own v lags half a sub-step and its energy oscillates above the true one.
 Bounded = no NaN / divergence and max E / budget <= ENERGY_SLACK (symplectic Euler's energy oscillates
 a little above the true value near its step limit). Refused = StabilityError when the method is set up
 (implicit with warping on nu > 0.49) or at the first step, before the state is touched (the explicit step
@@ -17,18 +24,20 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
 from clusterfem_ros.fem.corotational import ElementCorotation
+from clusterfem_ros.fem.element_warping import ElementFrames, element_force, element_rotations
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.material import DEFAULT_MASS_DAMPING, DEFAULT_STIFFNESS_DAMPING, Material
 from clusterfem_ros.fem.model import Control, FemModel, State, build_model
 from clusterfem_ros.fem.stability import DivergenceError, StabilityError
 from clusterfem_ros.fem.tet_mesh import TetMesh, signed_volumes
 from clusterfem_ros.fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.warping import warped_force
 from .timing import table
 
 ENERGY_SLACK = 1.05
@@ -37,14 +46,18 @@ LENGTH, WIDTH = 0.4, 0.1
 METHODS: dict[str, tuple[str, dict]] = {
     "clustered": ("clustered", {}),
     "clustered+warp": ("clustered", {"warp": True}),
+    "clustered+warp vertex": ("clustered", {"warp": True, "warping_model": "vertex"}),
     "standard explicit": ("standard_explicit", {}),
     "implicit direct": ("implicit_direct", {}),
     "implicit cg": ("implicit_cg", {}),
     "implicit direct+warp": ("implicit_direct", {"warp": True}),
     "implicit cg+warp": ("implicit_cg", {"warp": True}),
+    "implicit direct+warp vertex": ("implicit_direct", {"warp": True, "warping_model": "vertex"}),
     "modal 30": ("modal", {"k": 30}),
 }
-EXPLICIT = ("clustered", "clustered+warp", "standard explicit")
+EXPLICIT = ("clustered", "clustered+warp", "clustered+warp vertex", "standard explicit")
+DAMPING = {"undamped": (0.0, 0.0), "default": (DEFAULT_MASS_DAMPING, DEFAULT_STIFFNESS_DAMPING)}
+RETRY_STEPS = (10.0, 100.0)                 # a refused explicit method runs again at h / 10, h / 100
 
 
 def bar_mesh(scale: float = 1.0) -> TetMesh:
@@ -63,6 +76,27 @@ def sliver_mesh(scale: float = 1.0) -> TetMesh:
     x = mesh.vertices.copy()
     x[:, 0] = np.interp(x[:, 0], grid, new)
     return TetMesh(x, mesh.tets).validate()
+
+
+def one_sliver_mesh(ratio: float, scale: float = 1.0) -> TetMesh:
+    """The bar with one tet near its middle at ``ratio`` of its volume: one of its vertices moved towards the
+    opposite face's plane (the first such tet and vertex, by distance from the bar's centre, for which every
+    other tet keeps a positive volume)."""
+    mesh = bar_mesh(scale)
+    x, t = mesh.vertices, mesh.tets
+    vol = signed_volumes(x, t)
+    centre = np.array([LENGTH / 2, 0.0, 0.0])
+    for e in np.argsort(np.linalg.norm(x[t].mean(axis=1) - centre, axis=1), kind="stable"):
+        for a in range(4):
+            face = [t[e, b] for b in range(4) if b != a]
+            normal = np.cross(x[face[1]] - x[face[0]], x[face[2]] - x[face[0]])
+            normal /= np.linalg.norm(normal)
+            y = x.copy()
+            y[t[e, a]] -= (1.0 - ratio) * np.dot(x[t[e, a]] - x[face[0]], normal) * normal
+            new = signed_volumes(y, t)
+            if (new > 0).all() and np.isclose(new[e] / vol[e], ratio, rtol=1e-6):
+                return TetMesh(y, t).validate()
+    raise ValueError(f"no tet of the bar at scale {scale} can be squashed to {ratio} of its volume alone")
 
 
 def twist_state(model: FemModel, angle: float = np.pi) -> State:
@@ -86,10 +120,11 @@ class Case:
     initial: Callable[[FemModel], State] | None = None
     teleport: float = 0.0                    # metres a prescribed end vertex jumps at step 1
 
-    def model(self, scale: float) -> FemModel:
+    def model(self, scale: float, damping: str = "default") -> FemModel:
         mesh = self.mesh(scale)
         fixed = np.isclose(mesh.vertices[:, 0], 0.0) if self.clamped else None
-        return build_model(mesh, self.material, fixed=fixed)
+        xi, zeta = DAMPING[damping]
+        return build_model(mesh, replace(self.material, xi=xi, zeta=zeta), fixed=fixed)
 
 
 CASES = [
@@ -101,6 +136,9 @@ CASES = [
     Case("h=1/30", h=1.0 / 30.0),
     Case("teleport 0.5 m", teleport=0.5),
     Case("free fall", clamped=False),
+    Case("sliver 1e-3, h=1ms", mesh=lambda scale: one_sliver_mesh(1e-3, scale), h=1e-3),
+    Case("sliver 1e-4, h=1ms", mesh=lambda scale: one_sliver_mesh(1e-4, scale), h=1e-3),
+    Case("sliver 1e-5, h=1ms", mesh=lambda scale: one_sliver_mesh(1e-5, scale), h=1e-3),
 ]
 
 
@@ -113,10 +151,35 @@ class Result:
     volume_error: float = float("nan")
     substeps: int = 0
     message: str = ""
+    h: float = float("nan")
+    damping: str = "default"
+    scale: float = 1.0
 
 
-def run(method: str, case: Case, scale: float = 1.0, steps: int = 100, max_substeps: int = 1000) -> Result:
-    model = case.model(scale)
+def run(method: str, case: Case, scale: float = 1.0, steps: int = 100, max_substeps: int = 1000,
+        damping: str = "default", h: float | None = None) -> Result:
+    """One run of ``method`` on ``case`` at step ``h`` (default the case's)."""
+    h = case.h if h is None else h
+    r = _run(method, case, scale, steps, max_substeps, damping, h)
+    r.h, r.damping, r.scale = h, damping, scale
+    return r
+
+
+def run_accepted(method: str, case: Case, scale: float = 1.0, steps: int = 100, max_substeps: int = 1000,
+                 damping: str = "default") -> list[Result]:
+    """The run at the case's step and, if the method refused it, the run at the first of h / 10, h / 100 where
+    it is accepted (also refused there: the last refusal)."""
+    out = [run(method, case, scale, steps, max_substeps, damping)]
+    for div in RETRY_STEPS:
+        if out[-1].outcome != "refused" or method not in EXPLICIT:
+            break
+        r = run(method, case, scale, steps, max_substeps, damping, case.h / div)
+        out = out[:1] + [r]
+    return out
+
+
+def _run(method: str, case: Case, scale: float, steps: int, max_substeps: int, damping: str, h: float) -> Result:
+    model = case.model(scale, damping)
     kind, options = METHODS[method]
     options = dict(options)
     if method in EXPLICIT:
@@ -127,18 +190,43 @@ def run(method: str, case: Case, scale: float = 1.0, steps: int = 100, max_subst
         return Result(method, case.name, "refused", message=str(exc))
     warped = bool(options.get("warp"))
     corot = ElementCorotation(model) if warped else None
+    # the element model's own energy: its rotations, followed from step to step like the integrator's
+    element = warped and options.get("warping_model", "element") == "element"
+    frames = ElementFrames.from_model(model) if element else None
 
-    def energy(s: State) -> float:
-        el = corot.energy(s.u) if warped else model.elastic_energy(s.u)
-        return model.kinetic_energy(s.v) + el
+    held = model.fixed.copy()
+    end = np.flatnonzero(np.isclose(model.rest[:, 0], LENGTH))[:1]
+    if case.teleport:
+        held[end] = True
+    gravity = model.gravity_force()
+
+    def elastic_force(u: np.ndarray) -> np.ndarray:
+        if not warped:
+            return -(model.K @ u.reshape(-1)).reshape(-1, 3)
+        if frames is not None:
+            return element_force(model, u, frames=frames)          # v = 0: the elastic part alone
+        return warped_force(model, u)
+
+    def energy(s: State, h_sub: float = 0.0) -> float:
+        """Kinetic + elastic energy; h_sub > 0 (explicit methods): at the velocity half a sub-step on, v +
+        h_sub / 2 M^-1 f(u). Symplectic Euler's v is the leapfrog's mid-step velocity, so its plain kinetic
+        energy is off by O(h omega) and oscillates above the true value; synchronised, the error is O(h^2)."""
+        if not warped:
+            el = model.elastic_energy(s.u)
+        else:
+            el = corot.energy(s.u, None if frames is None else element_rotations(model, s.u, frames))
+        v = s.v
+        if h_sub > 0.0:
+            kick = 0.5 * h_sub * (elastic_force(s.u) + gravity) / model.mass[:, None]
+            kick[held] = 0.0
+            v = v + kick
+        return model.kinetic_energy(v) + el
 
     state = case.initial(model) if case.initial else State.rest(model)
     tets = model.mesh.tets
     v0 = float(signed_volumes(model.rest, tets).sum())
     budget = energy(state)
     ratio, vol_err, sub = 0.0, 0.0, 0
-    gravity = model.gravity_force()
-    end = np.flatnonzero(np.isclose(model.rest[:, 0], LENGTH))[:1]
     for k in range(steps):
         control = Control()
         if case.teleport:
@@ -149,14 +237,14 @@ def run(method: str, case: Case, scale: float = 1.0, steps: int = 100, max_subst
             budget += energy(state) - before              # work done by moving the constraint
         u_before = state.u.copy()
         try:
-            info = integ.step(state, control, case.h)
+            info = integ.step(state, control, h)
         except StabilityError as exc:
             return Result(method, case.name, "refused", message=str(exc))
         except DivergenceError as exc:
             return Result(method, case.name, "diverged", ratio, vol_err, sub, str(exc))
         sub = max(sub, info.substeps)
         budget += float((gravity * (state.u - u_before)).sum())
-        e = energy(state)
+        e = energy(state, h / info.substeps if method in EXPLICIT else 0.0)
         if not np.isfinite(e):
             return Result(method, case.name, "diverged", ratio, vol_err, sub, f"energy {e} at step {k}")
         if budget > 0:
@@ -167,31 +255,38 @@ def run(method: str, case: Case, scale: float = 1.0, steps: int = 100, max_subst
 
 
 def row(r: Result) -> list[str]:
+    head = [r.case, f"{r.scale:g}", r.damping, r.method, f"{r.h * 1e3:.3g}"]
     if r.outcome == "refused":
-        return [r.case, r.method, "refused", "-", "-", ">limit"]
-    return [r.case, r.method, r.outcome, f"{r.energy_ratio:.3f}", f"{r.volume_error * 100:.2f} %", str(r.substeps)]
+        return head + ["refused", "-", "-", ">limit"]
+    return head + [r.outcome, f"{r.energy_ratio:.3f}", f"{r.volume_error * 100:.2f} %", str(r.substeps)]
 
 
-HEADERS = ["case", "method", "outcome", "max E / budget", "max volume error", "sub-steps"]
+HEADERS = ["case", "scale", "damping", "method", "h [ms]", "outcome", "max E / budget", "max volume error",
+           "sub-steps"]
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--scale", type=float, default=2.0, help="mesh refinement (2: 16x4x4 voxels, 1280 tets)")
+    ap.add_argument("--scales", type=float, nargs="+", default=[1.0, 2.0],
+                    help="mesh refinements (1: 8x2x2 voxels, 160 tets; 2: 16x4x4 voxels, 1280 tets)")
     ap.add_argument("--steps", type=int, default=300, help="steps per run")
     ap.add_argument("--max-substeps", type=int, default=1000, help="explicit sub-step limit per step")
     args = ap.parse_args(argv)
     rows, notes = [], []
-    for case in CASES:
-        for method in METHODS:
-            print(f"  {case.name} / {method} ...", file=sys.stderr, flush=True)
-            r = run(method, case, args.scale, args.steps, args.max_substeps)
-            rows.append(row(r))
-            if r.message:
-                notes.append(f"{case.name} / {method}: {r.message}")
-    mesh = bar_mesh(args.scale)
-    print(f"Hard cases: {mesh.n_tets} tets / {mesh.n_vertices} vertices (slivers: same grid), {args.steps} steps, "
-          f"explicit limit {args.max_substeps} sub-steps, bounded = max E / budget <= {ENERGY_SLACK}\n")
+    for scale in args.scales:
+        for case in CASES:
+            for damping in DAMPING:
+                for method in METHODS:
+                    print(f"  {scale:g} / {case.name} / {damping} / {method} ...", file=sys.stderr, flush=True)
+                    for r in run_accepted(method, case, scale, args.steps, args.max_substeps, damping):
+                        rows.append(row(r))
+                        if r.message:
+                            notes.append(f"{case.name} / {scale:g} / {damping} / {method} / h = {r.h:g}: "
+                                         f"{r.message}")
+    meshes = ", ".join(f"scale {s:g}: {bar_mesh(s).n_tets} tets / {bar_mesh(s).n_vertices} vertices"
+                       for s in args.scales)
+    print(f"Hard cases: {meshes} (slivers: same grid), {args.steps} steps, explicit limit {args.max_substeps} "
+          f"sub-steps, bounded = max E / budget <= {ENERGY_SLACK}\n")
     print(table(HEADERS, rows))
     for n in notes:
         print(f"\n- {n}")

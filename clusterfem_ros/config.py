@@ -16,6 +16,9 @@ from typing import Any
 import yaml
 
 from .errors import ClusterFemError
+from .fem.material import DEFAULT_MASS_DAMPING, DEFAULT_STIFFNESS_DAMPING
+
+WARPING_MODELS = ("element", "vertex")           # fem/element_warping.WARPING_MODELS (no numba here)
 
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg", "modal")
 BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh", "surface")
@@ -49,17 +52,16 @@ PARAMS: tuple[Param, ...] = (
     Param("material.young_modulus", 3.0e4, "Young's modulus E [Pa]", 1.0, 1.0e10),
     Param("material.poisson_ratio", 0.3, "Poisson ratio nu [-]", 0.0, 0.499),
     Param("material.density", 1000.0, "density [kg/m^3]", 1.0, 1.0e5),
-    Param("material.mass_damping", 2.0, "Rayleigh xi [1/s]: D = xi M + zeta K", 0.0, 1.0e3),
-    # 1e-4 s, not 1e-5: a joint-state stall of ~80 ms and the burst after it made the warped jelly man's
-    # one- and two-tet flaps (free vertices on the shins) flutter and diverge within a second at 1e-5; in
-    # live demo runs 10-27 % of 6 s runs reset once. 1e-4 damps the mesh's highest modes (damping ratio
-    # ~0.04 at ~800 rad/s) and leaves the body's own (< 0.003 below 50 rad/s). tests/test_scene.py.
-    Param("material.stiffness_damping", 1.0e-4, "Rayleigh zeta [s]", 0.0, 1.0),
+    # the damping defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
+    Param("material.mass_damping", DEFAULT_MASS_DAMPING, "Rayleigh xi [1/s]: D = xi M + zeta K", 0.0, 1.0e3),
+    Param("material.stiffness_damping", DEFAULT_STIFFNESS_DAMPING, "Rayleigh zeta [s]", 0.0, 1.0),
     Param("method", "clustered", "integrator", choices=METHODS),
     Param("budget.max_error_mm", 0.0, "if > 0: method, physics.step, warping and modal.k become the cheapest measured point whose max vertex error is within this budget [mm] (0 = off)", 0.0, 1000.0),
     Param("budget.measured_points", "", "CSV of measured (method, step, error, cost) points for the budget choice; '' = the shipped clusterfem_ros/data/speed_error.csv"),
     Param("modal.k", 30, "number of modes for method 'modal'", 1, 2000),
-    Param("warping", True, "stiffness warping (eq. 10): removes the linear model's volume growth under rotation"),
+    Param("warping", True, "stiffness warping: removes the linear model's volume growth under rotation"),
+    Param("warping_model", "element", "'element': per-element corotation, the gradient of an energy (cannot feed "
+          "energy in); 'vertex': the paper's per-vertex warping (eq. 10), for comparison", choices=WARPING_MODELS),
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
     Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this before the outputs get a snapshot", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),

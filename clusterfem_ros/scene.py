@@ -84,9 +84,11 @@ class Scene:
             options["k"] = config["modal.k"]
         if config["warping"] and method != "modal":
             options["warp"] = True
+            options["warping_model"] = config["warping_model"]
             if method.startswith("implicit"):
                 options["max_substeps"] = config["physics.max_substeps"]
-        _say(progress, f"setting up method '{method}'{' with warping' if options.get('warp') else ''}")
+        _say(progress, f"setting up method '{method}'"
+                       f"{' with ' + config['warping_model'] + ' warping' if options.get('warp') else ''}")
         self.integrator = make_integrator(method, self.model, **options)
         self.state = State.rest(self.model)
         self.triangles = boundary_triangles(mesh)

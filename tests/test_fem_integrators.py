@@ -18,6 +18,11 @@ def _run(method, model, steps, h, control=None, **opt):
     return s, info
 
 
+def _warping(warp) -> dict:
+    """Integrator options: False (linear) or the warping model's name."""
+    return {"warp": True, "warping_model": warp} if warp else {}
+
+
 def test_clustered_equals_standard_explicit_over_a_run():
     mesh = paper_mesh("torus")
     model = build_model(mesh, MAT, fixed=mesh.vertices[:, 0] > 0.12)
@@ -97,14 +102,14 @@ def test_unknown_method_is_named():
         make_integrator("rk4", model)
 
 
-@pytest.mark.parametrize("warp", [False, True])
+@pytest.mark.parametrize("warp", [False, "element", "vertex"])
 def test_clustered_plan_follows_h_and_gains_and_fixed_vertices_stay_at_rest(warp):
     """The sub-step plan is cached, but a new h or stiffer attachment gains re-plan it; fixed vertices moved
     from outside are put back at rest by the step (the kernel, not Python, holds them now)."""
     mesh = paper_mesh("cube")
     fixed = mesh.vertices[:, 2] < -0.049
     model = build_model(mesh, MAT, fixed=fixed)
-    integ = make_integrator("clustered", model, warp=warp)
+    integ = make_integrator("clustered", model, **_warping(warp))
     s = State.rest(model)
     n1 = integ.step(s, Control(), 1e-3).substeps
     assert integ.step(s, Control(), 4e-3).substeps > n1
@@ -120,19 +125,19 @@ def test_clustered_plan_follows_h_and_gains_and_fixed_vertices_stay_at_rest(warp
     assert not s.u[fixed].any() and not s.v[fixed].any()
 
 
-@pytest.mark.parametrize("warp", [False, True])
+@pytest.mark.parametrize("warp", [False, "element", "vertex"])
 def test_threaded_and_serial_clustered_steps_are_bit_identical(warp):
     """Each row / chunk is computed by one thread in the same order: switching builds changes no bit
     (what lets ThreadChoice switch mid-run without breaking deterministic replay)."""
     mesh = paper_mesh("torus")
     model = build_model(mesh, MAT, fixed=mesh.vertices[:, 0] > 0.12)
-    a, _ = _run("clustered", model, 60, 2e-3, threads=False, warp=warp)
-    b, _ = _run("clustered", model, 60, 2e-3, threads=True, warp=warp)
+    a, _ = _run("clustered", model, 60, 2e-3, threads=False, **_warping(warp))
+    b, _ = _run("clustered", model, 60, 2e-3, threads=True, **_warping(warp))
     assert np.abs(a.u).max() > 1e-4
     assert np.array_equal(a.u, b.u) and np.array_equal(a.v, b.v)
 
 
-@pytest.mark.parametrize("warp", [False, True])
+@pytest.mark.parametrize("warp", [False, "element", "vertex"])
 def test_the_benchmarks_compiled_step_is_the_step(warp):
     """benchmarks/core_benchmark times ClusteredExplicit.compiled_step without Python: calling it must advance the
     state exactly as step() does, and it refuses what it does not cover (attachments)."""
@@ -140,8 +145,8 @@ def test_the_benchmarks_compiled_step_is_the_step(warp):
     model = build_model(mesh, MAT, fixed=mesh.vertices[:, 2] < mesh.vertices[:, 2].min() + 0.02)
     control = Control()                     # gravity is the model's
     a, b = State.rest(model), State.rest(model)
-    stepper = make_integrator("clustered", model, threads=False, warp=warp)
-    other = make_integrator("clustered", model, threads=False, warp=warp, lam_max=stepper.lam_max)
+    stepper = make_integrator("clustered", model, threads=False, **_warping(warp))
+    other = make_integrator("clustered", model, threads=False, lam_max=stepper.lam_max, **_warping(warp))
     for _ in range(20):
         stepper.step(a, control, 2e-3)
         fn, args = other.compiled_step(b, control, 2e-3)

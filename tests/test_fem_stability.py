@@ -83,7 +83,7 @@ def test_divergence_is_detected_and_raised_never_returned():
             integ.step(s, Control(), 1e-3)
 
 
-@pytest.mark.parametrize("warp", [False, True])
+@pytest.mark.parametrize("warp", [False, "element", "vertex"])
 @pytest.mark.parametrize("where", ["free vertex velocity", "held vertex force", "attachment target"])
 def test_a_non_finite_value_anywhere_in_a_clustered_step_is_raised(where, warp):
     """The fused step returns one flag, 'every |u| <= limit', for both builds (with and without attachments):
@@ -92,7 +92,8 @@ def test_a_non_finite_value_anywhere_in_a_clustered_step_is_raised(where, warp):
     mesh = paper_mesh("cube", 0.5)
     fixed = mesh.vertices[:, 2] < mesh.vertices[:, 2].min() + 1e-9
     model = build_model(mesh, Material(E=3e4, nu=0.3), fixed=fixed)
-    integ = make_integrator("clustered", model, warp=warp, threads=False)
+    integ = make_integrator("clustered", model, threads=False,
+                            **({"warp": True, "warping_model": warp} if warp else {}))
     s, control = State.rest(model), Control()
     free, held = int(np.flatnonzero(~fixed)[0]), int(np.flatnonzero(fixed)[0])
     integ.step(s, control, 1e-3)

@@ -14,20 +14,22 @@ STEPS = 40
 
 @pytest.fixture(scope="module")
 def results():
-    out = {(c.name, m): st.run(m, c, scale=1.0, steps=STEPS, max_substeps=1000) for c in st.CASES for m in st.METHODS}
+    """Every case x method at the scene's default damping, at the step where the method is accepted."""
+    out = {(c.name, m): st.run_accepted(m, c, scale=1.0, steps=STEPS, max_substeps=1000)[-1]
+           for c in st.CASES for m in st.METHODS}
     print("\n" + st.table(st.HEADERS, [st.row(r) for r in out.values()]))
     return out
 
 
 def test_every_run_is_bounded_or_refused_at_set_up(results):
+    """The per-vertex warping (the paper's, kept for comparison) is left out: see the tests below."""
     for (case, method), r in results.items():
+        if method.endswith("+warp vertex"):
+            continue
         where = f"{case} / {method}: {r.outcome} {r.message}"
         if r.outcome == "refused":
             if method in st.EXPLICIT:
                 assert "sub-steps" in r.message and "implicit" in r.message, where  # names the limit and the way out
-            else:
-                assert method.endswith("+warp") and case == "nu=0.499", where
-                assert "nu = 0.499" in r.message and "turn warping off" in r.message, where
             continue
         assert r.outcome != "diverged", where
         assert np.isfinite(r.energy_ratio) and np.isfinite(r.volume_error), where
@@ -36,14 +38,14 @@ def test_every_run_is_bounded_or_refused_at_set_up(results):
 
 def test_unconditionally_stable_methods_never_refuse(results):
     for (case, method), r in results.items():
-        if method not in st.EXPLICIT and not method.endswith("+warp"):
+        if method not in st.EXPLICIT and "+warp" not in method:
             assert r.outcome == "bounded" and r.substeps == 1, f"{case} / {method}: {r.outcome}"
 
 
 def test_warped_implicit_sub_steps_where_rotations_turn_fast_and_only_there(results):
     """The implicit step holds the vertex rotations: on the released 180 deg twist and the torn vertex it
     sub-steps (and stays bounded, checked above); on the gentle cases it takes one step."""
-    for method in ("implicit direct+warp", "implicit cg+warp"):
+    for method in ("implicit direct+warp", "implicit cg+warp", "implicit direct+warp vertex"):
         for case in ("twist 180", "teleport 0.5 m"):
             assert results[(case, method)].substeps > 1, (case, method)
         for case in ("stiff E=1e7", "nu=0.49", "h=1/30", "free fall"):
@@ -65,11 +67,13 @@ def test_warped_implicit_without_sub_steps_gains_energy_on_the_released_twist():
     assert sub.energy_ratio <= st.ENERGY_SLACK
 
 
-def test_explicit_refuses_slivers_and_near_incompressibility_but_runs_the_rest(results):
+def test_explicit_sub_steps_grow_with_stiffness_and_a_refused_step_is_run_where_accepted(results):
     for method in st.EXPLICIT:
-        assert results[("nu=0.499", method)].outcome == "refused"
-        assert results[("slivers 1%", method)].outcome == "refused"
         assert results[("nu=0.49", method)].substeps > results[("h=1/30", method)].substeps / (10 / 3) > 1
+    case = next(c for c in st.CASES if c.name == "nu=0.499")
+    refused, accepted = st.run_accepted("clustered+warp", case, steps=5, max_substeps=100)
+    assert refused.outcome == "refused" and "sub-steps" in refused.message and "implicit" in refused.message
+    assert accepted.outcome == "bounded" and accepted.h == pytest.approx(case.h / 10)
 
 
 def test_clustered_equals_standard_explicit_on_every_case(results):
@@ -95,14 +99,19 @@ def test_free_fall_keeps_shape_and_follows_gravity():
         assert r.outcome == "bounded" and r.volume_error < 1e-9
 
 
+# the damping at which the symmetrised per-vertex warping was tuned (the former Material() defaults); at the
+# scene's (xi = 2, zeta = 1e-4) it gains energy on this case too, which is why per-element warping is the default
+VERTEX_TUNED = (1.0, 1.0e-3)
+
+
 def _twin_teleport_energy(form: str, scale: float = 1.0, steps: int = STEPS) -> float:
     """Max E / budget of the teleport case run with the numpy twin's warped force (``form``), the table's
     accounting and sub-steps: symplectic Euler, end vertex jumped 0.5 m at step 1 and held."""
     case = next(c for c in st.CASES if c.name == "teleport 0.5 m")
-    model = case.model(scale)
+    model = case.model(scale, "vertex tuned")
     twin = naive.BlockTwin(model.K, model.rest)
     corot = ElementCorotation(model)
-    nsub = make_integrator("clustered", model, warp=True).step(State.rest(model), Control(), case.h).substeps
+    nsub = make_integrator("clustered", model, warp=True, warping_model="vertex").step(State.rest(model), Control(), case.h).substeps
     dt = case.h / nsub
     end = np.flatnonzero(np.isclose(model.rest[:, 0], st.LENGTH))[:1]
     held = model.fixed.copy()
@@ -129,14 +138,20 @@ def _twin_teleport_energy(form: str, scale: float = 1.0, steps: int = STEPS) -> 
 
 def test_eq10_as_printed_gains_energy_where_the_symmetric_warping_does_not():
     """Why warping.py symmetrises eq. 10's blocks: a vertex torn 0.5 m from its neighbours and held makes
-    neighbouring rotations differ a lot; eq. 10's non-symmetric blocks then feed energy in (flutter)."""
-    eq10, ours = _twin_teleport_energy("eq10"), _twin_teleport_energy("symmetric")
-    kernel = st.run("clustered+warp", next(c for c in st.CASES if c.name == "teleport 0.5 m"), steps=STEPS)
+    neighbouring rotations differ a lot; eq. 10's non-symmetric blocks then feed energy in (flutter). Run at
+    VERTEX_TUNED damping."""
+    st.DAMPING["vertex tuned"] = VERTEX_TUNED
+    try:
+        eq10, ours = _twin_teleport_energy("eq10"), _twin_teleport_energy("symmetric")
+        kernel = st.run("clustered+warp vertex", _case("teleport 0.5 m"), steps=STEPS, damping="vertex tuned")
+    finally:
+        del st.DAMPING["vertex tuned"]
     print(f"teleport 0.5 m, max E / budget: eq. 10 as printed {eq10:.2f}, symmetric twin {ours:.3f}, "
           f"kernel {kernel.energy_ratio:.3f}")
     assert eq10 > 1.3 * st.ENERGY_SLACK
     assert ours <= st.ENERGY_SLACK
-    assert kernel.energy_ratio == pytest.approx(ours, rel=1e-6)
+    # the table takes the explicit kinetic energy at the synchronised velocity, the twin at symplectic Euler's own
+    assert kernel.energy_ratio == pytest.approx(ours, rel=0.05)
 
 
 @pytest.mark.parametrize("method", ["implicit_direct", "implicit_cg"])
@@ -158,7 +173,7 @@ def test_a_falling_body_stays_rigid_with_warped_implicit(method):
     R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
     speed = float(np.abs(state.v).max())
     print(f"{method} + warping after 3 s of fall at {speed:.1f} m/s: non-rigid part {np.abs(p - p0 @ R.T).max():.2e} m")
-    assert speed > 5.0
+    assert speed > 4.5                     # g / xi (1 - exp(-xi t)) = 4.9 m/s at xi = 2 / s
     assert np.abs(p - p0 @ R.T).max() < 1e-9
 
 
@@ -167,7 +182,7 @@ def test_symmetric_blocks_leave_only_a_small_diagonal_skew_part_in_the_torn_stat
     ours only in each vertex's own diagonal block, and much less (docs/method.md, "Stiffness warping, and why we depart from eq. 10")."""
     case = next(c for c in st.CASES if c.name == "teleport 0.5 m")
     model = case.model(1.0)
-    integ = make_integrator("clustered", model, warp=True)
+    integ = make_integrator("clustered", model, warp=True, warping_model="vertex")
     state = State.rest(model)
     end = np.flatnonzero(np.isclose(model.rest[:, 0], st.LENGTH))[:1]
     for k in range(10):
@@ -188,3 +203,43 @@ def test_symmetric_blocks_leave_only_a_small_diagonal_skew_part_in_the_torn_stat
           f"{skew['eq10'][1]:.1e}; ours {skew['ours'][0]:.1e}, {skew['ours'][1]:.1e}")
     assert skew["ours"][1] < 1e-14 and skew["eq10"][0] < 1e-14
     assert skew["ours"][0] < 0.2 * skew["eq10"][1]
+
+
+def _case(name):
+    return next(c for c in st.CASES if c.name == name)
+
+
+@pytest.mark.parametrize("method", ["clustered+warp", "implicit direct+warp"])
+def test_element_warping_keeps_an_undamped_sliver_bounded_where_vertex_warping_diverges(method):
+    """One tet at 1e-5 of its volume, the bar sagging under gravity at h = 1 ms, no damping: the per-element
+    force is the gradient of an energy and stays bounded; the paper's per-vertex warping diverges within
+    0.05 s on the same run (deterministic: the same state every time)."""
+    case = _case("sliver 1e-5, h=1ms")
+    r = st.run(method, case, steps=60, damping="undamped")
+    vertex = st.run(method + " vertex", case, steps=60, damping="undamped")
+    print(f"{method}: element {r.outcome} {r.energy_ratio:.3f}, vertex {vertex.outcome} ({vertex.message[:60]})")
+    assert r.outcome == "bounded" and r.energy_ratio <= st.ENERGY_SLACK
+    assert vertex.outcome == "diverged"
+
+
+def test_element_warping_keeps_a_torn_vertex_bounded_at_the_default_damping_where_vertex_warping_does_not():
+    case = _case("teleport 0.5 m")
+    r = st.run("clustered+warp", case, steps=STEPS)
+    vertex = st.run("clustered+warp vertex", case, steps=STEPS)
+    print(f"torn vertex, default damping: element {r.energy_ratio:.3f}, vertex {vertex.energy_ratio:.3f}")
+    assert r.outcome == "bounded" and r.energy_ratio < 1.0
+    assert vertex.energy_ratio > 2.0
+
+
+def test_torn_vertex_undamped_is_bounded_with_element_warping_implicit_and_explicit_at_a_smaller_step():
+    """Undamped, the corotated force stiffens under the 10x stretch (its tangent exceeds the linear K, whose
+    largest eigenvalue sets the explicit step), so the explicit step is bounded at safety 0.2, not 0.8."""
+    case = _case("teleport 0.5 m")
+    st.METHODS["clustered+warp, safety 0.2"] = ("clustered", {"warp": True, "safety": 0.2})
+    try:
+        explicit = st.run("clustered+warp, safety 0.2", case, steps=STEPS, damping="undamped")
+    finally:
+        del st.METHODS["clustered+warp, safety 0.2"]
+    implicit = st.run("implicit direct+warp", case, steps=STEPS, damping="undamped")
+    for r in (explicit, implicit):
+        assert r.outcome == "bounded" and r.energy_ratio <= st.ENERGY_SLACK, (r.method, r.outcome, r.energy_ratio)

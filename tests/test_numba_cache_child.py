@@ -15,8 +15,9 @@ import numpy as np
 
 from benchmarks.core_benchmark import MATERIAL
 from clusterfem_ros.fem.cluster_force_kernel import clustered_force, force_kernel_parallel
-from clusterfem_ros.fem.integrators.clustered_explicit import (ClusteredExplicit, _step_parallel,
-                                                               _warped_step_parallel)
+from clusterfem_ros.fem.element_warping import element_force, element_kernel_parallel
+from clusterfem_ros.fem.integrators.clustered_explicit import (ClusteredExplicit, _element_step_parallel,
+                                                               _step_parallel, _warped_step_parallel)
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.fem.voxel_mesh import paper_mesh
 from clusterfem_ros.fem.warping import warped_force, warped_kernel_parallel
@@ -31,23 +32,26 @@ def sphere_and_state():
 
 def forces(model, u, v, threads: bool) -> dict[str, np.ndarray]:
     return {"clustered_force": clustered_force(model.clusters, u, v, model.mass, 1e-3, 1.0, threads=threads),
-            "warped_force": warped_force(model, u, v, threads=threads)}
+            "warped_force": warped_force(model, u, v, threads=threads),
+            "element_force": element_force(model, u, v, threads=threads)}
 
 
 def steps(model, u, v, threads: bool) -> dict[str, np.ndarray]:
     out = {}
-    for warp in (False, True):
-        integ = ClusteredExplicit(model, warp=warp, threads=threads)
+    for warp in (False, "vertex", "element"):
+        integ = ClusteredExplicit(model, warp=bool(warp), warping_model=warp or "element", threads=threads)
         state = State.rest(model)
         state.u[:], state.v[:] = u, v
         for _ in range(5):
             integ.step(state, Control(), 1e-3)
-        out["warped_step" if warp else "step"] = state.u.copy()
+        out[{False: "step", "vertex": "warped_step", "element": "element_step"}[warp]] = state.u.copy()
     return out
 
 
-BUILDS = {"forces": {"force_kernel_parallel": force_kernel_parallel, "warped_kernel_parallel": warped_kernel_parallel},
-          "steps": {"step_parallel": _step_parallel[1], "warped_step_parallel": _warped_step_parallel[1]}}
+BUILDS = {"forces": {"force_kernel_parallel": force_kernel_parallel, "warped_kernel_parallel": warped_kernel_parallel,
+                     "element_kernel_parallel": element_kernel_parallel},
+          "steps": {"step_parallel": _step_parallel[1], "warped_step_parallel": _warped_step_parallel[1],
+                    "element_step_parallel": _element_step_parallel[1]}}
 
 
 def main(out: str, what: list[str]) -> None:

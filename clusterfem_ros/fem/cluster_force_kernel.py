@@ -52,7 +52,7 @@ def accumulating_loop(builder, start, stop, step, zeros, body):
     """LLVM IR for ``accs = zeros; for i in range(start, stop, step): accs = body(i, accs)``; returns the final
     accumulators (the zeros when the range is empty). start, stop: i64 values; step: a Python int; body gets
     the i64 index and the accumulators' current values and returns their next values. Shared by the slice
-    kernel and the benchmark's wide read (bench/core_benchmark.py)."""
+    kernel and the benchmark's wide read (benchmarks/core_benchmark.py)."""
     entry = builder.basic_block
     loop = builder.function.append_basic_block("acc.loop")
     done = builder.function.append_basic_block("acc.done")
@@ -168,7 +168,7 @@ _LINEAR_SPECS = (("w_at", 2, types.int64), ("blocks", 3, types.float64), ("w", 2
 def _slice_force_intrinsic(gather: bool):
     """The slice kernel below; ``gather=False`` builds the benchmark's control, which reads the same blocks and
     does the same FMAs but holds w at row 0 instead of gathering each position's C rows (its time against the
-    full kernel's is the gather's cost: bench/core_benchmark.py)."""
+    full kernel's is the gather's cost: benchmarks/core_benchmark.py)."""
     @intrinsic(prefer_literal=True)
     def _slice_force(typingctx, lanes, s, p0, p1, per_position, common):
         """out[owner[C s + l]] <- sum_p blocks[p, :, l] w[j_p,l] over positions p0..p1 of slice s, each lane l;

@@ -3,7 +3,7 @@
 The per-vertex clusters (clusters.py, eqs. 5-6) keep their blocks row after row, each block's nine numbers
 together. A kernel that walks one row at a time must then gather w_j for every block and add its nine
 products into one 3-vector, which costs 2.7x a bare 4-wide read of the same blocks (see
-bench/core_benchmark.py). Here C rows are walked together, lane l of every vector belonging to row l of the
+benchmarks/core_benchmark.py). Here C rows are walked together, lane l of every vector belonging to row l of the
 slice: entry (r, c) of the k-th block of the C rows is one C-wide load, the C neighbours' w are loaded as
 rows and transposed once per position, and each row's sum stays in its own lane, so there is no horizontal
 sum and no per-row loop exit.

@@ -11,6 +11,7 @@ small. Vectorized numpy over elements; meant for tests, stress and energy bookke
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 from .assembly import element_stiffness_blocks, shape_gradients
 from .model import FemModel
@@ -71,6 +72,7 @@ class ElementCorotation:
         self.tets = model.mesh.tets
         self.blocks = element_stiffness_blocks(model.mesh, model.material)       # (m, 4, 4, 3, 3)
         self.g, self.volume = shape_gradients(model.rest, self.tets)
+        self._pattern = None
 
     def _check(self, name: str, a: np.ndarray) -> np.ndarray:
         a = np.asarray(a, dtype=np.float64)
@@ -89,10 +91,11 @@ class ElementCorotation:
         d = xe - xe[:, :1]
         return np.einsum("eji,eaj->eai", R, d) - d0                               # R^T (x_a - x_0) - (x0_a - x0_0)
 
-    def force(self, u: np.ndarray, v: np.ndarray | None = None) -> np.ndarray:
-        """Elastic (and, with v, damping) force (n, 3), including -xi m v."""
+    def force(self, u: np.ndarray, v: np.ndarray | None = None, R: np.ndarray | None = None) -> np.ndarray:
+        """Elastic (and, with v, damping) force (n, 3), including -xi m v; R: the element rotations to use
+        (default polar(F_e))."""
         u = self._check("u", u)
-        R = self.rotations(u)
+        R = self.rotations(u) if R is None else R
         y = self._local(u, R)
         m = self.model.material
         if v is not None:
@@ -105,11 +108,33 @@ class ElementCorotation:
             f -= m.xi * self.model.mass[:, None] * v
         return f
 
-    def energy(self, u: np.ndarray) -> float:
-        """Corotated elastic energy sum_e 1/2 y_e^T K_e y_e [J]."""
+    def energy(self, u: np.ndarray, R: np.ndarray | None = None) -> float:
+        """Corotated elastic energy sum_e 1/2 y_e^T K_e y_e [J]; R as in ``force``."""
         u = self._check("u", u)
-        y = self._local(u, self.rotations(u))
+        y = self._local(u, self.rotations(u) if R is None else R)
         return 0.5 * float(np.einsum("eai,eabij,ebj->", y, self.blocks, y))
+
+    def rotated_stiffness(self, R: np.ndarray) -> sp.csr_matrix:
+        """sum_e R_e K_e R_e^T assembled, (3n, 3n): symmetric positive semi-definite and zero on every
+        translation (each K_e is), the stiffness of the standard corotational implicit step."""
+        if self._pattern is None:
+            t = self.tets
+            rows = (3 * t[:, :, None, None, None] + np.arange(3)[None, None, None, :, None])
+            cols = (3 * t[:, None, :, None, None] + np.arange(3)[None, None, None, None, :])
+            shape = (self.model.n_vertices * 3,) * 2
+            rows, cols = np.broadcast_arrays(rows, cols)
+            # sums the element entries into K's pattern: a sparse (nnz, 16 * 9 m) 0/1 matrix, built once
+            ones = sp.coo_matrix((np.ones(rows.size), (rows.ravel(), cols.ravel())), shape=shape).tocsr()
+            ones.sum_duplicates()
+            ones.sort_indices()
+            ncol = shape[1]
+            stored = np.repeat(np.arange(shape[0]), np.diff(ones.indptr)) * ncol + ones.indices   # ascending
+            key = np.searchsorted(stored, rows.ravel() * ncol + cols.ravel())
+            self._pattern = (ones, sp.csr_matrix((np.ones(key.size), (key, np.arange(key.size))),
+                                                 shape=(ones.nnz, key.size)))
+        ones, summing = self._pattern
+        blocks = np.einsum("eij,eabjk,elk->eabil", R, self.blocks, R)
+        return sp.csr_matrix((summing @ blocks.reshape(-1), ones.indices, ones.indptr), shape=ones.shape)
 
 
 def corotated_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None) -> np.ndarray:

@@ -1,4 +1,8 @@
-"""Stiffness warping (eq. 10) on the constant clusters: per-vertex rotations R_i, then, with w = x + zeta v,
+"""The paper's per-vertex stiffness warping, kept for comparison (``warping_model = "vertex"``); the default is
+per-element corotation (element_warping.py), the gradient of an energy, which this model is not: on an
+inverting sliver or a torn vertex at the scene's damping it fed energy in (benchmarks/stability_table.py).
+
+Stiffness warping (eq. 10) on the constant clusters: per-vertex rotations R_i, then, with w = x + zeta v,
 
     f_i = -sum_j 1/2 (R_i K_ij R_i^T + R_j K_ij R_j^T) (w_j - w_i - R_i (x0_j - x0_i))  -  xi m_i v_i.
 
@@ -13,7 +17,7 @@ block (j, i) of the held-rotation Jacobian is the transpose of block (i, j); wha
 each vertex's own diagonal block, -sum_j of its row's others (K_ij is not symmetric, so the R_j halves do
 not sum to a symmetric block). In the torn state that skew part was 0.24 % of the Jacobian's norm against
 eq. 10's 4.1 % (largest imaginary eigenvalue part 340x smaller), and the case settles (max E / budget
-0.93; bench/stability_table.py, tests/test_hard_cases.py). Exact symmetry and translation invariance
+0.93; benchmarks/stability_table.py, tests/test_hard_cases.py). Exact symmetry and translation invariance
 together need one rotation per element (fem/corotational.py). What stays exactly as in eq. 10: the same
 constant clusters and per-vertex rotations; zero force for any rigid motion (all R_i equal: the two halves
 coincide with eq. 10); linear FEM to second order for small deformations (the first-order part of
@@ -530,6 +534,15 @@ class AssembledWarp:
         return f - m.xi * self.model.mass[:, None] * v
 
 
+def output_rows(n: int, out: np.ndarray | None) -> np.ndarray:
+    """``out`` checked as a force's (n, 3) C-contiguous float64 destination, or a new one."""
+    if out is None:
+        return np.empty((n, 3))
+    if out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous ({n}, 3) float64 array, got {out.dtype} {out.shape}")
+    return out
+
+
 def _pick(n: int, threads: bool | None, serial, parallel):
     use = n >= PARALLEL_MIN_VERTICES if threads is None else threads
     return parallel if use else serial
@@ -564,10 +577,7 @@ def warped_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None, fr
     v, = _check(model, v=np.zeros_like(u) if v is None else v)
     frames = VertexFrames.from_model(model) if frames is None else frames
     n = model.n_vertices
-    if out is None:
-        out = np.empty((n, 3))
-    elif out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
-        raise ValueError(f"out must be a C-contiguous ({n}, 3) float64 array, got {out.dtype} {out.shape}")
+    out = output_rows(n, out)
     kern = _pick(n, threads, warped_kernel_serial, warped_kernel_parallel)
     m = model.material
     kern(frames.gradients, frames.slices, frames.rest, u, v, frames.w, np.repeat(model.mass, 3), float(m.zeta),

@@ -1,10 +1,14 @@
 """Clustered explicit FEM (eqs. 4-5): symplectic Euler driven by the fused cluster force kernel.
 
 All sub-steps of one step run inside one numba call: fixed vertices held at rest, force, constraint forces,
-velocity and position updates, with no Python in between. ``warp=True`` swaps in the stiffness-warped
-force (fem/warping.py: eq. 10, symmetrised) on the same clusters; the linear path is a separate compiled
-function.
-The critical step is the linear one: the warped blocks are K's rotated, so warping does not shift it much.
+velocity and position updates, with no Python in between. ``warp=True`` swaps in a warped force on
+the same step: per-element corotation by default (fem/element_warping.py: the gradient of an energy, so it
+cannot feed energy in), or the paper's per-vertex warping (``warping_model="vertex"``, fem/warping.py: eq.
+10, symmetrised) for comparison; the linear path is a separate compiled function.
+The critical step is the linear K's. Warping keeps it under moderate deformation, but a corotated element
+stretched several times its size stiffens (its tangent's twist modes grow with lambda tr(S - I)): undamped,
+the bar with a vertex torn 0.5 m away ran bounded at safety 0.2, not at 0.8 (tests/test_hard_cases.py); the
+scene's damping keeps it bounded at 0.8.
 
 Python per step is kept to what can change: the sub-step plan is cached while h and the attachment gains'
 maxima are unchanged, prescribed vertices cost nothing when there are none, and divergence is still
@@ -22,6 +26,7 @@ from ..cluster_force_kernel import (cluster_args, kernel_input_serial, scratch, 
 from ..model import Control, FemModel, State
 from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
+from ..element_warping import ElementFrames, check_warping_model, element_e_parallel, element_e_serial
 from ..warping import VertexFrames, warped_e_parallel, warped_e_serial
 from .base import StepCommon, StepInfo
 
@@ -153,6 +158,11 @@ _step_parallel = _builds(_symplectic_euler, _free_symplectic_euler, "_parallel",
 _warped_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "", warped_e=warped_e_serial)
 _warped_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_parallel",
                                 warped_e=warped_e_parallel)
+# the same step source around the per-element warped kernel (fem/element_warping.py)
+_element_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_element",
+                               warped_e=element_e_serial)
+_element_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_element_parallel",
+                                 warped_e=element_e_parallel)
 
 
 class ThreadChoice:
@@ -224,21 +234,31 @@ class ThreadChoice:
 class ClusteredExplicit:
     """The paper's method. ``safety`` scales the critical step; ``threads`` forces the threaded kernel on/off
     (default: from AUTO_THREADS_MIN_VERTICES vertices, the faster build as measured by ThreadChoice);
-    ``warp`` turns on stiffness warping (eq. 10)."""
+    ``warp`` turns on stiffness warping, ``warping_model`` which: 'element' (per-element corotation, the
+    gradient of an energy: fem/element_warping.py) or 'vertex' (the paper's eq. 10, symmetrised:
+    fem/warping.py)."""
     name = "clustered"
 
     def __init__(self, model: FemModel, safety: float = 0.8, max_substeps: int = 10000,
-                 threads: bool | None = None, lam_max: float | None = None, warp: bool = False):
+                 threads: bool | None = None, lam_max: float | None = None, warp: bool = False,
+                 warping_model: str = "element"):
         self.model = model
         self.warp = bool(warp)
+        self.warping_model = check_warping_model(warping_model)
         self.safety = safety
         self.max_substeps = max_substeps
         self.lam_max = max_eigenvalue(model) if lam_max is None else lam_max
         n = model.n_vertices
         self.thread_choice = ThreadChoice() if threads is None and n >= AUTO_THREADS_MIN_VERTICES else None
         self.threads = bool(threads)
-        if self.warp:
+        if self.warp and warping_model == "element":
             self.name = "clustered_warp"
+            frames = self.frames = ElementFrames.from_model(model)
+            self._model_args = (frames.elems, frames.gather, frames.rest, frames.work)
+            self._builds = (_element_step_serial, _element_step_parallel)
+            self._w, self._f = frames.w, frames.e     # w: x0 + u + zeta v by vertex; e: the gathered rows
+        elif self.warp:
+            self.name = "clustered_warp_vertex"
             frames = self.frames = VertexFrames.from_model(model)
             self._model_args = (frames.gradients, frames.slices, frames.rest, frames.work)
             self._builds = (_warped_step_serial, _warped_step_parallel)
@@ -288,7 +308,7 @@ class ClusteredExplicit:
 
     def compiled_step(self, state: State, control: Control, h: float) -> tuple:
         """(function, arguments) of one step's compiled part for a body without attachments or prescribed
-        vertices, serial build: what ``step`` calls after its Python bookkeeping (bench/core_benchmark.py times
+        vertices, serial build: what ``step`` calls after its Python bookkeeping (benchmarks/core_benchmark.py times
         it inside numba, without the dispatch)."""
         if control.attachments.index.size or control.prescribed_index.size:
             raise ValueError("compiled_step covers bodies without attachments or prescribed vertices")

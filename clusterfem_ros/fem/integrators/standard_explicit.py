@@ -1,16 +1,20 @@
 """Standard explicit FEM: the same symplectic Euler as the clustered method, on the assembled scipy
 matrices with D and K applied separately. The like-for-like reference for the "lossless" claim.
 
-``warp=True``: the warped force (fem/warping.py: eq. 10 symmetrised) on the assembled matrix. Each
-sub-step the vertex rotations R_i are extracted and the block-sparse K is warped, blocks
-(R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (warping.AssembledWarp); the clustered warped kernel must match it
-to round-off."""
+``warp=True``: the warped force, written with numpy per element or assembled matrices, which the clustered
+warped kernels must match to round-off. ``warping_model="element"`` (default): each sub-step the element
+rotations R_e are extracted (the compiled polar iteration, fem/element_warping.py) and the force is
+sum_e -R_e K_e (R_e^T w_e - x0_e) in numpy (fem/corotational.py). ``"vertex"`` (eq. 10 symmetrised,
+fem/warping.py): the vertex rotations R_i and the block-sparse K warped, blocks
+(R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (warping.AssembledWarp)."""
 from __future__ import annotations
 
 import numpy as np
 
 from ..model import Control, FemModel, State
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
+from ..corotational import ElementCorotation
+from ..element_warping import ElementFrames, check_warping_model, element_rotations
 from ..warping import AssembledWarp, VertexFrames, vertex_rotations
 from .base import StepCommon, StepInfo
 
@@ -19,11 +23,16 @@ class StandardExplicit:
     name = "standard_explicit"
 
     def __init__(self, model: FemModel, safety: float = 0.8, max_substeps: int = 10000,
-                 lam_max: float | None = None, warp: bool = False):
+                 lam_max: float | None = None, warp: bool = False, warping_model: str = "element"):
         self.model = model
         self.warp = bool(warp)
-        if self.warp:
+        self.warping_model = check_warping_model(warping_model)
+        if self.warp and warping_model == "element":
             self.name = "standard_explicit_warp"
+            self.frames = ElementFrames.from_model(model)
+            self._corotation = ElementCorotation(model)
+        elif self.warp:
+            self.name = "standard_explicit_warp_vertex"
             self.frames = VertexFrames.from_model(model)
             self._assembled = AssembledWarp(model)
         self.safety = safety
@@ -64,5 +73,7 @@ class StandardExplicit:
         return StepInfo(substeps=plan.substeps, margin=plan.margin)
 
     def _warped_force(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """The warped force (fem/warping.py) with assembled matrices, (n, 3)."""
+        """The warped force of the chosen model, in numpy, (n, 3)."""
+        if self.warping_model == "element":
+            return self._corotation.force(u, v, element_rotations(self.model, u, self.frames))
         return self._assembled.force(vertex_rotations(self.model, u, self.frames), u, v)

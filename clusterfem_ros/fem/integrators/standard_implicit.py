@@ -7,8 +7,15 @@ their diagonal) so stiff constraints stay stable. The direct solver factorizes A
 set) and reuses the factor (fem/spd_factor.py: SuperLU in symmetric mode); the CG solver (the paper's
 choice) is Jacobi-preconditioned and warm-started.
 
-``warp=True`` (stiffness warping, the paper's comparison). Linearisation about the current state, with
-the vertex rotations R_i (fem/warping.py) frozen over the step:
+``warp=True``, ``warping_model="element"`` (default): standard corotational implicit. The element rotations
+R_e (fem/element_warping.py) are held over the step:
+    K_w = sum_e R_e K_e R_e^T   (symmetric positive semi-definite and zero on translations),
+    A = (1 + h xi) M + (h zeta + h^2) K_w,   rhs = h [ f_w(u, v) - h K_w v + f ],
+with f_w the element-warped force (elastic + damping). Held rotations leave out dR/dx here too, so the
+same turn check and sub-steps as below apply, measured on the element rotations.
+
+``warping_model="vertex"`` (the paper's per-vertex warping, for comparison). Linearisation about the
+current state, with the vertex rotations R_i (fem/warping.py) frozen over the step:
     K_w = R K R^T,  R = blockdiag(R_i)   (blocks R_i K_ij R_j^T: symmetric positive semi-definite, so CG works),
     D_w = xi M + zeta K_w,   A = M + h D_w + h^2 K_w,
     rhs = h [ f_w(u, v) - h H v + f ],
@@ -29,7 +36,8 @@ checked after it is taken: if some R_i turned by more than ``max_rotation`` (rad
 from its start as 2, 4, ... equal sub-steps (prescribed vertices and attachment targets advanced within
 the step), up to ``max_substeps``, which is then taken whatever the turn (a vertex torn from its
 neighbours keeps turning fast: the torn bar ran bounded at h / 64 although some R_i turned 0.1-0.3 rad per
-sub-step). StepInfo.substeps reports the count. Near incompressibility is refused at set-up: with
+sub-step). StepInfo.substeps reports the count. With the vertex model, near incompressibility is refused at
+set-up (the element model ran nu = 0.499 bounded on the stability table, so it is not refused): with
 nu = 0.499 the warped implicit step diverged at every step tried (h / 64 with up to 64 sub-steps
 included), as the held rotations miss the dR/dx coupling through the volumetric stiffness, which grows
 as 1 / (1 - 2 nu); nu <= WARP_MAX_NU = 0.49 stayed bounded.
@@ -43,6 +51,8 @@ import scipy.sparse.linalg as spla
 from ..model import Control, FemModel, State
 from ..spd_factor import factorize_spd
 from ..stability import StabilityError
+from ..corotational import ElementCorotation
+from ..element_warping import ElementFrames, check_warping_model, element_force, element_rotations
 from ..warping import AssembledWarp, VertexFrames, vertex_rotations, warped_force
 from .base import StepCommon, StepInfo
 
@@ -51,15 +61,18 @@ WARP_MAX_NU = 0.49
 
 class StandardImplicit:
     def __init__(self, model: FemModel, solver: str = "direct", cg_rtol: float = 1e-10, cg_maxiter: int = 2000,
-                 warp: bool = False, max_rotation: float = 0.1, max_substeps: int = 64):
+                 warp: bool = False, max_rotation: float = 0.1, max_substeps: int = 64,
+                 warping_model: str = "element"):
         if solver not in ("direct", "cg"):
             raise ValueError(f"implicit solver {solver!r}: choose 'direct' or 'cg'")
         self.model = model
         self.solver = solver
         self.warp = bool(warp)
-        self.name = f"implicit_{solver}" + ("_warp" if self.warp else "")
+        self.warping_model = check_warping_model(warping_model)
+        self.element = self.warp and warping_model == "element"
+        self.name = f"implicit_{solver}" + (("_warp" if self.element else "_warp_vertex") if self.warp else "")
         nu = model.material.nu
-        if self.warp and nu > WARP_MAX_NU:
+        if self.warp and not self.element and nu > WARP_MAX_NU:
             raise StabilityError(
                 f"implicit with stiffness warping refuses nu = {nu:g} (> {WARP_MAX_NU}): the held rotations miss "
                 f"the dR/dx coupling through the volumetric stiffness, which grows as 1 / (1 - 2 nu), and the step "
@@ -69,7 +82,10 @@ class StandardImplicit:
             raise ValueError(f"max_rotation = {max_rotation} rad and max_substeps = {max_substeps} must be positive")
         self.max_rotation = float(max_rotation)
         self.max_substeps = int(max_substeps)
-        if self.warp:
+        if self.element:
+            self.frames = ElementFrames.from_model(model)
+            self._corotation = ElementCorotation(model)
+        elif self.warp:
             self.frames = VertexFrames.from_model(model)
             self._assembled = AssembledWarp(model)
         self.cg_rtol = cg_rtol
@@ -114,9 +130,9 @@ class StandardImplicit:
             for s in range(n):
                 sub = control.at(s * h / n)
                 self._common.apply_prescribed(state, sub)    # a prescribed jump is input, not the step's turn
-                R0 = vertex_rotations(self.model, state.u, self.frames)
+                R0 = self._rotations(state.u)
                 iterations += self._step(state, sub, h / n, R0).iterations
-                turned = max(turned, _largest_turn(R0, vertex_rotations(self.model, state.u, self.frames)))
+                turned = max(turned, _largest_turn(R0, self._rotations(state.u)))
                 if turned > self.max_rotation and not last:
                     break
             if turned <= self.max_rotation or last:
@@ -124,13 +140,24 @@ class StandardImplicit:
             state.u[:], state.v[:], state.t = start.u, start.v, start.t
             n *= 2
 
+    def _rotations(self, u: np.ndarray) -> np.ndarray:
+        """The element or vertex rotations of u (the warping model's)."""
+        if self.element:
+            return element_rotations(self.model, u, self.frames)
+        return vertex_rotations(self.model, u, self.frames)
+
     def _step(self, state: State, control: Control, h: float, R: np.ndarray | None = None) -> StepInfo:
-        """One linearly implicit step; R: the vertex rotations of state.u (warped steps)."""
+        """One linearly implicit step; R: the element or vertex rotations of state.u (warped steps)."""
         held = self._common.apply_prescribed(state, control)
         if held is None:
             held = self.model.fixed
         u, v = state.u.reshape(-1), state.v.reshape(-1)
-        if self.warp:
+        if self.element:
+            Kw = self._corotation.rotated_stiffness(R)                          # PSD, translation invariant
+            free = self._system(h, held, control, Kw)
+            fw = element_force(self.model, state.u, state.v, self.frames).reshape(-1)
+            f = self._common.constant_forces(control).reshape(-1) + fw - h * (Kw @ v)
+        elif self.warp:
             free = self._system(h, held, control, self._assembled.rotated(R))      # K_w = R K R^T: PSD
             H = self._assembled.jacobian(R)                  # the force's Jacobian: translation invariant
             fw = warped_force(self.model, state.u, state.v, self.frames).reshape(-1)
