@@ -80,6 +80,9 @@ PARAMS: tuple[Param, ...] = (
     Param("input.max_future", 0.5, "reject joint states stamped this far ahead of the clock [s]", 0.0, 3600.0),
     Param("input.teleport_distance", 0.5, "a root jump larger than this between samples is a teleport [m]", 0.0, 100.0),
     Param("output.frame_id", "world", "frame of every published message"),
+    Param("output.max_bone_distance", 0.3, "a state with a surface vertex farther than this from its bone (or 1.5 "
+          "times its distance at rest, if larger) is diverged: never published or recorded, the body is reset [m]",
+          0.01, 100.0),
     Param("output.marker_rate_hz", 30.0, "surface Marker rate (0 = off)", 0.0, 1000.0),
     Param("output.stress_rate_hz", 10.0, "stress PointCloud2 rate (0 = off)", 0.0, 1000.0),
     Param("output.diagnostics_rate_hz", 2.0, "DiagnosticArray rate (0 = off)", 0.0, 100.0),

@@ -31,7 +31,7 @@ from .fem.voxel_mesh import paper_mesh
 
 MEASURED_POINTS = Path(__file__).resolve().parent.parent / "reports" / "speed_error" / "speed_error.csv"
 MAX_VOLUME_ERROR = 0.5      # |V/V0 - 1| beyond this is a diverged state, not a deformation
-VOLUME_CHECK_STEPS = 50     # the divergence check on the volume runs at least this many steps apart
+REST_DISTANCE_FACTOR = 1.5  # a vertex may reach this multiple of its rest distance to its bone, if above the limit
 
 
 @dataclass
@@ -106,7 +106,8 @@ class Scene:
         self.dropped_s = 0.0             # simulated time skipped because physics could not keep up
         self._replace = False
         self._stress_cache = None
-        self._next_volume_check = 0
+        self._placed = False            # the body stands on a pose from a joint sample (or needs none)
+        self._checked: tuple | None = None     # (steps_done, id(state), problem) of the last output check
         self.last = StepReport()
         self.anchors = self._anchor(progress)
         self._anchored = None           # the anchors' attachments when no skeleton drives the body
@@ -283,9 +284,11 @@ class Scene:
     def _place_on_skeleton(self) -> None:
         """Every vertex carried rigidly by its bone at sim_time; the bone-rate history restarts."""
         self._replace = False
+        self._checked = None
         if self.driver is not None:
             self.driver.reset()
             self.state = self.driver.rigid_state(self._poses(self.sim_time), self.sim_time)
+        self._placed = self.driver is None or self.stream.ready
 
     def step(self) -> StepReport:
         """One physics step of length h."""
@@ -320,8 +323,8 @@ class Scene:
         (counted in ``dropped_s``) and the body is put back on the skeleton's pose, so a slow machine never
         yanks the body across the gap.
 
-        Raises DivergenceError when the state stops being finite or the body is crushed or blown up
-        (volume off by more than ``MAX_VOLUME_ERROR``); the caller resets it.
+        Raises DivergenceError when the state at the end fails ``output_problem`` (not finite, volume off by
+        more than ``MAX_VOLUME_ERROR``, a surface vertex torn from its bone); the caller resets it.
         """
         if self.sim_time is None:
             self.start(t)
@@ -343,14 +346,12 @@ class Scene:
                 break
         if rep.steps:
             self.last = rep
-        if rep.steps and self.steps_done >= self._next_volume_check:       # ~1 ms on 5k tets: not every tick
-            self._next_volume_check = self.steps_done + VOLUME_CHECK_STEPS
-            err = self.volume_error()
-            if not abs(err) <= MAX_VOLUME_ERROR:
+        if rep.steps:                     # every tick that stepped (~0.1 ms on 5k tets), not every step
+            problem = self.state_problem()
+            if problem is not None:
                 way_out = "physics.step or the binding gains" + ("" if self.config["warping"] else ", or turn warping on")
-                raise DivergenceError(f"the body's volume is off by {err * 100:+.3g} % at t = "
-                                      f"{self.sim_time - self.start_time:.3f} s after the start (limit "
-                                      f"{MAX_VOLUME_ERROR * 100:g} %): the state has diverged; lower {way_out}")
+                raise DivergenceError(f"{problem} at t = {self.sim_time - self.start_time:.3f} s after the start: the "
+                                      f"state has diverged; lower {way_out}")
         return rep
 
     def follow_inputs(self, max_steps: int | None = None, on_step: Callable[[], None] | None = None) -> StepReport:
@@ -379,6 +380,67 @@ class Scene:
         self._t0 = None
         if t is not None:
             self.start(t)
+
+    # -- output checks ---------------------------------------------------------------------------
+    @property
+    def placed(self) -> bool:
+        """True once the body stands on its skeleton's pose from a joint sample (always, without a skeleton):
+        before that it is at the skeleton's neutral pose, wherever the clip's root is."""
+        return self._placed and self.sim_time is not None
+
+    def bone_distance(self) -> tuple[np.ndarray, np.ndarray]:
+        """(distance (k,), limit (k,)) [m] of every surface vertex to the segment of the bone it is bound to, at
+        sim_time, and the distance it may reach: ``output.max_bone_distance`` or ``REST_DISTANCE_FACTOR`` times
+        its distance at rest, the larger. Zeros (and infinite limits) without a skeleton."""
+        k = self.surface_vertices.size
+        if self.driver is None:
+            return np.zeros(k), np.full(k, np.inf)
+        b = self.binding
+        bone = b.bone[self.surface_vertices]
+        poses = self._poses(self.sim_time)
+        R, p = poses.rotation[bone], poses.translation[bone]
+        a = np.einsum("kij,kj->ki", R, b.axis_local[bone, 0]) + p
+        d = np.einsum("kij,kj->ki", R, b.axis_local[bone, 1]) + p - a
+        x = self.positions()[self.surface_vertices] - a
+        L2 = np.einsum("ki,ki->k", d, d)
+        s = np.clip(np.einsum("ki,ki->k", x, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        dist = np.linalg.norm(x - s[:, None] * d, axis=1)
+        limit = np.maximum(self.config["output.max_bone_distance"], REST_DISTANCE_FACTOR * b.distance[self.surface_vertices])
+        return dist, limit
+
+    def state_problem(self) -> str | None:
+        """What makes the current state unfit to show, or None: a non-finite value, the volume off by more than
+        ``MAX_VOLUME_ERROR``, a surface vertex beyond its limit from its bone (``bone_distance``). Cached per
+        state: the marker, the stress cloud and the step loop ask about the same state."""
+        key = (self.steps_done, id(self.state), self._k)
+        if self._checked is not None and self._checked[0] == key:
+            return self._checked[1]
+        problem = None
+        if not (np.isfinite(self.state.u).all() and np.isfinite(self.state.v).all()):
+            problem = "the state is not finite"
+        else:
+            err = self.volume_error()
+            if not abs(err) <= MAX_VOLUME_ERROR:
+                problem = f"the body's volume is off by {err * 100:+.3g} %"      # the limit: MAX_VOLUME_ERROR
+            else:
+                dist, limit = self.bone_distance()
+                over = dist - limit
+                if dist.size and over.max() > 0:
+                    i = int(np.argmax(over))
+                    name = self.skeleton.bone_names[int(self.binding.bone[self.surface_vertices[i]])]
+                    problem = (f"surface vertex {int(self.surface_vertices[i])} is {dist[i]:.3g} m from its bone "
+                               f"{name!r} (limit {limit[i]:.3g} m, output.max_bone_distance)")
+        self._checked = (key, problem)
+        return problem
+
+    def output_problem(self) -> str | None:
+        """Why the current state must not be published or recorded, or None: not yet placed on the skeleton
+        (before the first joint sample), or ``state_problem``. Call it before taking a state for the outputs."""
+        if self.sim_time is None:
+            return "physics has not started"
+        if not self.placed:
+            return "the body is not yet placed on its skeleton (no joint state used yet)"
+        return self.state_problem()
 
     # -- outputs ---------------------------------------------------------------------------------
     def positions(self) -> np.ndarray:

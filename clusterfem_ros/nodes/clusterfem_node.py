@@ -41,6 +41,7 @@ class ClusterFemNode(Node):
         self.recorder = None
         self.counts: dict[str, int] = {}      # messages per topic published (outputs) or received (inputs)
         self.divergences = 0
+        self.withheld = 0                     # outputs not published: body not yet placed, or a failed check
         self._stats = {"t_wall": time.perf_counter(), "steps": 0}
         self._rtf = 0.0
         self._marker_pub = self.create_publisher(Marker, SURFACE_TOPIC, 1)
@@ -171,8 +172,21 @@ class ClusterFemNode(Node):
 
     # -- outputs ---------------------------------------------------------------------------------
     def _wanted(self, pub) -> bool:
-        return self.scene is not None and self.scene.sim_time is not None and (
-            pub.get_subscription_count() > 0 or self.recorder is not None)
+        """Someone consumes this output and the state may be shown (Scene.output_problem): nothing before the
+        body is placed on its skeleton, never a state that fails the checks (counted, and the body reset)."""
+        if self.scene is None or self.scene.sim_time is None or not (
+                pub.get_subscription_count() > 0 or self.recorder is not None):
+            return False
+        problem = self.scene.output_problem()
+        if problem is None:
+            return True
+        self.withheld += 1
+        if self.scene.placed:           # a state that fails the checks between two ticks' own checks
+            self.divergences += 1
+            self.get_logger().error(f"output withheld: {problem}; the body is reset ({self.divergences} resets so "
+                                    "far)", throttle_duration_sec=2.0)
+            self.scene.reset()
+        return False
 
     def _stamp(self):
         return self.get_clock().now().nanoseconds
@@ -226,6 +240,7 @@ class ClusterFemNode(Node):
                   "inputs_accepted": s.inputs.accepted if s else 0,
                   "inputs_rejected": s.inputs.total_rejected if s else 0,
                   "resets_after_divergence": self.divergences,
+                  "outputs_withheld": self.withheld,
                   "dropped_time_s": s.dropped_s if s else 0.0}
         if s:
             values.update({f"rejected_{k}": n for k, n in sorted(s.inputs.rejected.items())})
