@@ -1,10 +1,14 @@
-"""The main job: the built-in walk played into the simulation node, headless, recorded, summarised.
+"""The main job: a motion played into the simulation node, headless, recorded, summarised.
 
     scripts/run [--duration 8] [--scene config/default_scene.yaml] [--no-record] [--png bags/jelly_man.png]
+    scripts/run --bvh FILE [--scene ...]     # any BVH, on a jelly body built on the BVH's own skeleton
 
 The mocap player runs as its own process, the simulation in this one on a single-threaded executor
-(rclpy's multi-threaded one is slower here; shared-memory DDS only). A scene without skeleton
-(skeleton.source = none) has nothing to play: it runs at once, without a player.
+(rclpy's multi-threaded one is slower here; shared-memory DDS only). The player plays the built-in walk,
+or what the scene file's ``mocap_player: ros__parameters:`` section says (source, file, ...: see
+nodes/player_node.py; relative paths are relative to the current directory), or the ``--bvh`` file. A
+BVH brings its own skeleton: the node takes it from robot_description (``--bvh`` sets that). A scene
+without skeleton (skeleton.source = none) has nothing to play: it runs at once, without a player.
 Progress is printed every second; at the end: a summary, the bag folder, and a PNG of the deformed
 body coloured by von Mises stress.
 """
@@ -25,6 +29,34 @@ os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "SHM")
 PLAYER_START_TIMEOUT_S = 60.0
 
 
+def _player_plan(args, scene_file: Path, config):
+    """(player parameters, scene config) for the run: --bvh, else the scene file's player section, else the
+    built-in walk; a BVH's skeleton comes on robot_description, so the scene is made to take it from there."""
+    from ..motion import load_player_section, skeleton_source_for
+    if args.bvh:
+        bvh = Path(args.bvh)
+        if not bvh.is_file():
+            raise SystemExit(f"[demo] --bvh {args.bvh}: no such file")
+        player = {"source": "bvh", "file": str(bvh.resolve())}
+        config = config.with_values({"skeleton.source": "robot_description", "body.kind": "jelly_man"})
+    else:
+        player = load_player_section(scene_file) or {"source": "builtin_walk"}
+    source = player.get("source", "builtin_walk")
+    fits = skeleton_source_for(source)
+    if fits == "robot_description" and config["skeleton.source"] in ("builtin", "urdf_file"):
+        raise SystemExit(f"[demo] the player plays {source!r} but the scene's skeleton.source is "
+                         f"{config['skeleton.source']!r}: set skeleton.source to {fits!r} (or run with --bvh FILE)")
+    return player, config
+
+
+def _player_command(player: dict) -> list[str]:
+    cmd = [sys.executable, "-m", "clusterfem_ros.nodes.player_node", "--ros-args"]
+    for key, value in player.items():
+        text = str(value).lower() if isinstance(value, bool) else str(value)
+        cmd += ["-p", f"{key}:={text}"]
+    return cmd + ["--log-level", "warn"]
+
+
 def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
     """Hold the timed run until the player's first joint state has arrived: its process start (imports,
     kernels) took 1-3 s on a fresh clone, which would otherwise eat into --duration with a body at rest."""
@@ -38,8 +70,12 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
             if received:
                 rejected = dict(sim.scene.inputs.rejected) if sim.scene is not None else {}
                 raise SystemExit(f"[demo] {received} joint states arrived in {PLAYER_START_TIMEOUT_S:g} s but none was "
-                                 f"used (rejected: {rejected}): the player's joints (the built-in walk's humanoid) "
-                                 "do not fit this scene's skeleton; the node's warnings above name them")
+                                 f"used (rejected: {rejected}): the player's joints do not fit this scene's skeleton "
+                                 "(a BVH needs skeleton.source robot_description); the node's warnings above name them")
+            if sim.scene is None:
+                raise SystemExit(f"[demo] no skeleton on robot_description within {PLAYER_START_TIMEOUT_S:g} s: the "
+                                 "player latches it at its start; run `python -m clusterfem_ros.nodes.player_node` "
+                                 "to see why it did not")
             raise SystemExit(f"[demo] no joint state from the player within {PLAYER_START_TIMEOUT_S:g} s: check that "
                              "both processes share ROS_DOMAIN_ID and FASTDDS_BUILTIN_TRANSPORTS (scripts/env.sh)")
         time.sleep(0.05)
@@ -51,6 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=8.0, help="seconds of wall time to run (default 8)")
     ap.add_argument("--scene", default=None, help="scene parameter file (default: config/default_scene.yaml)")
+    ap.add_argument("--bvh", default=None, metavar="FILE", help="play this BVH file on a jelly body built on its "
+                    "own skeleton (skeleton.source robot_description)")
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP bag")
     ap.add_argument("--bags", default="bags", help="folder for the recording (default bags/)")
     ap.add_argument("--png", default=None, help="picture of the final state (default: <bag folder>/final_state.png)")
@@ -66,11 +104,18 @@ def main(argv: list[str] | None = None) -> int:
 
     scene_file = Path(args.scene) if args.scene else default_scene_path()
     config = load_scene_file(scene_file)           # validated here, with a clear error, before ROS starts
+    try:
+        player_params, config = _player_plan(args, scene_file, config)
+    except ValueError as exc:
+        raise SystemExit(f"[demo] {exc}") from None
     overrides = [Parameter(k, value=v) for k, v in config.values.items()]
     overrides += [Parameter("recording.enabled", value=not args.no_record), Parameter("recording.dir", value=args.bags)]
     print(f"[demo] scene {scene_file}: body {config['body.kind']}, method {config['method']}, "
           f"warping {config['warping']}, h = {config['physics.step']:g} s; ROS_DOMAIN_ID="
           f"{os.environ.get('ROS_DOMAIN_ID', '0')}, DDS transport {os.environ['FASTDDS_BUILTIN_TRANSPORTS']}", flush=True)
+    if config["skeleton.source"] != "none":
+        print(f"[demo] player: {', '.join(f'{k} {v}' for k, v in player_params.items())}; skeleton from "
+              f"{config['skeleton.source']}", flush=True)
     rclpy.init()
     sim = player = spin = None
     executor = SingleThreadedExecutor()
@@ -80,8 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         sim = ClusterFemNode(parameter_overrides=overrides)
         print(f"[demo] simulation ready in {time.perf_counter() - t_build:.1f} s", flush=True)
         if driven:
-            player = subprocess.Popen([sys.executable, "-m", "clusterfem_ros.nodes.player_node", "--ros-args",
-                                       "-p", "source:=builtin_walk", "--log-level", "warn"])
+            player = subprocess.Popen(_player_command(player_params))
         executor.add_node(sim)
         spin = threading.Thread(target=executor.spin, daemon=True)
         spin.start()
