@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .skeleton.trajectory import JointTrajectory
 
 SOURCES = ("builtin_walk", "bvh", "keyframes")
@@ -23,6 +25,7 @@ class Motion:
     trajectory: JointTrajectory
     description: str
     builtin_skeleton: bool         # True: the default humanoid (skeleton.source 'builtin' fits it)
+    carry: np.ndarray | None = None    # (n,) bool: columns that continue across a loop (root's horizontal position)
 
 
 def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: float = 1.0) -> Motion:
@@ -45,8 +48,10 @@ def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: 
         from .skeleton.bvh_to_urdf import bvh_trajectory, bvh_urdf
         capture = load_bvh(path)
         traj = bvh_trajectory(capture)
+        # a position channel is horizontal when its file axis maps to a ROS axis without a vertical part
+        carry = np.array([n.endswith("pos") and abs(capture.to_ros[2, "XYZ".index(n[-4])]) < 0.5 for n in traj.names])
         return Motion(bvh_urdf(capture), traj, f"BVH {path.name} ({capture.n_frames} frames, "
-                      f"{traj.duration:.2f} s)", False)
+                      f"{traj.duration:.2f} s)", False, carry)
     from .skeleton.keyframes import load_keyframes
     spec = default_humanoid()
     traj = load_keyframes(path, joint_names=spec.joint_names)

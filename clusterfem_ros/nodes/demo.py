@@ -52,7 +52,10 @@ def _player_plan(args, scene_file: Path, config):
 def _player_command(player: dict) -> list[str]:
     cmd = [sys.executable, "-m", "clusterfem_ros.nodes.player_node", "--ros-args"]
     for key, value in player.items():
-        text = str(value).lower() if isinstance(value, bool) else str(value)
+        if key in ("rate_hz", "speed", "start_offset", "loop_blend"):      # rclpy refuses an int for a double
+            text = repr(float(value))
+        else:
+            text = str(value).lower() if isinstance(value, bool) else str(value)
         cmd += ["-p", f"{key}:={text}"]
     return cmd + ["--log-level", "warn"]
 
