@@ -385,8 +385,9 @@ class Scene:
     @property
     def placed(self) -> bool:
         """True once the body stands on its skeleton's pose from a joint sample (always, without a skeleton):
-        before that it is at the skeleton's neutral pose, wherever the clip's root is."""
-        return self._placed and self.sim_time is not None
+        before that it is at the skeleton's neutral pose, wherever the clip's root is. False too while a re-placement
+        is pending (after a teleport or dropped time the skeleton has moved on; the next step puts the body on it)."""
+        return self._placed and not self._replace and self.sim_time is not None
 
     def bone_distance(self) -> tuple[np.ndarray, np.ndarray]:
         """(distance (k,), limit (k,)) [m] of every surface vertex to the segment of the bone it is bound to, at
@@ -439,7 +440,8 @@ class Scene:
         if self.sim_time is None:
             return "physics has not started"
         if not self.placed:
-            return "the body is not yet placed on its skeleton (no joint state used yet)"
+            return ("the body is waiting to be put on its skeleton's new pose" if self._placed else
+                    "the body is not yet placed on its skeleton (no joint state used yet)")
         return self.state_problem()
 
     # -- outputs ---------------------------------------------------------------------------------

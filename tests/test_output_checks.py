@@ -73,3 +73,20 @@ def test_the_limit_is_a_parameter_and_grows_with_a_vertex_rest_distance(scene):
     dist, limit = scene.bone_distance()
     rest = scene.binding.distance[scene.surface_vertices]
     np.testing.assert_array_equal(limit, np.maximum(c["output.max_bone_distance"], 1.5 * rest))
+
+
+def test_after_dropped_time_the_body_is_withheld_until_replaced_not_reset(scene):
+    """Physics behind its inputs by more than max_steps drops the gap; the skeleton has moved on and the body
+    is put on it at the next step. Until then the state is not shown, and it is not a divergence."""
+    _push(scene, 80.0)
+    scene.advance_to(80.0)
+    scene.advance_to(80.01)
+    m = load_motion()
+    for k in range(1, 61):
+        q, v = m.trajectory.sample(k / 120.0, loop=True)
+        scene.push_joint_state(80.0 + k / 120.0, m.trajectory.names, q, v)
+    scene.advance_to(80.5, max_steps=10)                # 490 steps due: dropped
+    assert scene.dropped_s > 0.4 and not scene.placed
+    assert "waiting to be put on" in scene.output_problem()
+    scene.advance_to(80.502)
+    assert scene.placed and scene.output_problem() is None
