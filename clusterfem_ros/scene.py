@@ -67,8 +67,10 @@ def _say(progress: Callable[[str], None] | None, text: str) -> None:
 
 class Scene:
     def __init__(self, config: SceneConfig, mesh: TetMesh, fixed: np.ndarray, skeleton=None,
-                 urdf_xml: str | None = None, progress: Callable[[str], None] | None = None):
+                 urdf_xml: str | None = None, progress: Callable[[str], None] | None = None,
+                 bind_all: bool = False):
         self.config = config
+        self.bind_all = bool(bind_all)    # the outermost level reaches every vertex (a capsule body: no free flesh)
         self.h = float(config["physics.step"])
         _say(progress, f"assembling {mesh.n_tets} tets / {mesh.n_vertices} vertices")
         self.model = build_model(mesh, _material(config), fixed=fixed,
@@ -197,7 +199,10 @@ class Scene:
             fixed = z <= z.min() + 0.2 * np.ptp(z)
         if fixed is None:
             fixed = np.zeros(mesh.n_vertices, dtype=bool)
-        return cls(config, mesh, fixed, skeleton=skeleton, urdf_xml=urdf_xml, progress=progress)
+        # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
+        # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
+        bind_all = kind == "jelly_man" and source != "builtin"
+        return cls(config, mesh, fixed, skeleton=skeleton, urdf_xml=urdf_xml, progress=progress, bind_all=bind_all)
 
     @staticmethod
     def apply_error_budget(config: SceneConfig, progress: Callable[[str], None] | None = None) -> SceneConfig:
@@ -222,7 +227,15 @@ class Scene:
         poses = sk.forward(q0, np.zeros(sk.nv))
         starts, ends = sk.bone_segments(q0)
         _say(progress, f"binding {self.model.n_vertices} vertices to {len(sk.bone_names)} bones")
-        self.binding = bind_to_skeleton(self.model.rest, starts, ends, c["binding.level_radii"],
+        radii = list(c["binding.level_radii"])
+        if self.bind_all:
+            from .body.binding import segment_distance
+            reach = float(segment_distance(self.model.rest, starts, ends).min(axis=1).max()) * (1 + 1e-9)
+            if reach > radii[-1]:
+                _say(progress, f"the outermost binding level reaches {reach:.3f} m instead of {radii[-1]:g} m: every "
+                               "vertex of the capsule body is bound (no one-tet flaps left free)")
+                radii[-1] = reach
+        self.binding = bind_to_skeleton(self.model.rest, starts, ends, radii,
                                         rest_rotation=poses.rotation, rest_translation=poses.translation,
                                         bone_names=sk.bone_names, warn=False)
         gains = LevelGains(kp=tuple(c["binding.kp"]), kd=tuple(c["binding.kd"]))

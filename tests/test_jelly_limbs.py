@@ -129,3 +129,20 @@ def test_separate_limbs_drops_both_sides_of_a_forbidden_contact_and_the_pieces_c
     may[1, 2] = may[2, 1] = False                     # 1-2 may not touch: voxels 4 and 5 go, 6-7 are cut off
     kept = separate_limbs(mask, label, may)[:, 1, 1]
     np.testing.assert_array_equal(kept, [True, True, True, True, False, False, False, False])
+
+
+def test_a_capsule_body_on_another_skeleton_leaves_no_vertex_free_and_the_built_in_one_is_as_configured():
+    """The jelly body of equal capsules on a BVH skeleton had voxel corners just beyond the outermost binding
+    level (0.06 m; capsules 0.05 m plus half a voxel): one-tet flaps, free, that fluttered at ~80 m/s while
+    their bones moved at 6 m/s and tore the body on the cartwheel clip (9 resets; 1 with them bound). The
+    scene binds every vertex of such a body; the built-in humanoid's free flesh (torso beyond 0.06 m) stays."""
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.scene import Scene
+    urdf = _arms_down_spec().urdf
+    c = SceneConfig().with_values({"skeleton.source": "robot_description", "body.target_tets": 1500})
+    scene = Scene.build(c, urdf_xml=urdf)
+    assert scene.bind_all and (scene.binding.level >= 0).all()
+    assert scene.binding.level_radii[-1] > c["binding.level_radii"][-1]
+    built_in = Scene.build(SceneConfig().with_values(body__target_tets=700))
+    assert not built_in.bind_all and (built_in.binding.level < 0).any()
+    np.testing.assert_array_equal(built_in.binding.level_radii, c["binding.level_radii"])
