@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from clusterfem_ros.skeleton.bvh import elementary_rotations, joint_rotations, parse_bvh
-from clusterfem_ros.skeleton.bvh_to_urdf import MAX_ROTATION_SPEED, bvh_trajectory
+from clusterfem_ros.skeleton.bvh_to_urdf import MAX_END_SPEED, MAX_ROTATION_SPEED, bvh_trajectory, joint_reach
 
 FPS = 120
 N = 60
@@ -60,14 +60,18 @@ def test_a_lasting_flip_is_turned_at_the_speed_limit_and_everything_else_is_unto
     tr = bvh_trajectory(m, despike=False)
     t_frames = tr.times
     assert _angles(_rotations(raw, "Thigh", t_frames)).max() > np.deg2rad(160)     # the glitch, as captured
+    reach = joint_reach(m)[m.joint_names.index("Thigh")]
+    assert reach == pytest.approx(0.9)                                            # shin + end site
+    limit = min(MAX_ROTATION_SPEED, MAX_END_SPEED / reach)                        # the foot at MAX_END_SPEED
     R = _rotations(tr, "Thigh", t_frames)
-    assert _angles(R).max() <= MAX_ROTATION_SPEED / FPS + 1e-9                    # limited, frame to frame
+    assert _angles(R).max() <= limit / FPS + 1e-9                                 # limited, frame to frame
+    assert _angles(R).max() > 0.99 * limit / FPS
     fine = np.linspace(0.0, tr.duration, 20 * N)                                  # and between the frames
     speed = _angles(_rotations(tr, "Thigh", fine)) / np.diff(fine)
-    assert speed.max() < 2.0 * MAX_ROTATION_SPEED, speed.max()
-    # it does reach the captured rotation when that lasts: 170 deg at 100 rad/s takes 3.6 frames
+    assert speed.max() < 2.0 * limit, speed.max()
+    # it does reach the captured rotation when that lasts: 170 deg takes 170 deg / limit of time
     R_raw = _rotations(raw, "Thigh", t_frames)
-    k = 19 + 8                                  # raw frame 20 is trajectory frame 19 (the T-pose row is skipped)
+    k = 19 + int(np.ceil(np.deg2rad(170.0) / limit * FPS)) + 1      # raw frame 20 is trajectory frame 19
     np.testing.assert_allclose(R[k], R_raw[k], atol=1e-9)
     # the shin, within the limit, keeps its captured channels exactly
     shin = [tr.names.index(f"Shin_{a}rot") for a in "ZYX"]

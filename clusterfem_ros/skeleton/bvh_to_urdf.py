@@ -21,12 +21,14 @@ at most ``max_spike_frames`` frames whose joint rotation is more than ``spike_de
 previous good frame, followed by a frame close to it again, is replaced by linear interpolation of the
 unwrapped channels between the good frames on either side. A jump that does not come back is kept.
 
-Speed limit (``max_rotation_speed``, rad/s, default ``MAX_ROTATION_SPEED``): glitches that last (a thumb
-or thigh flipping ~180 deg in one frame and staying so for 20+ frames) are not spikes, yet no limb turns
-that fast: each joint's rotation is moved from frame to frame by at most this angle per second (along the
-shortest arc towards the captured rotation), so a flip becomes a turn of about 0.03 s per 180 deg. The
-clean captures measured stay below it (fastest joint 41 deg per frame at 120 Hz = 86 rad/s, a leap);
-frames within it are untouched. Joints with a limited frame get Euler channels re-extracted from their
+Speed limit (``max_rotation_speed``, rad/s, default ``MAX_ROTATION_SPEED``, and ``max_end_speed``, m/s,
+default ``MAX_END_SPEED``): glitches that last (a thumb or thigh flipping ~180 deg in one frame and staying
+so for 20+ frames) are not spikes, yet no limb turns that fast: each joint's rotation is moved from frame
+to frame by at most its limit per second (along the shortest arc towards the captured rotation): the
+smaller of max_rotation_speed and max_end_speed over the joint's reach (the longest chain of bones below
+it, at rest), so a thigh flip becomes a turn of about 0.1 s and a thumb flip one of 0.03 s. Of the clean
+leap clip (fastest joint 41 deg per frame at 120 Hz = 86 rad/s, a toe) 3 arm frames are limited; frames
+within the limit are untouched. Joints with a limited frame get Euler channels re-extracted from their
 rotations, the representation nearest to the previous frame chosen each time (no 360 deg jumps; the
 twin (a + 180, 180 - b, c + 180) when nearer), so interpolating the channels never takes the long way.
 """
@@ -40,6 +42,7 @@ from .urdf_builder import UrdfBuilder
 
 ROOT_LINK = "bvh_world"
 MAX_ROTATION_SPEED = 100.0      # rad/s: no captured limb turns faster (see the module docstring)
+MAX_END_SPEED = 25.0            # m/s: nor does the end of a limb move faster
 
 
 def channel_joint_name(joint: str, channel: str) -> str:
@@ -118,14 +121,28 @@ def _euler_nearest(R: np.ndarray, order: str, previous: np.ndarray) -> np.ndarra
     return best
 
 
+def joint_reach(motion: BvhMotion) -> np.ndarray:
+    """(J,) the longest chain of bone offsets (and end sites) below each joint [m]: how far its rotation reaches."""
+    reach = np.zeros(len(motion.joints))
+    for k in range(len(motion.joints) - 1, -1, -1):             # children come after their parents
+        j = motion.joints[k]
+        if j.end_site is not None:
+            reach[k] = max(reach[k], float(np.linalg.norm(j.end_site)) * motion.unit_m)
+        if j.parent >= 0:
+            reach[j.parent] = max(reach[j.parent], reach[k] + float(np.linalg.norm(j.offset)) * motion.unit_m)
+    return reach
+
+
 def limit_rotation_speed(motion: BvhMotion, frames: np.ndarray, frame_time: float,
-                         max_rad_s: float = MAX_ROTATION_SPEED) -> list[tuple[str, int]]:
+                         max_rad_s: float = MAX_ROTATION_SPEED,
+                         max_end_speed: float = MAX_END_SPEED) -> list[tuple[str, int]]:
     """Limit every joint's rotation speed in ``frames`` (F, C) [deg, unwrapped] in place (see the module
     docstring); returns (joint name, frames limited) for each joint changed."""
     from scipy.spatial.transform import Rotation
-    step = max_rad_s * frame_time
+    reach = joint_reach(motion)
     changed = []
-    for j in motion.joints:
+    for ji, j in enumerate(motion.joints):
+        step = min(max_rad_s, max_end_speed / max(reach[ji], 1e-9)) * frame_time
         rot = [k for k, c in enumerate(j.channels) if c.endswith("rotation")]
         order = "".join(j.channels[k][0] for k in rot)
         if len(rot) != 3 or len(set(order)) != 3:
