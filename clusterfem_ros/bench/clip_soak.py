@@ -61,13 +61,14 @@ def clip_config(overrides: dict | None = None) -> SceneConfig:
 
 
 def joint_speeds(path: Path) -> tuple[float, float]:
-    """(fastest revolute joint of the despiked trajectory, of the raw frames) [rad/s], frame to frame."""
+    """(fastest revolute joint of the played trajectory (despiked, speed-limited), of the raw frames) [rad/s],
+    frame to frame."""
     from ..skeleton.bvh import load_bvh
-    from ..skeleton.bvh_to_urdf import bvh_trajectory
+    from ..skeleton.bvh_to_urdf import MAX_ROTATION_SPEED, bvh_trajectory
     capture = load_bvh(path)
     out = []
     for despike in (True, False):
-        tr = bvh_trajectory(capture, despike=despike)
+        tr = bvh_trajectory(capture, despike=despike, max_rotation_speed=MAX_ROTATION_SPEED if despike else None)
         w = np.abs(np.diff(tr.positions[:, tr.revolute], axis=0)) / np.diff(tr.times)[:, None]
         out.append(float(w.max()))
     return out[0], out[1]
