@@ -81,3 +81,31 @@ def test_a_lasting_flip_is_turned_at_the_speed_limit_and_everything_else_is_unto
 def test_the_limit_can_be_turned_off_and_refuses_nothing_of_a_smooth_capture():
     m = parse_bvh(_flip_bvh(flip_frames=0), unit_m=1.0)
     np.testing.assert_array_equal(bvh_trajectory(m).positions, bvh_trajectory(m, max_rotation_speed=None).positions)
+
+
+def _resets(tr, urdf) -> int:
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.fem.stability import DivergenceError
+    from clusterfem_ros.scene import Scene
+    scene = Scene.build(SceneConfig().with_values({"skeleton.source": "robot_description", "body.target_tets": 1500}),
+                        urdf_xml=urdf)
+    resets = 0
+    for k in range(int(tr.duration * FPS) + 1):
+        q, v = tr.sample(k / FPS)
+        scene.push_joint_state(10.0 + k / FPS, tr.names, q, v)
+        try:
+            scene.advance_to(10.0 + k / FPS)
+        except DivergenceError:
+            resets += 1
+            scene.reset()
+    return resets
+
+
+def test_the_flip_played_raw_tears_the_body_and_limited_it_does_not():
+    """The physics of the glitch: a thigh flipping 170 deg in one frame throws the shin's flesh off its bone
+    (the step loop resets the body, 6 times here), while the limited turn is followed (no reset)."""
+    from clusterfem_ros.skeleton.bvh_to_urdf import bvh_urdf
+    m = parse_bvh(_flip_bvh(), unit_m=1.0)
+    urdf = bvh_urdf(m)
+    assert _resets(bvh_trajectory(m, max_rotation_speed=None), urdf) > 0
+    assert _resets(bvh_trajectory(m), urdf) == 0
