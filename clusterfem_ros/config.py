@@ -108,10 +108,11 @@ PARAMS: tuple[Param, ...] = (
     Param("input.max_age", 1.0, "reject joint states older than this relative to the newest [s]", 0.0, 3600.0),
     Param("input.max_future", 0.5, "reject joint states stamped this far ahead of the clock [s]", 0.0, 3600.0),
     Param("input.teleport_distance", 0.5, "a root jump larger than this between samples is a teleport [m]", 0.0, 100.0),
-    # 40 rad/s: above the fastest joint rates of walking, running and kicking (knee and hip peak near 25-30 rad/s),
-    # below capture glitches (a thigh flipping 175 deg in one 120 Hz frame is ~370 rad/s). Throwing arms
-    # (shoulder rotation up to ~150 rad/s) need a larger value.
-    Param("input.max_joint_speed", 40.0, "a joint state implying a joint faster than this since the last accepted one, "
+    # 300 rad/s, per joint channel: a BVH's Euler channels trade angle near gimbal lock, so real captures reach
+    # ~210 rad/s on one channel after the loader's limit on rotation speed (tests/data/mocap_clips.yaml: the
+    # fastest of the seven clips, benchmarks/clip_soak.py); capture glitches (a thigh flipping 175 deg in one
+    # 120 Hz frame) are ~370 rad/s, and absurd velocities far beyond.
+    Param("input.max_joint_speed", 300.0, "a joint state implying a joint faster than this since the last accepted one, "
           "or reporting a velocity above it, is rejected (joint_speed) [rad/s revolute, m/s prismatic]; rejected "
           "for longer than input.max_age, the stream restarts from the newest sample", 0.1, 1.0e6),
     Param("input.max_root_distance", 1000.0, "a joint state placing the root (the prismatic joints) further than "
@@ -119,6 +120,9 @@ PARAMS: tuple[Param, ...] = (
     Param("input.max_names", 1000, "a joint state with more names than this is rejected (too_many_names) before "
           "any per-name work", 1, 1000000),
     Param("output.frame_id", "world", "frame of every published message"),
+    Param("output.max_bone_distance", 0.3, "a state with a surface vertex farther than this from its bone (or 1.5 "
+          "times its distance at rest, if larger) is diverged: never published or recorded, the body is reset [m]",
+          0.01, 100.0),
     Param("output.marker_rate_hz", 30.0, "surface Marker rate (0 = off)", 0.0, 1000.0),
     Param("output.stress_rate_hz", 10.0, "stress PointCloud2 rate (0 = off)", 0.0, 1000.0),
     Param("output.diagnostics_rate_hz", 2.0, "DiagnosticArray rate (0 = off)", 0.0, 100.0),

@@ -9,9 +9,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from .skeleton.trajectory import JointTrajectory
 
 SOURCES = ("builtin_walk", "bvh", "keyframes")
+PLAYER_NODE = "mocap_player"
+PLAYER_PARAMS = ("source", "file", "rate_hz", "speed", "start_offset", "loop", "loop_blend")
 WALK_CYCLES = 4          # the built-in walk is this many whole gait periods, so looping is seamless
 
 
@@ -21,6 +25,7 @@ class Motion:
     trajectory: JointTrajectory
     description: str
     builtin_skeleton: bool         # True: the default humanoid (skeleton.source 'builtin' fits it)
+    carry: np.ndarray | None = None    # (n,) bool: columns that continue across a loop (root's horizontal position)
 
 
 def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: float = 1.0) -> Motion:
@@ -43,9 +48,39 @@ def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: 
         from .skeleton.bvh_to_urdf import bvh_trajectory, bvh_urdf
         capture = load_bvh(path)
         traj = bvh_trajectory(capture)
+        # a position channel is horizontal when its file axis maps to a ROS axis without a vertical part
+        carry = np.array([n.endswith("pos") and abs(capture.to_ros[2, "XYZ".index(n[-4])]) < 0.5 for n in traj.names])
         return Motion(bvh_urdf(capture), traj, f"BVH {path.name} ({capture.n_frames} frames, "
-                      f"{traj.duration:.2f} s)", False)
+                      f"{traj.duration:.2f} s)", False, carry)
     from .skeleton.keyframes import load_keyframes
     spec = default_humanoid()
     traj = load_keyframes(path, joint_names=spec.joint_names)
     return Motion(spec.urdf, traj, f"key frames {path.name} ({traj.duration:.2f} s)", True)
+
+
+def load_player_section(path: str | Path) -> dict | None:
+    """The player's parameters from a scene file's ``mocap_player: ros__parameters:`` section (the standard ROS 2
+    params-file layout, beside the ``clusterfem:`` section), or None when the file has none. Raises ValueError
+    naming an unknown key or an unknown source; relative file paths stay relative (to the current directory)."""
+    import yaml
+    doc = yaml.safe_load(Path(path).read_text()) or {}
+    section = doc.get(PLAYER_NODE)
+    if section is None:
+        return None
+    params = (section or {}).get("ros__parameters")
+    if not isinstance(params, dict):
+        raise ValueError(f"{str(path)!r}: the '{PLAYER_NODE}:' section needs 'ros__parameters:' with the player's "
+                         f"parameters ({', '.join(PLAYER_PARAMS)})")
+    unknown = sorted(set(params) - set(PLAYER_PARAMS))
+    if unknown:
+        raise ValueError(f"{str(path)!r}: {PLAYER_NODE} has no parameter {unknown[0]!r}: use {', '.join(PLAYER_PARAMS)}")
+    source = params.get("source", "builtin_walk")
+    if source not in SOURCES:
+        raise ValueError(f"{str(path)!r}: {PLAYER_NODE}.source = {source!r}: choose one of {', '.join(SOURCES)}")
+    return dict(params)
+
+
+def skeleton_source_for(source: str) -> str:
+    """The node's skeleton.source that fits a player source: the built-in humanoid for the walk and key frames,
+    the URDF the player latches on robot_description for a BVH (its own skeleton)."""
+    return "robot_description" if source == "bvh" else "builtin"

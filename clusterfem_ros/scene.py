@@ -32,7 +32,8 @@ from .method_choice import SHIPPED_POINTS
 
 MEASURED_POINTS = SHIPPED_POINTS
 MAX_VOLUME_ERROR = 0.5      # |V/V0 - 1| beyond this is a diverged state, not a deformation
-VOLUME_CHECK_STEPS = 50     # the divergence check on the volume runs at least this many steps apart
+REST_DISTANCE_FACTOR = 1.5  # a vertex may reach this multiple of its rest distance to its bone, if above the limit
+VOLUME_CHECK_STEPS = 50     # the step loop's volume check runs at least this many steps apart (outputs: always)
 
 
 @dataclass
@@ -69,9 +70,11 @@ def _say(progress: Callable[[str], None] | None, text: str) -> None:
 
 class Scene:
     def __init__(self, config: SceneConfig, mesh: TetMesh, fixed: np.ndarray, skeleton=None,
-                 urdf_xml: str | None = None, progress: Callable[[str], None] | None = None, surface=None):
+                 urdf_xml: str | None = None, progress: Callable[[str], None] | None = None, surface=None,
+                 bind_all: bool = False):
         self.config = config
         self.surface_body = surface     # body.surface_body.SurfaceBody of a surface body: bind pose, depth
+        self.bind_all = bool(bind_all)    # the outermost level reaches every vertex (a capsule body: no free flesh)
         self.h = float(config["physics.step"])
         _say(progress, f"assembling {mesh.n_tets} tets / {mesh.n_vertices} vertices")
         self.model = build_model(mesh, _material(config), fixed=fixed,
@@ -112,6 +115,8 @@ class Scene:
         self.dropped_s = 0.0             # simulated time skipped because physics could not keep up
         self._replace = False
         self._stress_cache = None
+        self._placed = False            # the body stands on a pose from a joint sample (or needs none)
+        self._checked: tuple | None = None     # (steps_done, id(state), problem) of the last output check
         self._next_volume_check = 0
         self.last = StepReport()
         self.anchors = self._anchor(progress)
@@ -212,7 +217,10 @@ class Scene:
             fixed = z <= z.min() + 0.2 * np.ptp(z)
         if fixed is None:
             fixed = np.zeros(mesh.n_vertices, dtype=bool)
-        return cls(config, mesh, fixed, skeleton=skeleton, urdf_xml=urdf_xml, progress=progress)
+        # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
+        # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
+        bind_all = kind == "jelly_man" and source != "builtin"
+        return cls(config, mesh, fixed, skeleton=skeleton, urdf_xml=urdf_xml, progress=progress, bind_all=bind_all)
 
     @staticmethod
     def apply_error_budget(config: SceneConfig, progress: Callable[[str], None] | None = None) -> SceneConfig:
@@ -245,7 +253,15 @@ class Scene:
                 raise ValueError(f"binding.skip_bones names {unknown}, which are not bones of this skeleton; its bones "
                                  f"are {', '.join(sk.bone_names)}")
             mask = np.array([b not in c["binding.skip_bones"] for b in sk.bone_names])
-        self.binding = bind_to_skeleton(self.model.rest, starts, ends, c["binding.level_radii"], mask,
+        radii = list(c["binding.level_radii"])
+        if self.bind_all:
+            from .body.binding import segment_distance
+            reach = float(segment_distance(self.model.rest, starts, ends).min(axis=1).max()) * (1 + 1e-9)
+            if reach > radii[-1]:
+                _say(progress, f"the outermost binding level reaches {reach:.3f} m instead of {radii[-1]:g} m: every "
+                               "vertex of the capsule body is bound (no one-tet flaps left free)")
+                radii[-1] = reach
+        self.binding = bind_to_skeleton(self.model.rest, starts, ends, radii, mask,
                                         rest_rotation=poses.rotation, rest_translation=poses.translation,
                                         bone_names=sk.bone_names, warn=False, surface_depth=depth)
         if self.surface_body is not None:
@@ -327,9 +343,11 @@ class Scene:
     def _place_on_skeleton(self) -> None:
         """Every vertex carried rigidly by its bone at sim_time; the bone-rate history restarts."""
         self._replace = False
+        self._checked = None
         if self.driver is not None:
             self.driver.reset()
             self.state = self.driver.rigid_state(self._poses(self.sim_time), self.sim_time)
+        self._placed = self.driver is None or self.stream.ready
 
     def step(self) -> StepReport:
         """One physics step of length h."""
@@ -367,8 +385,9 @@ class Scene:
         (counted in ``dropped_s``) and the body is put back on the skeleton's pose, so a slow machine never
         yanks the body across the gap.
 
-        Raises DivergenceError when the state stops being finite or the body is crushed or blown up
-        (volume off by more than ``MAX_VOLUME_ERROR``); the caller resets it.
+        Raises DivergenceError when the state at the end fails ``state_problem`` (not finite, a surface vertex
+        torn from its bone, or, every ``VOLUME_CHECK_STEPS`` steps, the volume off by more than
+        ``MAX_VOLUME_ERROR``); the caller resets it.
         """
         if self.sim_time is None:
             self.start(t)
@@ -390,14 +409,21 @@ class Scene:
                 break
         if rep.steps:
             self.last = rep
-        if rep.steps and self.steps_done >= self._next_volume_check:       # ~1 ms on 5k tets: not every tick
-            self._next_volume_check = self.steps_done + VOLUME_CHECK_STEPS
-            err = self.volume_error()
-            if not abs(err) <= MAX_VOLUME_ERROR:
-                way_out = "physics.step or the binding gains" + ("" if self.config["warping"] else ", or turn warping on")
-                raise DivergenceError(f"the body's volume is off by {err * 100:+.3g} % at t = "
-                                      f"{self.sim_time - self.start_time:.3f} s after the start (limit "
-                                      f"{MAX_VOLUME_ERROR * 100:g} %): the state has diverged; lower {way_out}")
+        if rep.steps:                     # every tick that stepped, not every step; the volume (the costly part,
+            volume = self.steps_done >= self._next_volume_check          # 2-3 ms on 5k tets under load) less often
+            if volume:
+                self._next_volume_check = self.steps_done + VOLUME_CHECK_STEPS
+            problem = self.state_problem(volume=volume)
+            if problem is not None:
+                if "from its bone" in problem:
+                    way_out = ("the flesh could not follow its bone: look for glitches in the joint stream (a joint "
+                               "turning faster than a limb can), or raise output.max_bone_distance for a body meant "
+                               "to stretch that far")
+                else:
+                    way_out = "lower physics.step or the binding gains" + (
+                        "" if self.config["warping"] else ", or turn warping on")
+                raise DivergenceError(f"{problem} at t = {self.sim_time - self.start_time:.3f} s after the start: the "
+                                      f"state has diverged; {way_out}")
         return rep
 
     def follow_inputs(self, max_steps: int | None = None, on_step: Callable[[], None] | None = None) -> StepReport:
@@ -426,6 +452,71 @@ class Scene:
         self._t0 = None
         if t is not None:
             self.start(t)
+
+    # -- output checks ---------------------------------------------------------------------------
+    @property
+    def placed(self) -> bool:
+        """True once the body stands on its skeleton's pose from a joint sample (always, without a skeleton):
+        before that it is at the skeleton's neutral pose, wherever the clip's root is. False too while a re-placement
+        is pending (after a teleport or dropped time the skeleton has moved on; the next step puts the body on it)."""
+        return self._placed and not self._replace and self.sim_time is not None
+
+    def bone_distance(self) -> tuple[np.ndarray, np.ndarray]:
+        """(distance (k,), limit (k,)) [m] of every surface vertex to the segment of the bone it is bound to, at
+        sim_time, and the distance it may reach: ``output.max_bone_distance`` or ``REST_DISTANCE_FACTOR`` times
+        its distance at rest, the larger. Zeros (and infinite limits) without a skeleton."""
+        k = self.surface_vertices.size
+        if self.driver is None:
+            return np.zeros(k), np.full(k, np.inf)
+        b = self.binding
+        bone = b.bone[self.surface_vertices]
+        poses = self._poses(self.sim_time)
+        R, p = poses.rotation[bone], poses.translation[bone]
+        a = np.einsum("kij,kj->ki", R, b.axis_local[bone, 0]) + p
+        d = np.einsum("kij,kj->ki", R, b.axis_local[bone, 1]) + p - a
+        x = self.positions()[self.surface_vertices] - a
+        L2 = np.einsum("ki,ki->k", d, d)
+        s = np.clip(np.einsum("ki,ki->k", x, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        dist = np.linalg.norm(x - s[:, None] * d, axis=1)
+        limit = np.maximum(self.config["output.max_bone_distance"], REST_DISTANCE_FACTOR * b.distance[self.surface_vertices])
+        return dist, limit
+
+    def state_problem(self, volume: bool = True) -> str | None:
+        """What makes the current state unfit to show, or None: a non-finite value, the volume off by more than
+        ``MAX_VOLUME_ERROR`` (``volume=False``: not looked at), a surface vertex beyond its limit from its bone
+        (``bone_distance``). A full check is cached per state: the marker and the stress cloud ask about the
+        same state."""
+        key = (self.steps_done, id(self.state), self._k)
+        if self._checked is not None and self._checked[0] == key:
+            return self._checked[1]
+        problem = None
+        if not (np.isfinite(self.state.u).all() and np.isfinite(self.state.v).all()):
+            problem = "the state is not finite"
+        else:
+            err = self.volume_error() if volume else 0.0
+            if not abs(err) <= MAX_VOLUME_ERROR:
+                problem = f"the body's volume is off by {err * 100:+.3g} %"      # the limit: MAX_VOLUME_ERROR
+            else:
+                dist, limit = self.bone_distance()
+                over = dist - limit
+                if dist.size and over.max() > 0:
+                    i = int(np.argmax(over))
+                    name = self.skeleton.bone_names[int(self.binding.bone[self.surface_vertices[i]])]
+                    problem = (f"surface vertex {int(self.surface_vertices[i])} is {dist[i]:.3g} m from its bone "
+                               f"{name!r} (limit {limit[i]:.3g} m, output.max_bone_distance)")
+        if volume or problem is not None:
+            self._checked = (key, problem)
+        return problem
+
+    def output_problem(self) -> str | None:
+        """Why the current state must not be published or recorded, or None: not yet placed on the skeleton
+        (before the first joint sample), or ``state_problem``. Call it before taking a state for the outputs."""
+        if self.sim_time is None:
+            return "physics has not started"
+        if not self.placed:
+            return ("the body is waiting to be put on its skeleton's new pose" if self._placed else
+                    "the body is not yet placed on its skeleton (no joint state used yet)")
+        return self.state_problem()
 
     # -- outputs ---------------------------------------------------------------------------------
     def positions(self) -> np.ndarray:

@@ -175,7 +175,7 @@ def test_motion_faster_than_the_limit_restarts_the_stream_after_max_age():
 def test_the_limits_are_scene_parameters_with_ranges():
     from clusterfem_ros.config import ConfigError, SceneConfig
     c = SceneConfig()
-    assert (c["input.max_joint_speed"], c["input.max_root_distance"], c["input.max_names"]) == (40.0, 1000.0, 1000)
+    assert (c["input.max_joint_speed"], c["input.max_root_distance"], c["input.max_names"]) == (300.0, 1000.0, 1000)
     with pytest.raises(ConfigError, match=r"input.max_names = 0 is outside \[1, 1e\+06\]"):
         c.with_values({"input.max_names": 0})
     with pytest.raises(ConfigError, match="input.max_joint_speed"):

@@ -108,3 +108,21 @@ def test_anchors_come_in_as_ros_parameters_and_hold_the_body(world):
                    30, "a second of physics")
     u = node.scene.state.u.copy()
     assert np.abs(u[held]).max() < 0.02 and u[:, 2].mean() < -1e-3     # hangs by the cap, sags below it
+
+
+def test_the_default_scene_file_starts_the_node_with_its_empty_lists(world, tmp_path):
+    """`clusterfem_node --ros-args --params-file config/default_scene.yaml` (the README's command): the file's
+    empty lists (anchors.points: []) reach rclpy as parameters without a value; they are the empty lists they
+    were written as, not a crash at start. Shown on the default file made a sphere scene (to build fast)."""
+    import yaml
+    from clusterfem_ros.config import default_scene_path
+    from clusterfem_ros.nodes.clusterfem_node import ClusterFemNode
+    doc = yaml.safe_load(default_scene_path().read_text())
+    params = doc["clusterfem"]["ros__parameters"]
+    assert params["anchors.points"] == [] and params["anchors.bones"] == []
+    params.update(SPHERE)
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    node = world.add(ClusterFemNode(context=world.context, cli_args=["--ros-args", "--params-file", str(path)]))
+    assert node.config["anchors.points"] == [] and node.config["anchors.sliding"] == []
+    assert node.scene is not None and node.scene.anchors == []

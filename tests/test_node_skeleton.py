@@ -185,3 +185,20 @@ def test_keyframe_player_drives_the_builtin_humanoid(world):
     world.wait_for(lambda: sim.scene.inputs.accepted > 20, 30, "key-frame joint states")
     assert set(player.names) <= set(sim.scene.skeleton.joint_names)
     assert sim.scene.inputs.total_rejected == 0
+
+
+def test_nothing_is_published_before_the_first_joint_state_places_the_body(world):
+    """Wall clock: physics runs before any joint state, with the body at the skeleton's neutral pose (a clip's
+    root may be metres away). No marker or stress cloud leaves the node until a sample has placed the body;
+    the withheld outputs are counted on diagnostics."""
+    from sensor_msgs.msg import PointCloud2
+    from visualization_msgs.msg import Marker
+    sim = _sim(world)
+    markers = world.collect(Marker, "clusterfem/surface")
+    clouds = world.collect(PointCloud2, "clusterfem/stress")
+    world.wait_for(lambda: sim.withheld >= 10 and sim.scene.steps_done > 100, 30, "outputs withheld while unplaced")
+    assert markers == [] and clouds == [] and not sim.scene.placed
+    assert sim.diagnostics()["outputs_withheld"] >= 10 and sim.divergences == 0
+    _player(world)
+    world.wait_for(lambda: len(markers) > 0 and len(clouds) > 0, 30, "outputs after the first joint state")
+    assert sim.scene.placed and sim.divergences == 0

@@ -93,16 +93,22 @@ def test_a_snapshot_is_never_written_after_it_is_handed_over():
     assert not np.array_equal(loop.snapshot.u, first.u)         # the body moved on, in other arrays
 
 
-def test_nothing_is_handed_over_before_the_body_is_placed():
+def test_nothing_is_handed_over_before_a_joint_state_places_the_body():
     scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
-    loop, log = _loop(scene, clock="wall", now=lambda: T0)
+    clock = {"now": T0}
+    loop, log = _loop(scene, clock="wall", now=lambda: clock["now"])
     loop.start()
     try:
         _wait_for(lambda: scene.sim_time is not None, 10, "the wall clock to start the scene")
+        _wait_for(lambda: loop.unpublishable > 0, 10, "a state refused before any joint state")
+        assert loop.snapshot is None                      # the body stands at the neutral pose, not on the clip
+        stamp, names, q, v = next(_samples(0.1))
+        loop.take_input(lambda: scene.push_joint_state(T0, names, q, v, now=T0))
+        clock["now"] = T0 + 1.5 * scene.h                 # one step due: it puts the body on the sample's pose
         _wait_for(lambda: loop.snapshot is not None, 10, "the placed body's snapshot")
     finally:
         assert loop.stop()
-    assert loop.snapshot.sim_time == T0 and loop.unpublishable == 0 and log == []
+    assert loop.snapshot.steps == 1 and scene.placed and log == []
 
 
 def test_wall_clock_follows_the_clock_and_counts_the_stages():
@@ -200,14 +206,14 @@ def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_wait
     loop.latency.handed_over = lambda used, t: handed.append((used, loop.snapshot.steps)) or original(used, t)
     loop.start()
     try:
-        _wait_for(lambda: loop.snapshot is not None, 10, "the placed body")
+        _wait_for(lambda: scene.sim_time is not None, 10, "the wall clock to start the scene")
         stamp, names, q, v = next(_samples(0.1))
         loop.take_input(lambda: scene.push_joint_state(T0, names, q, v, now=T0))
         clock["now"] = T0 + 5.5 * scene.h                         # five steps due
         _wait_for(lambda: scene.steps_done == 5 and handed[-1][1] == 5, 10, "five steps")
     finally:
         assert loop.stop()
-    assert handed[0] == (0, 0)                                    # the placed body, before any input
+    assert handed[0][0] == 1                                      # nothing before the input placed the body
     assert (1, 1) in handed                                       # the first step that saw the input, at once
     assert handed[-1] == (1, 5) and log == []
     assert loop.latency.percentiles()["latency_state_p50_ms"] > 0

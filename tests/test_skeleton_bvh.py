@@ -62,7 +62,7 @@ def test_file_facts(cmu):
 
 def test_urdf_fk_reproduces_bvh_fk_on_real_frames(cmu):
     motion, sk = cmu
-    traj = bvh_trajectory(motion, skip_tpose=False, despike=False)
+    traj = bvh_trajectory(motion, skip_tpose=False, despike=False, max_rotation_speed=None)   # the file's frames
     C = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]])              # file (x, y, z) -> ROS (z, x, y)
     order = [sk.bone_names.index(n) for n in motion.joint_names]
     for k in (0, 1, 137, 300, 458, 494):                          # incl. the T-pose and a glitch frame
@@ -92,7 +92,7 @@ def test_unwrapping_and_despiking_leave_no_jump_over_90_degrees(cmu):
     traj = bvh_trajectory(motion)
     jumps = np.abs(np.diff(traj.positions[:, traj.revolute], axis=0))
     assert np.rad2deg(jumps.max()) < 90.0
-    raw = bvh_trajectory(motion, despike=False)
+    raw = bvh_trajectory(motion, despike=False, max_rotation_speed=None)
     assert np.rad2deg(np.abs(np.diff(raw.positions[:, raw.revolute], axis=0)).max()) > 90.0
 
 
@@ -115,7 +115,7 @@ def test_mini_file_crlf_and_malformed_files_name_the_line():
     with pytest.raises(BvhError, match="no MOTION"):
         parse_bvh("HIERARCHY\nROOT a\n{\n")
     sk = Skeleton.from_urdf_string(bvh_urdf(m))
-    traj = bvh_trajectory(m, skip_tpose=False)
+    traj = bvh_trajectory(m, skip_tpose=False, max_rotation_speed=None)     # 90 deg in 10 ms, as written
     leg = sk.bone_names.index("Leg")
     s, e = sk.bone_segments(q_at(sk, traj, 1))
     # leg origin: file (1, 10, 0) + (0, -2, 0) -> ROS (0, 1, 8); its end site (0, -3, 0) turned 90 deg about

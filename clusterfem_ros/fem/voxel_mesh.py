@@ -50,8 +50,9 @@ def grid_mesh(mask: np.ndarray, lo: np.ndarray, spacing: np.ndarray) -> TetMesh:
     return orient(remove_unreferenced(TetMesh(vertices, tets))).validate()
 
 
-def voxelize(inside: Callable[[np.ndarray], np.ndarray], lo, hi, spacing: float) -> TetMesh:
-    """Mesh the voxels of a regular grid over [lo, hi] whose centres satisfy ``inside(points (k, 3)) -> bool (k,)``."""
+def voxel_centres(lo, hi, spacing: float) -> tuple[np.ndarray, tuple[int, int, int]]:
+    """(centres (nx ny nz, 3) in C order, (nx, ny, nz)) of the regular grid of voxels of edge ``spacing`` over
+    [lo, hi]: voxel (i, j, k) spans lo + [i, i+1] * spacing."""
     lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
     if not (np.isfinite(spacing) and spacing > 0):
         raise MeshError(f"voxel spacing must be a positive length in metres, got {spacing!r}")
@@ -59,9 +60,14 @@ def voxelize(inside: Callable[[np.ndarray], np.ndarray], lo, hi, spacing: float)
     if np.prod(n) > 5e7:
         raise MeshError(f"{np.prod(n):.3g} voxels at spacing {spacing} m: choose a larger spacing")
     c = [lo[a] + (np.arange(n[a]) + 0.5) * spacing for a in range(3)]
-    centres = np.stack(np.meshgrid(*c, indexing="ij"), -1).reshape(-1, 3)
-    mask = np.asarray(inside(centres), dtype=bool).reshape(tuple(n))
-    return grid_mesh(mask, lo, np.full(3, spacing))
+    return np.stack(np.meshgrid(*c, indexing="ij"), -1).reshape(-1, 3), tuple(int(k) for k in n)
+
+
+def voxelize(inside: Callable[[np.ndarray], np.ndarray], lo, hi, spacing: float) -> TetMesh:
+    """Mesh the voxels of a regular grid over [lo, hi] whose centres satisfy ``inside(points (k, 3)) -> bool (k,)``."""
+    centres, n = voxel_centres(lo, hi, spacing)
+    mask = np.asarray(inside(centres), dtype=bool).reshape(n)
+    return grid_mesh(mask, np.asarray(lo, dtype=np.float64), np.full(3, spacing))
 
 
 def box_mesh(size=(1.0, 1.0, 1.0), divisions=(4, 4, 4), origin=(0.0, 0.0, 0.0)) -> TetMesh:

@@ -29,13 +29,19 @@ def body_namespaces(n: int, namespace: str = "") -> list[str]:
     return [f"{base}/body{k + 1}" if base else f"body{k + 1}" for k in range(n)]
 
 
-def start_player(namespace: str, start_offset: float) -> subprocess.Popen:
-    """The built-in walk played on ``<namespace>/joint_states`` by a process of its own."""
-    cmd = [sys.executable, "-m", "clusterfem_ros.nodes.player_node", "--ros-args", "-p", "source:=builtin_walk",
-           "-p", f"start_offset:={float(start_offset):.6f}", "--log-level", "warn"]
+def start_player(namespace: str, params: dict) -> subprocess.Popen:
+    """The mocap player, with ``params`` (source, file, start_offset, ...: nodes/player_node.py), playing on
+    ``<namespace>/joint_states`` in a process of its own."""
+    cmd = [sys.executable, "-m", "clusterfem_ros.nodes.player_node", "--ros-args"]
+    for key, value in params.items():
+        if key in ("rate_hz", "speed", "start_offset", "loop_blend"):      # rclpy refuses an int for a double
+            text = repr(float(value))
+        else:
+            text = str(value).lower() if isinstance(value, bool) else str(value)
+        cmd += ["-p", f"{key}:={text}"]
     if namespace:
         cmd += ["-r", f"__ns:=/{namespace}"]
-    return subprocess.Popen(cmd)
+    return subprocess.Popen(cmd + ["--log-level", "warn"])
 
 
 def rss_mb() -> float:

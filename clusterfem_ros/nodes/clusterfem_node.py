@@ -144,6 +144,12 @@ class ClusterFemNode(Node):
         super().destroy_node()
 
     @property
+    def withheld(self) -> int:
+        """States the physics thread did not hand to the outputs (Scene.output_problem: not yet placed, or a
+        failed check)."""
+        return self.physics.unpublishable if self.physics is not None else 0
+
+    @property
     def divergences(self) -> int:
         return self.physics.divergences if self.physics is not None else 0
 
@@ -327,6 +333,7 @@ class ClusterFemNode(Node):
                   "inputs_accepted": s.inputs.accepted if s else 0,
                   "inputs_rejected": s.inputs.total_rejected if s else 0,
                   "resets_after_divergence": self.divergences,
+                  "outputs_withheld": self.withheld,
                   "dropped_time_s": s.dropped_s if s else 0.0}
         if s:
             rejected = dict(s.inputs.rejected)            # one copy: the physics thread adds kinds as it pushes
@@ -335,7 +342,7 @@ class ClusterFemNode(Node):
             values.update(loop.latency.percentiles())
             values.update(self._window)
             values.update({"physics_failures": loop.crashes, "physics_stopped": loop.stopped,
-                           "physics_error": loop.error or "", "unpublishable_states": loop.unpublishable,
+                           "physics_error": loop.error or "",
                            "inputs_dropped_queue_full": loop.queue_full})
         values["joint_states_received"] = self.received
         values["joint_states_before_scene"] = self.before_scene

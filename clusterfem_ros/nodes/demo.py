@@ -1,12 +1,16 @@
-"""The main job: the built-in walk played into the simulation node, headless, recorded, summarised.
+"""The main job: a motion played into the simulation node, headless, recorded, summarised.
 
     scripts/run [--duration 8] [--scene config/default_scene.yaml] [--no-record] [--png bags/jelly_man.png]
                 [--no-video]
+    scripts/run --bvh FILE [--scene ...]     # any BVH, on a jelly body built on the BVH's own skeleton
     scripts/run --bodies 2 [--process-per-body] [--scene a.yaml --scene b.yaml]
 
 The mocap player runs as its own process, the simulation in this one on a single-threaded executor
-(rclpy's multi-threaded one is slower here; shared-memory DDS only). A scene without skeleton
-(skeleton.source = none) has nothing to play: it runs at once, without a player.
+(rclpy's multi-threaded one is slower here; shared-memory DDS only). The player plays the built-in walk,
+or what the scene file's ``mocap_player: ros__parameters:`` section says (source, file, ...: see
+nodes/player_node.py; relative paths are relative to the current directory), or the ``--bvh`` file. A
+BVH brings its own skeleton: the node takes it from robot_description (``--bvh`` sets that). A scene
+without skeleton (skeleton.source = none) has nothing to play: it runs at once, without a player.
 Progress is printed every second; at the end: a summary, the bag folder, a PNG of the deformed
 body coloured by von Mises stress, the recording rendered to run.mp4 and run.gif in the bag folder, then a table of the timed run (nodes/bodies.py): real-time factor,
 physics headroom, joint-state -> marker latency, busy share per stage, RSS.
@@ -46,13 +50,37 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
             if received:
                 rejected = dict(sim.scene.inputs.rejected) if sim.scene is not None else {}
                 raise SystemExit(f"[demo] {received} joint states arrived in {PLAYER_START_TIMEOUT_S:g} s but none was "
-                                 f"used (rejected: {rejected}): the player's joints (the built-in walk's humanoid) "
-                                 "do not fit this scene's skeleton; the node's warnings above name them")
+                                 f"used (rejected: {rejected}): the player's joints do not fit this scene's skeleton "
+                                 "(a BVH needs skeleton.source robot_description); the node's warnings above name them")
+            if sim.scene is None:
+                raise SystemExit(f"[demo] no skeleton on robot_description within {PLAYER_START_TIMEOUT_S:g} s: the "
+                                 "player latches it at its start; run `python -m clusterfem_ros.nodes.player_node` "
+                                 "to see why it did not")
             raise SystemExit(f"[demo] no joint state from the player within {PLAYER_START_TIMEOUT_S:g} s: check that "
                              "both processes share ROS_DOMAIN_ID and FASTDDS_BUILTIN_TRANSPORTS (scripts/env.sh)")
         time.sleep(0.05)
     print(f"[demo] first joint state from the player after {time.perf_counter() - t0:.1f} s: the timed run starts",
           flush=True)
+
+
+def _player_plan(args, scene_file: Path, config):
+    """(player parameters, scene config) for the run: --bvh, else the scene file's player section, else the
+    built-in walk; a BVH's skeleton comes on robot_description, so the scene is made to take it from there."""
+    from ..motion import load_player_section, skeleton_source_for
+    if args.bvh:
+        bvh = Path(args.bvh)
+        if not bvh.is_file():
+            raise SystemExit(f"[demo] --bvh {args.bvh}: no such file")
+        player = {"source": "bvh", "file": str(bvh.resolve())}
+        config = config.with_values({"skeleton.source": "robot_description", "body.kind": "jelly_man"})
+    else:
+        player = load_player_section(scene_file) or {"source": "builtin_walk"}
+    source = player.get("source", "builtin_walk")
+    fits = skeleton_source_for(source)
+    if fits == "robot_description" and config["skeleton.source"] in ("builtin", "urdf_file"):
+        raise SystemExit(f"[demo] the player plays {source!r} but the scene's skeleton.source is "
+                         f"{config['skeleton.source']!r}: set skeleton.source to {fits!r} (or run with --bvh FILE)")
+    return player, config
 
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
@@ -61,6 +89,8 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--scene", default=None, action="append",
                     help="scene parameter file (default: config/default_scene.yaml); once for every body, or once "
                          "per body with --bodies")
+    ap.add_argument("--bvh", default=None, metavar="FILE", help="play this BVH file on a jelly body built on its "
+                    "own skeleton (skeleton.source robot_description)")
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP bag")
     ap.add_argument("--bags", default="bags", help="folder for the recording (default bags/)")
     ap.add_argument("--png", default=None, help="picture of the final state (default: <bag folder>/final_state.png)")
@@ -84,6 +114,7 @@ def _body_arguments(ap: argparse.ArgumentParser) -> None:
 def _child_argv(args: argparse.Namespace, scene: Path) -> list[str]:
     """The demo arguments of a body's own process (--process-per-body)."""
     out = ["--duration", f"{args.duration:g}", "--bags", args.bags, "--no-png", "--scene", str(scene)]
+    out += ["--bvh", args.bvh] if args.bvh else []
     return out + (["--no-record"] if args.no_record else []) + (["--no-video"] if args.no_video else [])
 
 
@@ -112,12 +143,16 @@ def main(argv: list[str] | None = None) -> int:
 
     names = body_namespaces(args.bodies, args.namespace)
     scenes = _scene_files(args, len(names))
-    configs = [load_scene_file(f) for f in scenes]           # validated here, with a clear error, before ROS starts
-    for ns, f, config in zip(names, scenes, configs):
+    plans = [_player_plan(args, f, load_scene_file(f)) for f in scenes]   # validated here, before ROS starts
+    configs = [config for _, config in plans]
+    for ns, f, (player_params, config) in zip(names, scenes, plans):
         print(f"[demo] {ns or 'scene'} {f}: body {config['body.kind']}, method {config['method']}, "
               f"warping {config['warping']}, h = {config['physics.step']:g} s; ROS_DOMAIN_ID="
               f"{os.environ.get('ROS_DOMAIN_ID', '0')}, DDS transport {os.environ['FASTDDS_BUILTIN_TRANSPORTS']}",
               flush=True)
+        if config["skeleton.source"] != "none":
+            print(f"[demo] player: {', '.join(f'{k} {v}' for k, v in player_params.items())}; skeleton from "
+                  f"{config['skeleton.source']}", flush=True)
     rclpy.init()
     sims, players, spin = [], [], None
     executor = SingleThreadedExecutor()
@@ -131,8 +166,11 @@ def main(argv: list[str] | None = None) -> int:
                 overrides.append(Parameter("recording.prefix", value="clusterfem_" + ns.replace("/", "_")))
             sims.append(ClusterFemNode(parameter_overrides=overrides, **({"namespace": ns} if ns else {})))
             if config["skeleton.source"] != "none":
+                player_params = dict(plans[k][0])
                 offset = args.walk_offset + (k * WALK_PHASE_S if len(names) > 1 else 0.0)
-                players.append((sims[-1], start_player(ns, offset)))
+                if offset:
+                    player_params["start_offset"] = float(player_params.get("start_offset", 0.0)) + offset
+                players.append((sims[-1], start_player(ns, player_params)))
         print(f"[demo] simulation ready in {time.perf_counter() - t_build:.1f} s", flush=True)
         for sim in sims:
             executor.add_node(sim)

@@ -7,6 +7,14 @@ from rclpy.node import Node
 from ..config import PARAMS, ConfigError, SceneConfig, check_value, from_mapping, unknown_name_error
 
 _KNOWN = {p.name for p in PARAMS}
+_LISTS = {p.name for p in PARAMS if isinstance(p.default, list)}
+
+
+def _value(name: str, value):
+    """An empty list in a params YAML (``anchors.points: []``) reaches rclpy as a parameter without a value
+    (None): for a list parameter that is the empty list it was written as."""
+    return [] if value is None and name in _LISTS else value
+
 
 # Parameters a running node can take; everything else shapes the model and needs a restart. They only
 # change how outputs look and how often they come; live, the rates have tighter bounds than at start-up:
@@ -41,7 +49,7 @@ def declare_scene_parameters(node: Node, on_live_change) -> SceneConfig:
     def check(params) -> SetParametersResult:
         for prm in params:
             try:
-                check_value(prm.name, prm.value)
+                check_value(prm.name, _value(prm.name, prm.value))
             except ConfigError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
             if started["done"] and prm.name not in LIVE:
@@ -54,7 +62,7 @@ def declare_scene_parameters(node: Node, on_live_change) -> SceneConfig:
                     f"{prm.name} = {prm.value!r}: a running node takes [{lo:g}, {hi:g}] only; start the node "
                     "with the value to go beyond"))
         if started["done"]:
-            on_live_change({prm.name: prm.value for prm in params})
+            on_live_change({prm.name: _value(prm.name, prm.value) for prm in params})
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(check)
@@ -62,6 +70,6 @@ def declare_scene_parameters(node: Node, on_live_change) -> SceneConfig:
         if name not in _KNOWN and name not in ROS_NAMES and not name.startswith("qos_overrides."):
             raise unknown_name_error(name)
     node.declare_parameters("", [(p.name, p.default, descriptor(p)) for p in PARAMS])
-    values = {p.name: node.get_parameter(p.name).value for p in PARAMS}
+    values = {p.name: _value(p.name, node.get_parameter(p.name).value) for p in PARAMS}
     started["done"] = True
     return from_mapping(values)

@@ -2,6 +2,8 @@
 and latches the matching URDF on robot_description, so the simulation needs no separate file."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -10,7 +12,7 @@ from std_msgs.msg import String
 
 from msg_adapters.joint_state import joint_state_cdr
 
-from ..motion import load_motion
+from ..motion import PLAYER_PARAMS, load_motion
 from .spinning import run_node
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -30,9 +32,16 @@ class MocapPlayer(Node):
         self.declare_parameter("speed", 1.0, _range(0.01, 100.0, "playback speed factor"))
         self.declare_parameter("start_offset", 0.0, _range(0.0, 1e6, "start this far into the motion [s]"))
         self.declare_parameter("loop", True, ParameterDescriptor(description="loop the motion at its end"))
-        p = {n: self.get_parameter(n).value for n in ("source", "file", "rate_hz", "speed", "start_offset", "loop")}
+        self.declare_parameter("loop_blend", 0.5, _range(0.0, 60.0, (
+            "looping a motion that does not end where it starts: its last seconds are blended into its start "
+            "over this time, the root's horizontal position carried on (0 = jump back to the start, which the "
+            "node takes as a teleport and re-places the body) [s]")))
+        p = {n: self.get_parameter(n).value for n in PLAYER_PARAMS}
         self.params = p
         self.motion = load_motion(p["source"], p["file"])
+        if p["loop"] and p["loop_blend"] > 0:
+            self.motion = replace(self.motion, trajectory=self.motion.trajectory.with_seam(
+                min(p["loop_blend"], 0.5 * self.motion.trajectory.duration), self.motion.carry))
         self.names = list(self.motion.trajectory.names)
         self._pub = self.create_publisher(JointState, "joint_states", 10)
         self._urdf_pub = self.create_publisher(String, "robot_description", LATCHED)

@@ -20,16 +20,29 @@ spikes, e.g. a joint flipping by ~170 deg for 3 frames near Euler gimbal lock an
 at most ``max_spike_frames`` frames whose joint rotation is more than ``spike_deg`` away from the
 previous good frame, followed by a frame close to it again, is replaced by linear interpolation of the
 unwrapped channels between the good frames on either side. A jump that does not come back is kept.
+
+Speed limit (``max_rotation_speed``, rad/s, default ``MAX_ROTATION_SPEED``, and ``max_end_speed``, m/s,
+default ``MAX_END_SPEED``): glitches that last (a thumb or thigh flipping ~180 deg in one frame and staying
+so for 20+ frames) are not spikes, yet no limb turns that fast: each joint's rotation is moved from frame
+to frame by at most its limit per second (along the shortest arc towards the captured rotation): the
+smaller of max_rotation_speed and max_end_speed over the joint's reach (the longest chain of bones below
+it, at rest), so a thigh flip becomes a turn of about 0.1 s and a thumb flip one of 0.03 s. Of the clean
+leap clip (fastest joint 41 deg per frame at 120 Hz = 86 rad/s, a toe) 3 arm frames are limited; frames
+within the limit are untouched. Joints with a limited frame get Euler channels re-extracted from their
+rotations, the representation nearest to the previous frame chosen each time (no 360 deg jumps; the
+twin (a + 180, 180 - b, c + 180) when nearer), so interpolating the channels never takes the long way.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .bvh import BvhMotion, joint_rotations
+from .bvh import BvhMotion, elementary_rotations, joint_rotations
 from .trajectory import JointTrajectory
 from .urdf_builder import UrdfBuilder
 
 ROOT_LINK = "bvh_world"
+MAX_ROTATION_SPEED = 100.0      # rad/s: no captured limb turns faster (see the module docstring)
+MAX_END_SPEED = 25.0            # m/s: nor does the end of a limb move faster
 
 
 def channel_joint_name(joint: str, channel: str) -> str:
@@ -95,8 +108,72 @@ def find_spikes(motion: BvhMotion, first_frame: int = 1, spike_deg: float = 90.0
     return found
 
 
+def _euler_nearest(R: np.ndarray, order: str, previous: np.ndarray) -> np.ndarray:
+    """Angles [rad] (3,) about the file axes ``order`` (e.g. "ZYX": R = Rz(a) Ry(b) Rx(c)) of rotation R, in the
+    representation (of the two, each shifted by whole turns) nearest to ``previous`` (3,)."""
+    from scipy.spatial.transform import Rotation
+    a, b, c = Rotation.from_matrix(R).as_euler(order.upper(), degrees=False)
+    best = None
+    for cand in (np.array([a, b, c]), np.array([a + np.pi, np.pi - b, c + np.pi])):
+        cand = cand + 2 * np.pi * np.round((previous - cand) / (2 * np.pi))
+        if best is None or np.abs(cand - previous).sum() < np.abs(best - previous).sum():
+            best = cand
+    return best
+
+
+def joint_reach(motion: BvhMotion) -> np.ndarray:
+    """(J,) the longest chain of bone offsets (and end sites) below each joint [m]: how far its rotation reaches."""
+    reach = np.zeros(len(motion.joints))
+    for k in range(len(motion.joints) - 1, -1, -1):             # children come after their parents
+        j = motion.joints[k]
+        if j.end_site is not None:
+            reach[k] = max(reach[k], float(np.linalg.norm(j.end_site)) * motion.unit_m)
+        if j.parent >= 0:
+            reach[j.parent] = max(reach[j.parent], reach[k] + float(np.linalg.norm(j.offset)) * motion.unit_m)
+    return reach
+
+
+def limit_rotation_speed(motion: BvhMotion, frames: np.ndarray, frame_time: float,
+                         max_rad_s: float = MAX_ROTATION_SPEED,
+                         max_end_speed: float = MAX_END_SPEED) -> list[tuple[str, int]]:
+    """Limit every joint's rotation speed in ``frames`` (F, C) [deg, unwrapped] in place (see the module
+    docstring); returns (joint name, frames limited) for each joint changed."""
+    from scipy.spatial.transform import Rotation
+    reach = joint_reach(motion)
+    changed = []
+    for ji, j in enumerate(motion.joints):
+        step = min(max_rad_s, max_end_speed / max(reach[ji], 1e-9)) * frame_time
+        rot = [k for k, c in enumerate(j.channels) if c.endswith("rotation")]
+        order = "".join(j.channels[k][0] for k in rot)
+        if len(rot) != 3 or len(set(order)) != 3:
+            continue
+        cols = [j.channel_start + k for k in rot]
+        ang = np.deg2rad(frames[:, cols])
+        R = np.einsum("fij,fjk,fkl->fil", *(elementary_rotations(order[i], frames[:, cols[i]]) for i in range(3)))
+        cos = (np.einsum("fij,fij->f", R[:-1], R[1:]) - 1.0) / 2.0
+        if (np.arccos(np.clip(cos, -1.0, 1.0)) <= step).all():       # most joints: nothing to limit
+            continue
+        out = R.copy()
+        limited = 0
+        for f in range(1, R.shape[0]):
+            rel = Rotation.from_matrix(out[f - 1].T @ R[f]).as_rotvec()
+            angle = float(np.linalg.norm(rel))
+            if angle > step:
+                out[f] = out[f - 1] @ Rotation.from_rotvec(rel * (step / angle)).as_matrix()
+                limited += 1
+        if limited:
+            new = np.empty_like(ang)
+            new[0] = ang[0]
+            for f in range(1, R.shape[0]):
+                new[f] = _euler_nearest(out[f], order, new[f - 1])
+            frames[:, cols] = np.rad2deg(new)
+            changed.append((j.name, limited))
+    return changed
+
+
 def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: str = "catmull_rom",
-                   despike: bool = True, spike_deg: float = 90.0, max_spike_frames: int = 5) -> JointTrajectory:
+                   despike: bool = True, spike_deg: float = 90.0, max_spike_frames: int = 5,
+                   max_rotation_speed: float | None = MAX_ROTATION_SPEED) -> JointTrajectory:
     """The capture as a trajectory over ``bvh_joint_names(motion)`` (see the module docstring)."""
     cols, revolute = [], []
     for j in motion.joints:
@@ -118,6 +195,8 @@ def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: st
                     col = j.channel_start + k
                     w = (np.arange(a + 1, b) - a) / (b - a)
                     frames[a + 1:b, col] = (1 - w) * frames[a, col] + w * frames[b, col]
+    if max_rotation_speed is not None:
+        limit_rotation_speed(motion, frames, motion.frame_time, max_rotation_speed)
     rev = np.array(revolute, dtype=bool)
     q = frames[:, cols].copy()
     q[:, rev] = np.deg2rad(q[:, rev])

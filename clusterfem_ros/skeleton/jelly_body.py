@@ -5,11 +5,18 @@ as a point test. ``jelly_man_mesh(spec, target_tets)`` voxelizes that union arou
 rest pose (q = 0) with ``fem.voxel_mesh.voxelize`` (five tets per voxel), choosing the voxel spacing
 by bisection so the tet count is as near ``target_tets`` as the grid allows (the paper's jelly man has
 4822). Arrays: points (k, 3), starts/ends (nb, 3) [m], radii (nb,) [m].
+
+Limbs are not glued: every voxel belongs to the bone whose capsule it lies deepest in, and two voxels that
+touch (share a vertex) may belong to bones at most ``glue_hops`` apart in the skeleton's tree (a bone, its
+parent and grandparent, its siblings). Where the capsules of farther bones meet at rest (hands hanging
+against the thighs, an arm crossing the chest), the voxels on both sides of the contact are left out, so
+no tet joins them and they move apart freely; pieces this cuts off from the body are dropped.
 """
 from __future__ import annotations
 
 import numba
 import numpy as np
+from scipy import ndimage
 
 from ..fem.numba_config import SERIAL
 
@@ -49,8 +56,62 @@ def capsule_inside(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, rad
     return out
 
 
-def humanoid_capsules(spec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(starts, ends, radii) of the bones of ``spec`` (a ``HumanoidSpec``) that have a radius, at rest."""
+def nearest_capsule(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, radii: np.ndarray) -> np.ndarray:
+    """(k,) index of the capsule each point lies deepest in (smallest distance to its segment minus its radius)."""
+    x = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    d = ends - starts
+    L2 = np.einsum("bj,bj->b", d, d)
+    out = np.empty(x.shape[0], dtype=np.int64)
+    for a in range(0, x.shape[0], 20000):                       # (chunk, nb, 3) temporaries stay small
+        rel = x[a:a + 20000, None, :] - starts[None]
+        t = np.clip(np.einsum("kbj,bj->kb", rel, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        depth = np.linalg.norm(rel - t[..., None] * d[None], axis=2) - radii[None]
+        out[a:a + 20000] = np.argmin(depth, axis=1)
+    return out
+
+
+def bone_hops(parent: np.ndarray) -> np.ndarray:
+    """(nb, nb) number of parent-child steps between bones in the tree given by ``parent`` (nb,) (-1: a root;
+    bones of different roots are ``nb`` apart)."""
+    parent = np.asarray(parent, dtype=np.int64)
+    nb = parent.size
+    hops = np.full((nb, nb), nb, dtype=np.int64)
+    for b in range(nb):
+        chain, c, k = {}, b, 0
+        while c >= 0 and c not in chain:
+            chain[c], c, k = k, parent[c], k + 1
+        for o in range(nb):
+            c, k = o, 0
+            while c >= 0 and c not in chain and k <= nb:
+                c, k = parent[c], k + 1
+            if c >= 0 and c in chain:
+                hops[b, o] = chain[c] + k
+    return hops
+
+
+def separate_limbs(mask: np.ndarray, label: np.ndarray, may_touch: np.ndarray) -> np.ndarray:
+    """The voxel mask (nx, ny, nz) without the voxels that share a vertex with a voxel of a bone they may not
+    touch (``may_touch`` (nb, nb) bool, ``label`` (nx, ny, nz) bone per voxel), and without the pieces that
+    this cuts off from the largest connected part."""
+    mask = np.asarray(mask, dtype=bool)
+    drop = np.zeros_like(mask)
+    n = mask.shape
+    for off in [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) > (0, 0, 0)]:
+        a = tuple(slice(max(-o, 0), n[ax] - max(o, 0)) for ax, o in enumerate(off))     # voxel
+        b = tuple(slice(max(o, 0), n[ax] - max(-o, 0)) for ax, o in enumerate(off))     # its neighbour at off
+        bad = mask[a] & mask[b] & ~may_touch[label[a], label[b]]
+        drop[a] |= bad
+        drop[b] |= bad
+    kept = mask & ~drop
+    parts, count = ndimage.label(kept, structure=np.ones((3, 3, 3), dtype=bool))
+    if count > 1:
+        kept = parts == 1 + int(np.argmax(np.bincount(parts.ravel())[1:]))
+    return kept
+
+
+def humanoid_capsules(spec, with_parents: bool = False):
+    """(starts, ends, radii) of the bones of ``spec`` (a ``HumanoidSpec``) that have a radius, at rest; with
+    ``with_parents``, also (nb,) the index among them of each one's nearest ancestor that has a radius (-1)."""
     from .kinematics import Skeleton
     sk = Skeleton.from_urdf_string(spec.urdf)
     s, e = sk.bone_segments(sk.neutral())
@@ -60,15 +121,27 @@ def humanoid_capsules(spec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise ValueError(f"bone_radius names bones {missing} that the URDF does not have: fix the spec")
     if not keep:
         raise ValueError("no bone has a radius in spec.bone_radius: give at least one capsule radius")
-    return s[keep], e[keep], np.array([spec.bone_radius[sk.bone_names[b]] for b in keep])
+    caps = s[keep], e[keep], np.array([spec.bone_radius[sk.bone_names[b]] for b in keep])
+    if not with_parents:
+        return caps
+    index = {b: k for k, b in enumerate(keep)}
+    parents = []
+    for b in keep:
+        p = int(sk.bone_parent[b])
+        while p >= 0 and p not in index:
+            p = int(sk.bone_parent[p])
+        parents.append(index.get(p, -1))
+    return caps + (np.array(parents, dtype=np.int64),)
 
 
-def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24):
-    """Tet mesh of the capsules of ``spec`` with about ``target_tets`` tets (nearest count found by bisection)."""
-    from ..fem.voxel_mesh import voxelize
+def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue_hops: int | None = 2):
+    """Tet mesh of the capsules of ``spec`` with about ``target_tets`` tets (nearest count found by bisection);
+    voxels of bones more than ``glue_hops`` apart never touch (None: every touching voxel is glued)."""
+    from ..fem.voxel_mesh import grid_mesh, voxel_centres
     if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
         raise ValueError(f"target_tets = {target_tets!r}: give a whole number >= 50")
-    s, e, r = humanoid_capsules(spec)
+    s, e, r, parents = humanoid_capsules(spec, with_parents=True)
+    may_touch = None if glue_hops is None else bone_hops(parents) <= glue_hops
     lo = np.minimum(s, e).min(axis=0) - r.max()
     hi = np.maximum(s, e).max(axis=0) + r.max()
 
@@ -87,7 +160,13 @@ def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24):
 
     def mesh(h: float):
         if h not in cache:
-            cache[h] = voxelize(inside, lo, hi, h)
+            centres, n = voxel_centres(lo, hi, h)
+            mask = inside(centres).reshape(n)
+            if may_touch is not None:
+                label = np.zeros(mask.size, dtype=np.int64)
+                label[mask.ravel()] = nearest_capsule(centres[mask.ravel()], s, e, r)
+                mask = separate_limbs(mask, label.reshape(n), may_touch)
+            cache[h] = grid_mesh(mask, lo, np.full(3, h))
         return cache[h]
 
     for _ in range(max_iterations):

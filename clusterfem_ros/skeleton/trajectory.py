@@ -9,6 +9,7 @@ spline with tangents (p[k+1] - p[k-1]) / (t[k+1] - t[k-1]) (one-sided at the end
 ``"linear"`` is piecewise linear (v piecewise constant). Outside [t0, t_end] the ends are held with v = 0,
 unless ``loop=True``: time wraps with period ``duration`` and each completed loop adds
 ``cycle_offset`` (n,) to q (e.g. the root's forward advance per cycle, so a walk loops seamlessly).
+``with_seam`` makes any trajectory loop that way (a capture's end blended into its start).
 """
 from __future__ import annotations
 
@@ -100,6 +101,29 @@ class JointTrajectory:
         q = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * m0 + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * m1
         dq = (6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * m0 + (-6 * s2 + 6 * s) * p1 + (3 * s2 - 2 * s) * m1
         return q + offset * self.cycle_offset, dq / h
+
+    def with_seam(self, blend_s: float, carry: np.ndarray | None = None) -> "JointTrajectory":
+        """The trajectory made to loop without a jump (``closed``): columns in ``carry`` (n,) bool (e.g. the root's
+        horizontal position) continue from where a loop ends (``cycle_offset`` = end - start); revolute columns
+        keep whole turns (a pirouette does not unwind); what is left of the end-to-start difference is spread
+        over the last ``blend_s`` seconds with a smooth (C1) ramp, so the last sample equals the first plus the
+        offset. A trajectory that is already closed is returned as it is."""
+        if self.closed or self.times.size < 3:
+            return self
+        if not (np.isfinite(blend_s) and blend_s > 0):
+            raise ValueError(f"loop blend {blend_s!r} s: give a positive time (the seam is spread over it)")
+        n = self.n_joints
+        carry = np.zeros(n, bool) if carry is None else np.asarray(carry, dtype=bool).reshape(n)
+        p = self.positions.copy()
+        jump = p[-1] - p[0]
+        offset = np.where(carry, jump, 0.0)
+        offset[self.revolute] = 2 * np.pi * np.round(jump[self.revolute] / (2 * np.pi))
+        gap = p[0] + offset - p[-1]
+        s = np.clip((self.times - (self.times[-1] - blend_s)) / blend_s, 0.0, 1.0)
+        p += (s * s * (3 - 2 * s))[:, None] * gap[None, :]
+        p[-1] = p[0] + offset                       # exactly closed despite round-off
+        return JointTrajectory(self.times, self.names, p, revolute=self.revolute, interpolation=self.interpolation,
+                               cycle_offset=offset)
 
     def resample(self, rate_hz: float) -> "JointTrajectory":
         """The same motion sampled uniformly at ``rate_hz`` from t0 to the end (last sample at the end)."""

@@ -1,0 +1,152 @@
+"""Every fetched clip played for its whole length on the default scene: does the body survive real motion?
+
+    python -m benchmarks.clip_soak [--clips NAME ...] [--set key=value ...] [--node]
+
+Per clip (tests/data/mocap_clips.yaml; files found by bench/clips.py) the BVH is played at 120 Hz into a
+Scene built on the clip's own skeleton (the jelly body, skeleton.source robot_description, the default
+scene otherwise; ``--set`` changes parameters, e.g. ``--set warping=false``), stepping up to each sample's
+stamp as the node does on the input clock. Columns:
+
+- resets: DivergenceError raised by advance_to (the state failed Scene.state_problem), each followed by a reset;
+- withheld: ticks whose state Scene.output_problem refused (would not be published);
+- worst volume / worst bone distance: over the states that passed (what would be published), the largest
+  |V/V0 - 1| and the largest distance of a surface vertex to the segment of its bone [m];
+- step: mean wall time of a physics step (measured under whatever load the machine has);
+- joint speed: the fastest revolute joint in the played trajectory (after the BVH loader's despiking) and
+  in the raw file frames [rad/s], for choosing input.max_joint_speed.
+
+``--node`` also plays each clip through the node (the mocap player and the clusterfem node in one process,
+physics on the input clock) and checks every published marker against the skeleton: see ``node_soak``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from clusterfem_ros.config import SceneConfig
+from clusterfem_ros.fem.stability import DivergenceError, StabilityError
+from .clips import clip_config, find_clip, load_manifest, missing_message
+from .timing import table
+
+RATE_HZ = 120.0
+T0 = 1000.0                 # stamps far from zero, as on a ROS clock
+
+
+@dataclass
+class SoakResult:
+    clip: str
+    seconds: float
+    resets: int = 0
+    withheld: int = 0
+    shown: int = 0
+    worst_volume: float = 0.0
+    worst_distance: float = 0.0
+    step_ms: float = 0.0
+    rejected: int = 0
+    joint_speed: float = 0.0
+    raw_joint_speed: float = 0.0
+    first_problem: str = ""
+
+
+def joint_speeds(path: Path) -> tuple[float, float]:
+    """(fastest revolute joint of the played trajectory (despiked, speed-limited), of the raw frames) [rad/s],
+    frame to frame."""
+    from clusterfem_ros.skeleton.bvh import load_bvh
+    from clusterfem_ros.skeleton.bvh_to_urdf import MAX_ROTATION_SPEED, bvh_trajectory
+    capture = load_bvh(path)
+    out = []
+    for despike in (True, False):
+        tr = bvh_trajectory(capture, despike=despike, max_rotation_speed=MAX_ROTATION_SPEED if despike else None)
+        w = np.abs(np.diff(tr.positions[:, tr.revolute], axis=0)) / np.diff(tr.times)[:, None]
+        out.append(float(w.max()))
+    return out[0], out[1]
+
+
+def headless_soak(path: Path, overrides: dict | None = None, seconds: float | None = None) -> SoakResult:
+    """Play the clip at ``path`` into a Scene for its whole length (or ``seconds``); see the module docstring."""
+    from clusterfem_ros.motion import load_motion
+    from clusterfem_ros.scene import Scene
+    motion = load_motion("bvh", path)
+    tr = motion.trajectory
+    scene = Scene.build(clip_config(overrides), urdf_xml=motion.urdf)
+    length = tr.duration if seconds is None else min(seconds, tr.duration)
+    res = SoakResult(path.stem, length)
+    res.joint_speed, res.raw_joint_speed = joint_speeds(path)
+    for k in range(int(length * RATE_HZ) + 1):
+        t = T0 + k / RATE_HZ
+        q, v = tr.sample(k / RATE_HZ)
+        res.rejected += sum(1 for kind, _ in scene.push_joint_state(t, tr.names, q, v) if kind != "unknown_joint")
+        try:
+            scene.advance_to(t)
+        except (DivergenceError, StabilityError) as exc:
+            res.resets += 1
+            res.first_problem = res.first_problem or str(exc)
+            scene.reset()
+            continue
+        if scene.sim_time is None:
+            continue
+        if scene.output_problem() is not None:
+            res.withheld += 1
+            continue
+        res.shown += 1
+        res.worst_volume = max(res.worst_volume, abs(scene.volume_error()))
+        res.worst_distance = max(res.worst_distance, float(scene.bone_distance()[0].max()))
+    res.step_ms = scene.step_wall_s / max(scene.steps_done, 1) * 1e3
+    return res
+
+
+def _overrides(pairs: list[str]) -> dict:
+    out = {}
+    for p in pairs:
+        key, _, value = p.partition("=")
+        out[key] = yaml.safe_load(value)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--clips", nargs="*", default=None, help="manifest names to run (default: every clip present)")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="scene parameters to change")
+    ap.add_argument("--seconds", type=float, default=None, help="play at most this long of each clip")
+    ap.add_argument("--node", action="store_true", help="also play each clip through the node")
+    args = ap.parse_args(argv)
+    overrides = _overrides(args.set)
+    rows, node_rows = [], []
+    for clip in load_manifest():
+        if args.clips and clip.name not in args.clips:
+            continue
+        path = find_clip(clip)
+        if path is None:
+            print(f"[clip_soak] skipped: {missing_message(clip)}", flush=True)
+            continue
+        t0 = time.perf_counter()
+        r = headless_soak(path, overrides, args.seconds)
+        print(f"[clip_soak] {clip.name}: {r.resets} resets, {time.perf_counter() - t0:.0f} s"
+              + (f"; first: {r.first_problem}" if r.first_problem else ""), flush=True)
+        rows.append([r.clip, f"{r.seconds:.1f}", r.resets, r.withheld, f"{r.worst_volume * 100:.1f} %",
+                     f"{r.worst_distance:.3f}", f"{r.step_ms:.2f}", r.rejected,
+                     f"{r.joint_speed:.0f} / {r.raw_joint_speed:.0f}"])
+        if args.node:
+            from .node_soak import node_soak
+            n = node_soak(path, overrides, args.seconds)
+            node_rows.append([n.clip, f"{n.seconds:.1f}", n.resets, n.withheld, n.markers, n.markers_far,
+                              f"{n.worst_distance:.3f}", n.rejected, f"{n.dropped_s:.2f}"])
+    print(f"\nheadless, default scene on each clip's skeleton{' with ' + ', '.join(args.set) if args.set else ''} "
+          "(step time measured under the machine's current load)")
+    print(table(["clip", "s", "resets", "withheld", "worst volume", "worst bone distance [m]",
+                 "step [ms]", "inputs rejected", "joint speed played / raw [rad/s]"], rows))
+    if node_rows:
+        print("\nthrough the node (input clock): every published marker checked against the skeleton")
+        print(table(["clip", "s", "resets", "withheld", "markers", "markers over the limit",
+                     "worst marker vertex to bones [m]", "inputs rejected", "dropped [s]"], node_rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,66 @@
+"""The fetched motion-capture clips of tests/data/mocap_clips.yaml: where each file is, checked by sha256.
+
+The clip files are not in this repository. ``find_clip(entry)`` looks for ``<name>.bvh`` in
+``../shared/data/mocap/`` beside the checkout and in ``$CLUSTERFEM_DATA/mocap/``; ``missing_message``
+names the file and the manifest entry to fetch it from.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from clusterfem_ros.config import SceneConfig
+
+REPO = Path(__file__).resolve().parents[2]
+MANIFEST = REPO / "tests" / "data" / "mocap_clips.yaml"
+
+
+@dataclass(frozen=True)
+class Clip:
+    name: str
+    motion: str
+    repository: str
+    commit: str
+    path: str
+    sha256: str
+
+
+def load_manifest(path: Path = MANIFEST) -> list[Clip]:
+    import yaml
+    doc = yaml.safe_load(Path(path).read_text())
+    return [Clip(**{k: str(v) for k, v in c.items()}) for c in doc["clips"]]
+
+
+def clip_dirs() -> list[Path]:
+    """Where clips are looked for, in order."""
+    dirs = [REPO.parent / "shared" / "data" / "mocap"]
+    if os.environ.get("CLUSTERFEM_DATA"):
+        dirs.append(Path(os.environ["CLUSTERFEM_DATA"]) / "mocap")
+    return dirs
+
+
+def find_clip(clip: Clip) -> Path | None:
+    """The clip's file if present with the manifest's sha256 (a file with another hash raises ValueError)."""
+    for d in clip_dirs():
+        f = d / f"{clip.name}.bvh"
+        if f.is_file():
+            digest = hashlib.sha256(f.read_bytes()).hexdigest()
+            if digest != clip.sha256:
+                raise ValueError(f"{f} has sha256 {digest}, the manifest ({MANIFEST.name}) says {clip.sha256}: "
+                                 f"copy {clip.path} at commit {clip.commit} of {clip.repository} again")
+            return f
+    return None
+
+
+def missing_message(clip: Clip) -> str:
+    where = " or ".join(str(d) for d in clip_dirs()) + ("" if os.environ.get("CLUSTERFEM_DATA") else
+                                                         " (or $CLUSTERFEM_DATA/mocap)")
+    return (f"clip {clip.name}.bvh not found in {where}: it is {clip.path} at commit {clip.commit} of "
+            f"{clip.repository} (entry '{clip.name}' of {MANIFEST.relative_to(REPO)})")
+
+
+def clip_config(overrides: dict | None = None) -> SceneConfig:
+    """The default scene on a BVH's own skeleton (what ``scripts/run --bvh`` runs)."""
+    return SceneConfig().with_values({"skeleton.source": "robot_description", "body.kind": "jelly_man",
+                                      **(overrides or {})})

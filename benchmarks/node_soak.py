@@ -1,0 +1,93 @@
+"""A clip played through the node: the mocap player and the clusterfem node in one process (nodes/testing.py's
+RosWorld: own context and domain, shared-memory DDS), physics on the input clock, markers at 30 Hz.
+
+Every published marker is checked on the receiving side, independently of the node's own checks: its points'
+distance to the nearest bone segment of the skeleton at the joint state the marker's stamp belongs to (the
+newest joint state sent at or before it, forward kinematics of the clip's URDF). ``worst_distance`` is the
+largest over all markers [m]; ``markers_far`` counts markers with a point beyond ``output.max_bone_distance``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .clips import clip_config
+
+
+@dataclass
+class NodeSoakResult:
+    clip: str
+    seconds: float
+    resets: int = 0
+    withheld: int = 0
+    markers: int = 0
+    markers_far: int = 0
+    worst_distance: float = 0.0
+    rejected: int = 0
+    dropped_s: float = 0.0
+
+
+def _marker_distance(raw: bytes, states: list[tuple[int, np.ndarray]], skeleton, columns) -> float:
+    from rclpy.serialization import deserialize_message
+    from visualization_msgs.msg import Marker
+    from clusterfem_ros.body.binding import segment_distance
+    m = deserialize_message(raw, Marker)
+    stamp = m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+    k = max(0, int(np.searchsorted([s for s, _ in states], stamp + 1_000_000, side="right")) - 1)   # within 1 ms
+    q = states[k][1][columns]
+    starts, ends = skeleton.bone_segments(q)
+    pts = np.unique(np.array([[p.x, p.y, p.z] for p in m.points]), axis=0)
+    return float(segment_distance(pts, starts, ends).min(axis=1).max())
+
+
+def node_soak(path: Path, overrides: dict | None = None, seconds: float | None = None,
+              timeout_factor: float = 6.0) -> NodeSoakResult:
+    """Play the clip at ``path`` once (loop off) through the node; see the module docstring."""
+    from rclpy.parameter import Parameter
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import JointState
+    from visualization_msgs.msg import Marker
+    from clusterfem_ros.motion import load_motion
+    from clusterfem_ros.skeleton.kinematics import Skeleton
+    from clusterfem_ros.nodes.testing import RosWorld
+    from clusterfem_ros.nodes.clusterfem_node import ClusterFemNode
+    from clusterfem_ros.nodes.player_node import MocapPlayer
+    motion = load_motion("bvh", path)
+    length = motion.trajectory.duration if seconds is None else min(seconds, motion.trajectory.duration)
+    config = clip_config({"physics.clock": "input", "output.marker_rate_hz": 30.0, "output.stress_rate_hz": 0.0,
+                          "output.diagnostics_rate_hz": 0.0, **(overrides or {})})
+    res = NodeSoakResult(path.stem, length)
+    with RosWorld() as world:
+        sim = world.add(ClusterFemNode(context=world.context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in config.values.items()]))
+        markers = world.collect(Marker, "clusterfem/surface", qos=1000)
+        sent = world.collect(JointState, "joint_states", qos=1000)
+        player = world.add(MocapPlayer(context=world.context, parameter_overrides=[
+            Parameter("source", value="bvh"), Parameter("file", value=str(path)), Parameter("rate_hz", value=120.0),
+            Parameter("loop", value=False)]))
+        deadline = time.monotonic() + 60.0 + timeout_factor * length
+        while time.monotonic() < deadline and not player.finished:
+            if seconds is not None and player.published > length * 120.0:
+                break
+            time.sleep(0.1)
+        time.sleep(0.5)                                          # the last ticks' markers
+        world.executor.shutdown(timeout_sec=5.0)
+        res.resets, res.withheld, res.markers = sim.divergences, sim.withheld, len(markers)
+        if sim.scene is not None:
+            res.rejected, res.dropped_s = sim.scene.inputs.total_rejected, sim.scene.dropped_s
+        states = []
+        for raw in sent:
+            js = deserialize_message(raw, JointState)
+            states.append((js.header.stamp.sec * 10**9 + js.header.stamp.nanosec, np.array(js.position)))
+        skeleton = Skeleton.from_urdf_string(motion.urdf)
+        names = list(motion.trajectory.names)
+        columns = np.array([names.index(n) for n in skeleton.joint_names])
+        limit = config["output.max_bone_distance"]
+        for raw in markers:
+            d = _marker_distance(raw, states, skeleton, columns) if states else np.inf
+            res.worst_distance = max(res.worst_distance, d)
+            res.markers_far += int(d > limit)
+    return res

@@ -1,0 +1,77 @@
+"""The main job with real motion: `scripts/run --bvh FILE`, and a scene file whose mocap_player section drives the
+player (the README's commands)."""
+import os
+import shutil
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from clusterfem_ros.config import SceneConfig, scene_file_text
+from clusterfem_ros.motion import load_player_section, skeleton_source_for
+from tests.shared_data import CMU_WALK
+
+pytestmark = pytest.mark.ros
+
+
+def _run(args, cwd, timeout=240):
+    env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="SHM", ROS_DOMAIN_ID=str(140 + os.getpid() % 20),
+               PYTHONPATH=os.pathsep.join([str(__import__("pathlib").Path(__file__).resolve().parents[1])] +
+                                          os.environ.get("PYTHONPATH", "").split(os.pathsep)))
+    run = subprocess.run([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--duration", "2", "--no-record", *args],
+                         env=env, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    return run.returncode, run.stdout + run.stderr
+
+
+def _small_scene(path, **values):
+    path.write_text(scene_file_text(SceneConfig().with_values({"body.target_tets": 700, **values})))
+    return path
+
+
+def _used(out: str) -> int:
+    return int(out.split("inputs          ")[1].split()[0])
+
+
+@pytest.fixture
+def walk(tmp_path):
+    if not CMU_WALK.exists():
+        pytest.skip(f"{CMU_WALK} is not there (../shared/data/mocap)")
+    return shutil.copy(CMU_WALK, tmp_path / "walk.bvh")
+
+
+def test_run_with_bvh_plays_the_file_on_a_body_built_on_its_skeleton(tmp_path, walk):
+    code, out = _run(["--bvh", "walk.bvh", "--scene", str(_small_scene(tmp_path / "s.yaml")),
+                      "--png", str(tmp_path / "f.png")], cwd=tmp_path)
+    assert code == 0, out
+    assert "skeleton from robot_description" in out and "binding" in out and "31 bones" in out
+    assert _used(out) > 20 and "0 resets after divergence" in out, out
+
+
+def test_a_scene_files_player_section_drives_the_player(tmp_path, walk):
+    scene = _small_scene(tmp_path / "s.yaml", **{"skeleton.source": "robot_description"})
+    doc = yaml.safe_load(scene.read_text())
+    doc["mocap_player"] = {"ros__parameters": {"source": "bvh", "file": "walk.bvh", "rate_hz": 60, "loop_blend": 1}}
+    scene.write_text(yaml.safe_dump(doc))
+    code, out = _run(["--scene", "s.yaml", "--png", str(tmp_path / "f.png")], cwd=tmp_path)
+    assert code == 0, out
+    assert "file walk.bvh" in out and "rate_hz 60" in out and "source bvh" in out and _used(out) > 10, out
+
+
+def test_player_sections_are_checked_and_a_bvh_on_the_built_in_skeleton_is_refused(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text("clusterfem: {ros__parameters: {}}\n")
+    assert load_player_section(f) is None
+    f.write_text("mocap_player: {ros__parameters: {source: bvh, file: a.bvh, sped: 2}}\n")
+    with pytest.raises(ValueError, match="no parameter 'sped'"):
+        load_player_section(f)
+    f.write_text("mocap_player: {ros__parameters: {source: fbx}}\n")
+    with pytest.raises(ValueError, match="source = 'fbx'"):
+        load_player_section(f)
+    assert skeleton_source_for("bvh") == "robot_description" and skeleton_source_for("builtin_walk") == "builtin"
+    scene = _small_scene(tmp_path / "b.yaml")
+    doc = yaml.safe_load(scene.read_text())
+    doc["mocap_player"] = {"ros__parameters": {"source": "bvh", "file": "walk.bvh"}}
+    scene.write_text(yaml.safe_dump(doc))
+    code, out = _run(["--scene", str(scene)], cwd=tmp_path, timeout=60)
+    assert code != 0 and "set skeleton.source to 'robot_description'" in out, out
