@@ -25,7 +25,7 @@ from .fem.material import Material
 from .fem.mesh_io import read_mesh
 from .fem.model import Attachments, Control, State, build_model
 from .fem.stability import DivergenceError
-from .fem.tet_mesh import TetMesh, boundary_triangles, signed_volumes
+from .fem.tet_mesh import TetMesh, boundary_triangles, total_volume
 from .fem.voxel_mesh import paper_mesh
 from .method_choice import SHIPPED_POINTS
 
@@ -100,6 +100,7 @@ class Scene:
         remap[self.surface_vertices] = np.arange(self.surface_vertices.size)
         self.surface_triangles = remap[self.triangles]
         self.rest_volume = float(mesh.volumes().sum())
+        self._corners = None            # the tets transposed (4, m), for the volume checks
         self.skeleton = skeleton
         self.urdf_xml = urdf_xml
         self.driver = None
@@ -539,7 +540,13 @@ class Scene:
 
     def volume_error(self) -> float:
         """Relative change of the body's volume from rest."""
-        return float(signed_volumes(self.positions(), self.model.mesh.tets).sum()) / self.rest_volume - 1.0
+        return self.volume_error_of(self.model.rest + self.state.u)
+
+    def volume_error_of(self, positions: np.ndarray) -> float:
+        """Relative change of the body's volume from rest, with its vertices at ``positions``."""
+        if self._corners is None:
+            self._corners = np.ascontiguousarray(self.model.mesh.tets.T)
+        return total_volume(positions, self._corners) / self.rest_volume - 1.0
 
     def energy(self) -> float:
         return self.model.kinetic_energy(self.state.v) + self.model.elastic_energy(self.state.u)

