@@ -25,8 +25,8 @@ from clusterfem_ros.config import load_scene_file
 from clusterfem_ros.scene import Scene
 from .timing import table
 
-DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "config" / "character_walk.yaml"
-DEFAULT_BVH = Path(__file__).resolve().parents[3] / "shared" / "data" / "mocap" / "cmu_06_01_walk.bvh"
+DEFAULT_SCENE = Path(__file__).resolve().parents[1] / "config" / "character_walk.yaml"
+DEFAULT_BVH = Path(__file__).resolve().parents[2] / "shared" / "data" / "mocap" / "cmu_06_01_walk.bvh"
 
 
 def bvh_skeleton(bvh: Path):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from clusterfem_ros.config import SceneConfig
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 MANIFEST = REPO / "tests" / "data" / "mocap_clips.yaml"
 
 
