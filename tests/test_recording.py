@@ -213,13 +213,13 @@ def test_the_sample_recording_replays_to_round_off_and_a_changed_physics_is_repo
     AVX2 host read 1.07e-14 m from the AVX-512 host's recording, with 4 or 8 slice lanes alike; the same-host
     replay of a fresh recording is tested in test_node_skeleton.py). A failure here means the physics
     changed since it was recorded: record it again (bags/README.md). The same bag with a stiffer material
-    must fail with exit 1 (0.0278 m off), naming the way out."""
-    from clusterfem_ros.recording.bag_reader import PARAMS_FILE
+    must fail with exit 1, naming the way out."""
+    from clusterfem_ros.recording.bag_reader import PARAMS_FILE, read_surfaces
     from clusterfem_ros.replay import main
     assert main([str(SAMPLE)]) == 0, capsys.readouterr()
     out = capsys.readouterr().out
     got = re.search(r"compared (\d+) surfaces; max vertex difference (\S+) m", out)
-    assert got and int(got[1]) == 60, out
+    assert got and int(got[1]) == len(read_surfaces(SAMPLE)) > 50, out
     # round-off only: a 1e-14 perturbation of every joint angle grew to 1.7e-13 m over the bag's 6.6 s
     assert float(got[2]) <= 1e-10, out
     stiffer = tmp_path / "stiffer"
