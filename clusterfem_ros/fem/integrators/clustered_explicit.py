@@ -5,10 +5,10 @@ velocity and position updates, with no Python in between. ``warp=True`` swaps in
 the same step: per-element corotation by default (fem/element_warping.py: the gradient of an energy, so it
 cannot feed energy in), or the paper's per-vertex warping (``warping_model="vertex"``, fem/warping.py: eq.
 10, symmetrised) for comparison; the linear path is a separate compiled function.
-The critical step is the linear K's. Warping keeps it under moderate deformation, but a corotated element
-stretched several times its size stiffens (its tangent's twist modes grow with lambda tr(S - I)): undamped,
-the bar with a vertex torn 0.5 m away ran bounded at safety 0.2, not at 0.8 (tests/test_hard_cases.py); the
-scene's damping keeps it bounded at 0.8.
+The critical step is the linear K's. A corotated element stretched several times its size is stiffer than
+that (its tangent's twist modes grow with lambda tr(S - I)), so a warped step is planned for the linear K's
+largest eigenvalue times a stretch factor (``StretchPlan``): undamped, the bar with a vertex torn 0.5 m
+away stays bounded at the default safety (tests/test_hard_cases.py).
 
 Python per step is kept to what can change: the sub-step plan is cached while h and the attachment gains'
 maxima are unchanged, prescribed vertices cost nothing when there are none, and divergence is still
@@ -26,6 +26,7 @@ from ..cluster_force_kernel import (cluster_args, kernel_input_serial, scratch, 
 from ..model import Control, FemModel, State
 from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
+from ..stretch import StretchPlan
 from ..element_warping import ElementFrames, check_warping_model, element_e_parallel, element_e_serial
 from ..warping import VertexFrames, warped_e_parallel, warped_e_serial
 from .base import StepCommon, StepInfo
@@ -236,12 +237,13 @@ class ClusteredExplicit:
     (default: from AUTO_THREADS_MIN_VERTICES vertices, the faster build as measured by ThreadChoice);
     ``warp`` turns on stiffness warping, ``warping_model`` which: 'element' (per-element corotation, the
     gradient of an energy: fem/element_warping.py) or 'vertex' (the paper's eq. 10, symmetrised:
-    fem/warping.py)."""
+    fem/warping.py); ``plan_stretch=False`` plans a warped step from the linear K alone (for comparison:
+    fem/stretch.py says why it is on)."""
     name = "clustered"
 
     def __init__(self, model: FemModel, safety: float = 0.8, max_substeps: int = 10000,
                  threads: bool | None = None, lam_max: float | None = None, warp: bool = False,
-                 warping_model: str = "element"):
+                 warping_model: str = "element", plan_stretch: bool = True):
         self.model = model
         self.warp = bool(warp)
         self.warping_model = check_warping_model(warping_model)
@@ -274,6 +276,7 @@ class ClusteredExplicit:
         self._common = StepCommon(model)
         m = model.material
         self._zeta, self._xi = float(m.zeta), float(m.xi)
+        self.stretch = StretchPlan(model) if self.warp and plan_stretch else None
         self._plan_key = None
         self._plan = None
         self._info = None
@@ -286,15 +289,17 @@ class ClusteredExplicit:
             return self._builds[0][0], self._builds[1][0]
         return (self._builds[self.threads][0],)
 
-    def critical_step(self, control: Control | None = None) -> float:
-        return control_critical_step(self.lam_max, self.model.material, control)
+    def critical_step(self, control: Control | None = None, stiffer: float = 1.0) -> float:
+        """h_crit for the linear K's largest eigenvalue times ``stiffer`` (a warped body's stretch factor)."""
+        return control_critical_step(self.lam_max * stiffer, self.model.material, control)
 
-    def _plan_for(self, h: float, control: Control):
-        """The sub-step plan and its StepInfo, recomputed only when h or the attachments' largest gains change."""
+    def _plan_for(self, h: float, control: Control, stiffer: float = 1.0):
+        """The sub-step plan and its StepInfo, recomputed only when h, the attachments' largest gains or the
+        stretch factor change."""
         att = control.attachments
-        key = (h, float(att.kp.max()), float(att.kd.max())) if att.index.size else h
+        key = (h, stiffer, float(att.kp.max()), float(att.kd.max())) if att.index.size else (h, stiffer)
         if key != self._plan_key:
-            self._plan = plan_substeps(h, self.critical_step(control), self.safety, self.max_substeps)
+            self._plan = plan_substeps(h, self.critical_step(control, stiffer), self.safety, self.max_substeps)
             self._info = StepInfo(self._plan.substeps, self._plan.margin)
             self._plan_key = key
         return self._plan
@@ -312,15 +317,18 @@ class ClusteredExplicit:
         it inside numba, without the dispatch)."""
         if control.attachments.index.size or control.prescribed_index.size:
             raise ValueError("compiled_step covers bodies without attachments or prescribed vertices")
-        return self._builds[False][1], self._step_args(state, control, self._plan_for(h, control), self._inv_mass3)
+        stiffer = self.stretch.factor(state.u, h) if self.stretch is not None else 1.0
+        return self._builds[False][1], self._step_args(state, control, self._plan_for(h, control, stiffer),
+                                                       self._inv_mass3)
 
     def step(self, state: State, control: Control, h: float) -> StepInfo:
-        plan = self._plan_for(h, control)
         common = self._common
         inv_mass3 = self._inv_mass3
         if control.prescribed_index.size:   # fixed vertices are zeroed in the kernel; prescribed ones here
             held = common.apply_prescribed(state, control)
             inv_mass3 = np.where(np.repeat(held, 3), 0.0, inv_mass3)
+        stiffer = self.stretch.factor(state.u, h) if self.stretch is not None else 1.0
+        plan = self._plan_for(h, control, stiffer)
         att = control.attachments
         choice = self.thread_choice
         if choice is not None:

@@ -6,13 +6,15 @@ warped kernels must match to round-off. ``warping_model="element"`` (default): e
 rotations R_e are extracted (the compiled polar iteration, fem/element_warping.py) and the force is
 sum_e -R_e K_e (R_e^T w_e - x0_e) in numpy (fem/corotational.py). ``"vertex"`` (eq. 10 symmetrised,
 fem/warping.py): the vertex rotations R_i and the block-sparse K warped, blocks
-(R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (warping.AssembledWarp)."""
+(R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (warping.AssembledWarp). A warped step plans its sub-steps for the
+body's stretch (fem/stretch.py), as the clustered step does."""
 from __future__ import annotations
 
 import numpy as np
 
 from ..model import Control, FemModel, State
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
+from ..stretch import StretchPlan
 from ..corotational import ElementCorotation
 from ..element_warping import ElementFrames, check_warping_model, element_rotations
 from ..warping import AssembledWarp, VertexFrames, vertex_rotations
@@ -23,7 +25,8 @@ class StandardExplicit:
     name = "standard_explicit"
 
     def __init__(self, model: FemModel, safety: float = 0.8, max_substeps: int = 10000,
-                 lam_max: float | None = None, warp: bool = False, warping_model: str = "element"):
+                 lam_max: float | None = None, warp: bool = False, warping_model: str = "element",
+                 plan_stretch: bool = True):
         self.model = model
         self.warp = bool(warp)
         self.warping_model = check_warping_model(warping_model)
@@ -42,13 +45,16 @@ class StandardExplicit:
         self.D = model.damping_matrix()
         self._inv_mass = np.where(model.fixed, 0.0, 1.0 / model.mass)
         self._common = StepCommon(model)
+        self.stretch = StretchPlan(model) if self.warp and plan_stretch else None
 
-    def critical_step(self, control: Control | None = None) -> float:
-        return control_critical_step(self.lam_max, self.model.material, control)
+    def critical_step(self, control: Control | None = None, stiffer: float = 1.0) -> float:
+        """h_crit for the linear K's largest eigenvalue times ``stiffer`` (a warped body's stretch factor)."""
+        return control_critical_step(self.lam_max * stiffer, self.model.material, control)
 
     def step(self, state: State, control: Control, h: float) -> StepInfo:
-        plan = plan_substeps(h, self.critical_step(control), self.safety, self.max_substeps)
         held = self._common.apply_prescribed(state, control)
+        stiffer = self.stretch.factor(state.u, h) if self.stretch is not None else 1.0
+        plan = plan_substeps(h, self.critical_step(control, stiffer), self.safety, self.max_substeps)
         inv_mass = (self._inv_mass if held is None else np.where(held, 0.0, self._inv_mass))[:, None]
         f_const = self._common.constant_forces(control)
         att = control.attachments

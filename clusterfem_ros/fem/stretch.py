@@ -1,0 +1,98 @@
+"""How much a warped body's elements have stiffened by stretching: the factor that shortens the explicit step.
+
+The explicit step's critical step comes from the linear K's largest eigenvalue (fem/stability.py). A
+corotated element is as stiff as the linear one near rest, but stretched it stiffens: with S = R^T F (the
+stretch of the polar decomposition F = R S, eigenvalues sigma_i) the volumetric term lambda/2 tr(S - I)^2 adds
+lambda tr(S - I) d^2 tr(S) / dF^2 to the tangent, whose twist modes are 2 / (sigma_i + sigma_j): an element
+stretched tenfold along one axis (tr(S) - 3 = 9) is several times stiffer than the linear K in those modes,
+so an explicit step planned from K alone grows without bound (a vertex torn 0.5 m from a 0.1 m bar,
+undamped, at safety 0.8; benchmarks/stability_table.py).
+
+``stiffening`` bounds that factor from the deformation gradients alone, without the rotations:
+tr(S) = sum sigma_i <= sqrt(3) |F|_F, so g = max(0, sqrt(3) max_e |F_e|_F - 3) >= max_e tr(S_e) - 3, and the
+step is planned for lambda_max (1 + g): zero for a body at rest or in rigid motion, a few tenths in a walk,
+where the sub-step count does not change. One pass over the elements (36 multiply-adds each).
+
+``StretchPlan`` turns g into the factor the step is planned with. Symplectic Euler conserves a shadow
+energy only while its step stays the same, and each change of step moves it: on the torn bar (undamped, 3 s,
+benchmarks/stability_table.py), a factor that follows g at every step ended at 5.4x the work put in, one
+that falls back after 1 s or 2 s without need at 2.2x and 1.6x, one that never falls at 1.08x. So the factor
+is rounded up to a quarter octave, rises at once, and falls only after ``hold`` simulated seconds (5 s)
+without need: a body stretched by a glitch steps finer for those seconds, then returns to its usual step.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .assembly import shape_gradients
+from .numba_config import SERIAL
+
+SQRT3 = math.sqrt(3.0)
+
+
+@numba.njit(**SERIAL)
+def max_gradient_norm(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.ndarray) -> float:
+    """max over elements of |F_e|_F, F_e = sum_c (rest_c + u_c) outer g_{e,c}."""
+    worst = 0.0
+    for e in range(tets.shape[0]):
+        f00 = f01 = f02 = f10 = f11 = f12 = f20 = f21 = f22 = 0.0
+        for c in range(4):
+            v = tets[e, c]
+            x0, x1, x2 = rest[v, 0] + u[v, 0], rest[v, 1] + u[v, 1], rest[v, 2] + u[v, 2]
+            g0, g1, g2 = gradients[e, c, 0], gradients[e, c, 1], gradients[e, c, 2]
+            f00 += x0 * g0
+            f01 += x0 * g1
+            f02 += x0 * g2
+            f10 += x1 * g0
+            f11 += x1 * g1
+            f12 += x1 * g2
+            f20 += x2 * g0
+            f21 += x2 * g1
+            f22 += x2 * g2
+        s = (f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12
+             + f20 * f20 + f21 * f21 + f22 * f22)
+        if s > worst:
+            worst = s
+    return math.sqrt(worst)
+
+
+def stiffening(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.ndarray) -> float:
+    """g >= max_e tr(S_e) - 3 (>= 0): plan the explicit step for lambda_max (1 + g) (module docstring)."""
+    if tets.shape[0] == 0:
+        return 0.0
+    return max(0.0, SQRT3 * max_gradient_norm(tets, gradients, rest, u) - 3.0)
+
+
+class StretchPlan:
+    """The stretch factor a warped explicit body plans its sub-steps with (module docstring). The bound is
+    taken at most every ``every`` simulated seconds (5 ms: every fifth step of the node's 1 ms, every step of
+    a 10 ms one; 0.05 ms per bound on the 4815-tet jelly man)."""
+
+    def __init__(self, model, hold: float = 5.0, every: float = 0.005):
+        self.tets = np.ascontiguousarray(model.mesh.tets, dtype=np.int64)
+        self.gradients = np.ascontiguousarray(shape_gradients(model.rest, self.tets)[0])
+        self.rest = np.ascontiguousarray(model.rest, dtype=np.float64)
+        self.hold, self.every = float(hold), float(every)
+        self.current = 1.0
+        self._since = 0.0              # simulated seconds since ``current`` was last needed
+        self._due = 0.0                # simulated seconds until the next bound
+
+    def factor(self, u: np.ndarray, h: float) -> float:
+        """The factor for a step of h from displacement u: >= 1 + g rounded up to a quarter octave."""
+        self._due -= h
+        if self._due > 0.0:
+            self._since += h
+            return self.current
+        self._due += max(self.every, h)
+        g = stiffening(self.tets, self.gradients, self.rest, u)
+        need = 2.0 ** (math.ceil(4.0 * math.log2(1.0 + g)) / 4.0) if g > 0.0 else 1.0
+        if need >= self.current:
+            self.current, self._since = need, 0.0
+        else:
+            self._since += h
+            if self._since > self.hold:
+                self.current, self._since = need, 0.0
+        return self.current
