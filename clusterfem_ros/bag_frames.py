@@ -126,19 +126,24 @@ def _mcap_file(folder: Path) -> Path:
 
 
 def _skeleton_urdf(scene: dict, bag_urdf: str | None, folder: Path) -> str | None:
-    """The bag's own robot_description first; else what the scene's skeleton.source names."""
-    if bag_urdf:
-        return bag_urdf
+    """The bag's own robot_description first; else what the scene's skeleton.source names; mounted and with leaf
+    tips as the node made its skeleton (skeleton.link_shapes.prepare_urdf), so the drawn bones match the body."""
     source = scene.get("skeleton.source", "builtin")
-    if source == "builtin":
+    urdf, where = bag_urdf, None
+    if not urdf and source == "builtin":
         from .skeleton.humanoid import humanoid_urdf
-        return humanoid_urdf()
-    if source == "urdf_file":
+        urdf = humanoid_urdf()
+    elif not urdf and source == "urdf_file":
         path = Path(scene.get("skeleton.urdf_file", ""))
         for candidate in (path, folder / path):
             if candidate.is_file():
-                return candidate.read_text()
-    return None
+                urdf, where = candidate.read_text(), candidate
+                break
+    if not urdf:
+        return None
+    from .skeleton.link_shapes import prepare_urdf
+    return prepare_urdf(urdf, scene.get("skeleton.up_axis", "z"), scene.get("skeleton.root_joint", "auto"),
+                        leaf_shapes=scene.get("body.kind", "jelly_man") == "jelly_man", urdf_file=where).urdf
 
 
 def read_bag_frames(folder: str | Path) -> BagFrames:

@@ -183,6 +183,13 @@ class Scene:
             elif urdf_xml is None:
                 raise ValueError("skeleton.source is 'robot_description': pass the URDF text received on that "
                                  "topic (the node waits for it)")
+            from .skeleton.link_shapes import prepare_urdf
+            prepared = prepare_urdf(urdf_xml, config["skeleton.up_axis"], config["skeleton.root_joint"],
+                                    leaf_shapes=config["body.kind"] == "jelly_man",
+                                    urdf_file=config["skeleton.urdf_file"] if source == "urdf_file" else None)
+            urdf_xml = prepared.urdf
+            for note in prepared.notes:
+                _say(progress, note)
             try:
                 skeleton = Skeleton.from_urdf_string(urdf_xml)
             except UrdfError as exc:               # name the file the user can fix
@@ -201,7 +208,8 @@ class Scene:
                 spec = default_humanoid()
             else:
                 r = float(config["body.bone_radius"])
-                spec = HumanoidSpec(urdf_xml, {name: r for name in skeleton.bone_names})
+                spec = HumanoidSpec(urdf_xml, {name: 0.0 if name in prepared.leaf_shapes else r
+                                               for name in skeleton.bone_names}, leaf_shapes=prepared.leaf_shapes)
             _say(progress, f"voxelizing the jelly man (~{config['body.target_tets']} tets)")
             mesh = jelly_man_mesh(spec, target_tets=config["body.target_tets"])
         elif kind == "mesh":

@@ -10,7 +10,8 @@ scalar root joints. A ``floating``, ``planar`` or spherical joint raises ``NotIm
 (it has no scalar name per degree of freedom; replace it by scalar joints).
 
 Bones (``bone_names``) are the URDF links except helpers and tips (see ``urdf_builder``): a link whose
-``<inertial>`` mass is <= 1e-6 kg is a helper between the scalar joints of one multi-axis joint; a leaf
+``<inertial>`` mass is <= 1e-6 kg is a helper between the scalar joints of one multi-axis joint, and so is a
+link with neither inertia nor shapes whose child joints all sit at its origin (a 'virtual' link); a leaf
 link named ``*_tip`` on a fixed joint marks the end of its parent bone. A bone's segment runs from its
 origin to its tip if it has one, else to the origin of its farthest child bone, else it has zero length.
 
@@ -59,6 +60,7 @@ class _Link:
     name: str
     mass: float | None
     parent_joint: str | None
+    shaped: bool = False        # has a <visual> or <collision> shape
 
 
 def _parse_tree(xml: str) -> tuple[dict[str, _Link], dict[str, dict]]:
@@ -89,7 +91,8 @@ def _parse_tree(xml: str) -> tuple[dict[str, _Link], dict[str, dict]]:
     for link in root.findall("link"):
         m = link.find("inertial/mass")
         mass = None if m is None else _numbers(m.get("value", ""), f"link {link.get('name')!r} <mass value>", 1)[0]
-        links[link.get("name")] = _Link(link.get("name"), mass, child_of.get(link.get("name")))
+        shaped = link.find("visual") is not None or link.find("collision") is not None
+        links[link.get("name")] = _Link(link.get("name"), mass, child_of.get(link.get("name")), shaped)
     return links, joints
 
 
@@ -142,9 +145,16 @@ class Skeleton:
             pj = links[n].parent_joint
             return n.endswith(TIP_SUFFIX) and not children[n] and pj is not None and joints[pj]["type"] == "fixed"
 
+        def is_frame(n: str) -> bool:
+            """A link without inertia or shapes whose child joints all sit at its origin: a frame between the
+            axes of one multi-axis joint (the '*_virtual' links of biomechanical URDFs), like our helpers."""
+            out = [j for j in joints.values() if j["parent"] == n]
+            return (links[n].mass is None and not links[n].shaped and bool(out)
+                    and all(not j["xyz"].any() for j in out))
+
         def is_bone(n: str) -> bool:
             mass = links[n].mass
-            return not is_tip(n) and not (mass is not None and mass <= HELPER_MASS)
+            return not is_tip(n) and not (mass is not None and mass <= HELPER_MASS) and not is_frame(n)
 
         self.bone_names: list[str] = [n for n in links if is_bone(n)]
         if not self.bone_names:
