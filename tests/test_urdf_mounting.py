@@ -3,7 +3,7 @@ URDF's shapes (issue #18, item 7). The URDF is tests/urdf_text.py's own small Y-
 import numpy as np
 import pytest
 
-from clusterfem_ros.skeleton.link_shapes import leaf_geometry, prepare_urdf
+from clusterfem_ros.skeleton.link_shapes import ShapeError, leaf_geometry, prepare_urdf
 from clusterfem_ros.config import ConfigError, SceneConfig
 from clusterfem_ros.scene import Scene
 from clusterfem_ros.skeleton.humanoid import humanoid_urdf
@@ -185,3 +185,45 @@ def test_virtual_links_between_the_axes_of_one_joint_are_not_bones():
     sk = Skeleton.from_urdf_string(urdf)
     assert "neck_virtual" not in sk.bone_names and "neck_z" in sk.joint_names
     assert sk.bone_parent[sk.bone_names.index("head")] == sk.bone_names.index("chest")
+
+
+def test_a_shape_with_a_bad_size_is_refused_naming_the_link_and_the_text():
+    urdf = y_up_humanoid().replace(f'<box size="{HAND_BOX[0]} {HAND_BOX[1]} {HAND_BOX[2]}"/>', '<box size="0.1 0.2"/>', 1)
+    with pytest.raises(ShapeError, match=r"link 'left_hand' <collision> box size = '0.1 0.2': give 3 finite non-negative"):
+        leaf_geometry(urdf, [])
+
+
+def test_the_renderer_draws_the_scene_s_urdf_file_found_under_clusterfem_data_mounted_as_the_node_did(
+        tmp_path, monkeypatch):
+    from clusterfem_ros.bag_frames import _skeleton_urdf
+    (tmp_path / "urdf").mkdir()
+    (tmp_path / "urdf" / "y.urdf").write_text(y_up_humanoid())
+    monkeypatch.setenv("CLUSTERFEM_DATA", str(tmp_path))
+    scene = {"skeleton.source": "urdf_file", "skeleton.urdf_file": "urdf/y.urdf", "skeleton.up_axis": "y"}
+    drawn = _skeleton_urdf(scene, humanoid_urdf(), tmp_path / "bag")      # a player latched the humanoid too
+    config = SceneConfig().with_values({"skeleton.source": "urdf_file", "skeleton.urdf_file": "urdf/y.urdf",
+                                        "skeleton.up_axis": "y", "body.target_tets": 500})
+    built = Scene.build(config)
+    assert drawn == built.urdf_xml and "left_hand_tip" in drawn and "root_x" in drawn
+
+
+def test_the_human_of_example_robot_data_stands_with_mesh_shaped_leaves_and_a_free_root():
+    """The real URDF, where config/urdf_data.md says to put it (skipped when it is not there)."""
+    from clusterfem_ros.body.fit import FitError, find_data_file
+    try:
+        path = find_data_file("urdf/human_description/robots/human.urdf")
+    except FitError:
+        pytest.skip("urdf/human_description is not under $CLUSTERFEM_DATA or ../shared/data (config/urdf_data.md)")
+    notes = []
+    scene = Scene.build(SceneConfig().with_values({"skeleton.source": "urdf_file", "skeleton.urdf_file": str(path),
+                                                   "skeleton.up_axis": "y", "body.target_tets": 2000}),
+                        progress=notes.append)
+    extent = np.ptp(scene.model.rest, axis=0)
+    print(f"extent {extent}", *notes[:2], sep="\n")
+    assert extent[2] > 1.6 and extent[2] > 3 * max(extent[:2])
+    assert "skeleton root: free" in notes[0]
+    for leaf in ("left_foot", "right_foot", "left_hand", "right_hand", "middle_head"):
+        assert f"{leaf} (box from mesh bounding box" in notes[1]
+    assert not any(n.startswith("warning") for n in notes)
+    assert not any("virtual" in n for n in scene.skeleton.bone_names)      # 18 bones, the virtual links are frames
+    assert scene.skeleton.n_bones == 18 and scene.skeleton.nq == 42
