@@ -227,3 +227,31 @@ def test_the_human_of_example_robot_data_stands_with_mesh_shaped_leaves_and_a_fr
     assert not any(n.startswith("warning") for n in notes)
     assert not any("virtual" in n for n in scene.skeleton.bone_names)      # 18 bones, the virtual links are frames
     assert scene.skeleton.n_bones == 18 and scene.skeleton.nq == 42
+
+
+def test_the_shipped_human_scene_file_reads_and_names_its_data():
+    from pathlib import Path
+
+    from clusterfem_ros.config import load_scene_file
+    from clusterfem_ros.motion import load_player_section
+    root = Path(__file__).resolve().parents[1]
+    c = load_scene_file(root / "config" / "human_urdf.yaml")
+    assert (c["skeleton.source"], c["skeleton.up_axis"], c["skeleton.root_joint"]) == ("urdf_file", "y", "auto")
+    assert load_player_section(root / "config" / "human_urdf.yaml") == {"source": "builtin_walk"}
+    assert c["skeleton.urdf_file"] in (root / "config" / "urdf_data.md").read_text()
+
+
+def test_a_floating_root_joint_is_replaced_by_the_free_root_and_made_fixed_when_asked():
+    urdf = y_up_humanoid().replace(
+        '<link name="pelvis">', '<link name="world"/><joint name="base" type="floating"><parent link="world"/>'
+        '<child link="pelvis"/><origin xyz="0 1 0"/></joint><link name="pelvis">')
+    with pytest.raises(NotImplementedError, match="floating"):
+        Skeleton.from_urdf_string(urdf)
+    free = mount_urdf(urdf, "y")
+    assert free.root == "free" and "floating joint base made fixed" in free.note
+    sk = Skeleton.from_urdf_string(free.urdf)
+    assert sk.joint_names[:6] == ["root_x", "root_y", "root_z", "root_yaw", "root_pitch", "root_roll"]
+    np.testing.assert_allclose(sk.forward(sk.neutral()).translation[sk.bone_names.index("pelvis")], [0, 0, 1],
+                               atol=1e-12)                               # the joint's origin, turned Y up
+    fixed = mount_urdf(urdf, "z", "fixed")
+    assert fixed.root == "fixed" and Skeleton.from_urdf_string(fixed.urdf).joint_names[0] == "left_hip"

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ClusterFemError
+from .mounting import rpy_matrix
 from .urdf_builder import HELPER_MASS, TIP_SUFFIX, UrdfBuilder
 
 KINDS = ("box", "cylinder", "sphere", "capsule")
@@ -60,12 +61,6 @@ class LeafGeometry:
     warnings: list[str] = field(default_factory=list)
 
 
-def _rpy_matrix(r: float, p: float, y: float) -> np.ndarray:
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    return (np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]]) @ np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-            @ np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]]))
-
-
 def _floats(text: str | None, count: int, where: str, signed: bool = False) -> np.ndarray:
     """``count`` finite numbers (non-negative unless ``signed``) from a URDF attribute; ShapeError naming it."""
     try:
@@ -98,7 +93,7 @@ def _shape(link: str, element: ET.Element, source: str, search: list[Path]) -> t
     o = element.find("origin")
     xyz = _floats(o.get("xyz", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin xyz", True)
     rpy = _floats(o.get("rpy", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin rpy", True)
-    R = _rpy_matrix(*rpy)
+    R = rpy_matrix(*rpy)
     g = element.find("geometry")
     geo = g[0] if g is not None and len(g) else None
     where = f"link {link!r} <{source}>"

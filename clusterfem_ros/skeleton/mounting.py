@@ -5,7 +5,9 @@ would lie along world Y with gravity sideways; ``skeleton.up_axis`` names the UR
 ``mount_urdf`` puts a fixed joint above the URDF's root link whose rotation turns that axis onto world Z
 (Y up: +90 deg about X, so the model's forward X stays forward and its right +Z becomes -Y, left +Y).
 
-A URDF whose root link hangs on nothing (a fixed base) cannot follow a moving root. With
+A URDF whose root link hangs on nothing (a fixed base) cannot follow a moving root. A ``floating`` joint (six
+degrees of freedom without a scalar name each, which a JointState cannot address) is made fixed, so such a
+URDF counts as a fixed base. With
 ``skeleton.root_joint`` 'free' (or 'auto' and a URDF without any prismatic joint, so nothing in it can
 translate), the root link gets the built-in humanoid's root joints ``FREE_ROOT``: three prismatic joints
 along world X, Y, Z and yaw (Z), pitch (Y), roll (X) revolute joints, R = Rz Ry Rx, the same names and the
@@ -51,17 +53,21 @@ class MountedUrdf:
     note: str           # one line for the start-up log: what was chosen and why
 
 
-def up_rotation(up_axis: str) -> np.ndarray:
-    """(3, 3) rotation taking the URDF's ``up_axis`` onto world +Z (the fixed joint's rpy, R = Rz Ry Rx)."""
-    if up_axis not in _RPY:
-        raise MountError(f"skeleton.up_axis = {up_axis!r}: choose one of {', '.join(UP_AXES)} (the URDF's axis "
-                         "that points up when the model stands)")
-    r, p, y = _RPY[up_axis]
+def rpy_matrix(r: float, p: float, y: float) -> np.ndarray:
+    """(3, 3) rotation of a URDF ``rpy`` (roll about X, then pitch about Y, then yaw about Z: R = Rz Ry Rx)."""
     cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
     rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
     ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
     rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
     return rz @ ry @ rx
+
+
+def up_rotation(up_axis: str) -> np.ndarray:
+    """(3, 3) rotation taking the URDF's ``up_axis`` onto world +Z (the mounting joint's rpy)."""
+    if up_axis not in _RPY:
+        raise MountError(f"skeleton.up_axis = {up_axis!r}: choose one of {', '.join(UP_AXES)} (the URDF's axis "
+                         "that points up when the model stands)")
+    return rpy_matrix(*_RPY[up_axis])
 
 
 def _root_link(root: ET.Element) -> str:
@@ -83,8 +89,10 @@ def mount_urdf(xml: str, up_axis: str = "z", root_joint: str = "auto") -> Mounte
         tree = ET.fromstring(xml)
     except ET.ParseError:
         return MountedUrdf(xml, "fixed", "")                # the Skeleton names the XML error
-    kinds = [j.get("type") for j in tree.findall("joint")]
-    own = "prismatic" in kinds or "floating" in kinds
+    floating = [j for j in tree.findall("joint") if j.get("type") == "floating"]
+    for j in floating:                  # six degrees of freedom without scalar names: the free root replaces them
+        j.set("type", "fixed")
+    own = any(j.get("type") == "prismatic" for j in tree.findall("joint"))
     free = root_joint == "free" or (root_joint == "auto" and not own)
     if free:
         names = {j.get("name") for j in tree.findall("joint")} | {x.get("name") for x in tree.findall("link")}
@@ -92,28 +100,28 @@ def mount_urdf(xml: str, up_axis: str = "z", root_joint: str = "auto") -> Mounte
         if clash:
             raise MountError(f"skeleton.root_joint = {root_joint!r} adds the root joints {[n for n, _, _ in FREE_ROOT]}, "
                              f"but the URDF already has {clash}: set skeleton.root_joint to 'fixed' (keep its own root)")
-    if not free and up_axis == "z":
-        root = "own" if own else "fixed"
-        why = ("the URDF's own root joints move the root" if own else
-               "the URDF cannot translate: the body stays where the URDF's root link is")
-        return MountedUrdf(xml, root, f"skeleton root: {root} ({why}); up axis z")
-    old_root = _root_link(tree)
-    b = UrdfBuilder("mount")
-    b.link(WORLD_LINK, helper=True)
-    top = WORLD_LINK
-    if free:
-        b.link(BASE_LINK, helper=True)
-        b.chain(WORLD_LINK, BASE_LINK, FREE_ROOT)
-        top = BASE_LINK
-    b.joint(MOUNT_JOINT, "fixed", top, old_root, rpy=_RPY[up_axis])
-    added = ET.fromstring(b.to_string())
-    for element in list(added):
-        tree.append(element)
     root = "free" if free else ("own" if own else "fixed")
-    why = {"free": f"added {', '.join(n for n, _, _ in FREE_ROOT)} above {old_root!r}"
-                   + (" (skeleton.root_joint auto: the URDF has no prismatic joint)" if root_joint == "auto" else ""),
-           "own": "the URDF's own root joints move the root",
-           "fixed": "the URDF cannot translate: the body stays where the URDF's root link is"}[root]
+    why = ("the URDF's own root joints move the root" if own else
+           "the URDF cannot translate: the body stays where the URDF's root link is")
+    if not free and up_axis == "z" and not floating:
+        return MountedUrdf(xml, root, f"skeleton root: {root} ({why}); up axis z")
+    if free or up_axis != "z":
+        old_root = _root_link(tree)
+        if free:
+            why = f"added {', '.join(n for n, _, _ in FREE_ROOT)} above {old_root!r}" + (
+                " (skeleton.root_joint auto: the URDF has no prismatic joint)" if root_joint == "auto" else "")
+        b = UrdfBuilder("mount")
+        b.link(WORLD_LINK, helper=True)
+        top = WORLD_LINK
+        if free:
+            b.link(BASE_LINK, helper=True)
+            b.chain(WORLD_LINK, BASE_LINK, FREE_ROOT)
+            top = BASE_LINK
+        b.joint(MOUNT_JOINT, "fixed", top, old_root, rpy=_RPY[up_axis])
+        for element in list(ET.fromstring(b.to_string())):
+            tree.append(element)
+    if floating:
+        why += f"; floating joint{'s' if len(floating) > 1 else ''} {', '.join(j.get('name') for j in floating)} made fixed"
     note = f"skeleton root: {root} ({why}); up axis {up_axis}" + (
         f": the URDF's {up_axis} axis turned onto world z" if up_axis != "z" else "")
     return MountedUrdf(ET.tostring(tree, encoding="unicode"), root, note)
