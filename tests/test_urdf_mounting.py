@@ -253,5 +253,6 @@ def test_a_floating_root_joint_is_replaced_by_the_free_root_and_made_fixed_when_
     assert sk.joint_names[:6] == ["root_x", "root_y", "root_z", "root_yaw", "root_pitch", "root_roll"]
     np.testing.assert_allclose(sk.forward(sk.neutral()).translation[sk.bone_names.index("pelvis")], [0, 0, 1],
                                atol=1e-12)                               # the joint's origin, turned Y up
+    assert sk.bone_names[0] == "pelvis"                                  # 'world' is a frame, no flesh
     fixed = mount_urdf(urdf, "z", "fixed")
     assert fixed.root == "fixed" and Skeleton.from_urdf_string(fixed.urdf).joint_names[0] == "left_hip"

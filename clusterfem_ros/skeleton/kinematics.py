@@ -7,13 +7,15 @@ turned into pinocchio's (cos, sin) pair internally.
 
 Floating base: the URDF's root joints define it. Our generated URDFs use 3 prismatic + 3 revolute
 scalar root joints. A ``floating``, ``planar`` or spherical joint raises ``NotImplementedError``
-(it has no scalar name per degree of freedom; replace it by scalar joints).
+(it has no scalar name per degree of freedom; replace it by scalar joints: a scene does so, skeleton/mounting.py
+makes a floating joint fixed and adds scalar root joints).
 
 Bones (``bone_names``) are the URDF links except helpers and tips (see ``urdf_builder``): a link whose
 ``<inertial>`` mass is <= 1e-6 kg is a helper between the scalar joints of one multi-axis joint, and so is a
-link with neither inertia nor shapes whose child joints all sit at its origin (a 'virtual' link); a leaf
-link named ``*_tip`` on a fixed joint marks the end of its parent bone. A bone's segment runs from its
-origin to its tip if it has one, else to the origin of its farthest child bone, else it has zero length.
+link with neither inertia nor shapes whose child joints all sit at its origin (a 'virtual' link), or that is
+the root and named 'world'; a leaf link named ``*_tip`` on a fixed joint marks the end of its parent bone.
+A bone's segment runs from its origin to its tip if it has one, else to the origin of its farthest child
+bone, else it has zero length.
 
 Array conventions: q, v (n,) float64 [rad, m, rad/s, m/s]; rotation (nb, 3, 3) and translation (nb, 3)
 place bone-local points in the world, x = R c + p [m]; twist (nb, 6) = (omega, v) [rad/s, m/s] in
@@ -147,10 +149,12 @@ class Skeleton:
 
         def is_frame(n: str) -> bool:
             """A link without inertia or shapes whose child joints all sit at its origin: a frame between the
-            axes of one multi-axis joint (the '*_virtual' links of biomechanical URDFs), like our helpers."""
+            axes of one multi-axis joint (the '*_virtual' links of biomechanical URDFs), like our helpers; or
+            such a root link named 'world' (the world frame a robot's base hangs on, by convention)."""
             out = [j for j in joints.values() if j["parent"] == n]
-            return (links[n].mass is None and not links[n].shaped and bool(out)
-                    and all(not j["xyz"].any() for j in out))
+            bare = links[n].mass is None and not links[n].shaped
+            world = n == "world" and links[n].parent_joint is None
+            return bare and bool(out) and (world or all(not j["xyz"].any() for j in out))
 
         def is_bone(n: str) -> bool:
             mass = links[n].mass
