@@ -13,7 +13,7 @@ makes a floating joint fixed and adds scalar root joints).
 Bones (``bone_names``) are the URDF links except helpers and tips (see ``urdf_builder``): a link whose
 ``<inertial>`` mass is <= 1e-6 kg is a helper between the scalar joints of one multi-axis joint, and so is a
 link with neither inertia nor shapes whose child joints all sit at its origin (a 'virtual' link), or that is
-the root and named 'world'; a leaf link named ``*_tip`` on a fixed joint marks the end of its parent bone.
+named 'world'; a leaf link named ``*_tip`` on a fixed joint marks the end of its parent bone.
 A bone's segment runs from its origin to its tip if it has one, else to the origin of its farthest child
 bone, else it has zero length.
 
@@ -150,11 +150,11 @@ class Skeleton:
         def is_frame(n: str) -> bool:
             """A link without inertia or shapes whose child joints all sit at its origin: a frame between the
             axes of one multi-axis joint (the '*_virtual' links of biomechanical URDFs), like our helpers; or
-            such a root link named 'world' (the world frame a robot's base hangs on, by convention)."""
+            such a link named 'world' (the world frame a robot's base hangs on, by convention; the mounting may
+            have put it under the up-axis rotation)."""
             out = [j for j in joints.values() if j["parent"] == n]
             bare = links[n].mass is None and not links[n].shaped
-            world = n == "world" and links[n].parent_joint is None
-            return bare and bool(out) and (world or all(not j["xyz"].any() for j in out))
+            return bare and bool(out) and (n == "world" or all(not j["xyz"].any() for j in out))
 
         def is_bone(n: str) -> bool:
             mass = links[n].mass
