@@ -256,3 +256,18 @@ def test_a_floating_root_joint_is_replaced_by_the_free_root_and_made_fixed_when_
     assert sk.bone_names[0] == "pelvis"                                  # 'world' is a frame, no flesh
     fixed = mount_urdf(urdf, "z", "fixed")
     assert fixed.root == "fixed" and Skeleton.from_urdf_string(fixed.urdf).joint_names[0] == "left_hip"
+
+
+@pytest.mark.parametrize("kind, half, inside, outside", [
+    ("box", (0.1, 0.2, 0.3), (0.09, -0.19, 0.29), (0.11, 0.0, 0.0)),
+    ("cylinder", (0.1, 0.1, 0.3), (0.07, 0.07, 0.29), (0.08, 0.08, 0.0)),       # r = 0.113 > 0.1
+    ("capsule", (0.1, 0.1, 0.3), (0.0, 0.0, 0.39), (0.0, 0.0, 0.41)),           # the half-sphere's top at 0.4
+    ("sphere", (0.1, 0.1, 0.1), (0.0, 0.057, 0.08), (0.06, 0.06, 0.06))])
+def test_a_placed_shape_holds_the_points_inside_it_and_not_those_outside(kind, half, inside, outside):
+    from clusterfem_ros.skeleton.link_shapes import PlacedShape, shape_depth, shapes_inside
+    from clusterfem_ros.skeleton.mounting import rpy_matrix
+    R, p = rpy_matrix(0.3, -0.2, 1.1), np.array([1.0, 2.0, 3.0])
+    shape = PlacedShape(0, kind, R, p, np.array(half))
+    points = p + np.array([inside, outside]) @ R.T                 # shape-local points, placed like the shape
+    np.testing.assert_array_equal(shapes_inside(points, [shape]), [True, False])
+    assert shape_depth(p[None], shape)[0] == pytest.approx(-min(half[:2]) if kind != "box" else -min(half))
