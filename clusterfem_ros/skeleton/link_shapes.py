@@ -131,7 +131,10 @@ def leaf_links(root: ET.Element) -> list[str]:
     for link in root.findall("link"):
         n = link.get("name")
         m = link.find("inertial/mass")
-        helper = m is not None and float(m.get("value", "1")) <= HELPER_MASS
+        try:
+            helper = m is not None and float(m.get("value", "1")) <= HELPER_MASS
+        except ValueError:              # the Skeleton names a mass that is not a number
+            helper = False
         if n not in parents and not helper and not n.endswith(TIP_SUFFIX):
             out.append(n)
     return out
@@ -178,17 +181,19 @@ def leaf_geometry(xml: str, search: list[Path] | None = None) -> LeafGeometry:
     for leaf in leaf_links(root):
         element = root.find(f"link[@name={leaf!r}]")
         found: list[LinkShape] = []
+        why_not = []
         for source in ("collision", "visual"):
             for e in element.findall(source):
                 shape, why = _shape(leaf, e, source, search)
                 if shape is not None:
                     found.append(shape)
-                elif why:
-                    problems.append(why)
+                else:
+                    why_not.append(why)
             if found:
                 break
         if not found:
             plain.append(leaf)
+            problems += why_not
             continue
         shapes[leaf] = found
         tip = _tip(found)
