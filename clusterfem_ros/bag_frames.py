@@ -126,19 +126,32 @@ def _mcap_file(folder: Path) -> Path:
 
 
 def _skeleton_urdf(scene: dict, bag_urdf: str | None, folder: Path) -> str | None:
-    """The bag's own robot_description first; else what the scene's skeleton.source names."""
-    if bag_urdf:
-        return bag_urdf
+    """The scene's skeleton.urdf_file when it names one that is found (the node ignores robot_description then,
+    which a player may still have latched into the bag), else the bag's own robot_description, else the built-in
+    humanoid for a builtin scene; mounted and with leaf tips as the node made its skeleton
+    (skeleton.link_shapes.prepare_urdf), so the drawn bones match the body."""
     source = scene.get("skeleton.source", "builtin")
-    if source == "builtin":
-        from .skeleton.humanoid import humanoid_urdf
-        return humanoid_urdf()
+    urdf, where = None, None
     if source == "urdf_file":
-        path = Path(scene.get("skeleton.urdf_file", ""))
-        for candidate in (path, folder / path):
-            if candidate.is_file():
-                return candidate.read_text()
-    return None
+        from .body.fit import FitError, find_data_file
+        name = str(scene.get("skeleton.urdf_file", ""))
+        if name and (folder / name).is_file():
+            where = folder / name
+        elif name:
+            try:
+                where = find_data_file(name)
+            except FitError:
+                pass
+        urdf = where.read_text() if where is not None else None
+    urdf = urdf or bag_urdf
+    if not urdf and source == "builtin":
+        from .skeleton.humanoid import humanoid_urdf
+        urdf = humanoid_urdf()
+    if not urdf:
+        return None
+    from .skeleton.link_shapes import prepare_urdf
+    return prepare_urdf(urdf, scene.get("skeleton.up_axis", "z"), scene.get("skeleton.root_joint", "auto"),
+                        leaf_shapes=scene.get("body.kind", "jelly_man") == "jelly_man", urdf_file=where).urdf
 
 
 def read_bag_frames(folder: str | Path) -> BagFrames:

@@ -17,6 +17,7 @@ import yaml
 
 from .errors import ClusterFemError
 from .fem.material import DEFAULT_MASS_DAMPING, DEFAULT_STIFFNESS_DAMPING
+from .skeleton.mounting import ROOT_JOINTS, UP_AXES
 
 WARPING_MODELS = ("element", "vertex")           # fem/element_warping.WARPING_MODELS (no numba here)
 
@@ -72,6 +73,11 @@ PARAMS: tuple[Param, ...] = (
     Param("physics.gravity", -9.81, "gravity along world z [m/s^2]", -100.0, 100.0),
     Param("skeleton.source", "builtin", "skeleton URDF: built-in humanoid, a file, the robot_description topic, or none", choices=SKELETONS),
     Param("skeleton.urdf_file", "", "URDF path when skeleton.source is 'urdf_file'"),
+    Param("skeleton.up_axis", "z", "the URDF's up axis, turned onto world z (gravity along the legs): y for ISB / "
+          "biomechanical models", choices=UP_AXES),
+    Param("skeleton.root_joint", "auto", "'free': add root_x/y/z and root_yaw/pitch/roll joints above the URDF's "
+          "root (the players' root pose moves it); 'fixed': use the URDF's joints as they are; 'auto': free when "
+          "the URDF has no prismatic joint", choices=ROOT_JOINTS),
     Param("skeleton.bind_pose", "neutral", "pose a surface body was modelled in: the URDF's zero pose, or frame 0 of "
           "skeleton.bind_bvh (the capture the player plays)", choices=("neutral", "first_frame")),
     Param("skeleton.bind_bvh", "", "BVH file whose frame 0 is the bind pose when skeleton.bind_pose is 'first_frame'"),

@@ -31,6 +31,7 @@ from .method_choice import SHIPPED_POINTS
 
 
 MEASURED_POINTS = SHIPPED_POINTS
+URDF_MANIFEST = "config/urdf_data.md"     # where skeleton.urdf_file data that is not in the repository comes from
 MAX_VOLUME_ERROR = 0.5      # |V/V0 - 1| beyond this is a diverged state, not a deformation
 REST_DISTANCE_FACTOR = 1.5  # a vertex may reach this multiple of its rest distance to its bone, if above the limit
 VOLUME_CHECK_STEPS = 50     # the step loop's volume check runs at least this many steps apart (outputs: always)
@@ -179,10 +180,19 @@ class Scene:
                 from .skeleton.humanoid import default_humanoid
                 urdf_xml = default_humanoid().urdf
             elif source == "urdf_file":
-                urdf_xml = Path(config["skeleton.urdf_file"]).read_text()
+                from .body.fit import find_data_file
+                urdf_path = find_data_file(config["skeleton.urdf_file"], URDF_MANIFEST, "skeleton.urdf_file")
+                urdf_xml = urdf_path.read_text()
             elif urdf_xml is None:
                 raise ValueError("skeleton.source is 'robot_description': pass the URDF text received on that "
                                  "topic (the node waits for it)")
+            from .skeleton.link_shapes import prepare_urdf
+            prepared = prepare_urdf(urdf_xml, config["skeleton.up_axis"], config["skeleton.root_joint"],
+                                    leaf_shapes=config["body.kind"] == "jelly_man",
+                                    urdf_file=urdf_path if source == "urdf_file" else None)
+            urdf_xml = prepared.urdf
+            for note in prepared.notes:
+                _say(progress, note)
             try:
                 skeleton = Skeleton.from_urdf_string(urdf_xml)
             except UrdfError as exc:               # name the file the user can fix
@@ -201,7 +211,8 @@ class Scene:
                 spec = default_humanoid()
             else:
                 r = float(config["body.bone_radius"])
-                spec = HumanoidSpec(urdf_xml, {name: r for name in skeleton.bone_names})
+                spec = HumanoidSpec(urdf_xml, {name: 0.0 if name in prepared.leaf_shapes else r
+                                               for name in skeleton.bone_names}, leaf_shapes=prepared.leaf_shapes)
             _say(progress, f"voxelizing the jelly man (~{config['body.target_tets']} tets)")
             mesh = jelly_man_mesh(spec, target_tets=config["body.target_tets"])
         elif kind == "mesh":

@@ -173,8 +173,9 @@ def surface_depth(points: np.ndarray, surface_vertices: np.ndarray, triangles: n
     return np.asarray(d, dtype=np.float64)
 
 
-def find_data_file(name: str, manifest: str = "") -> Path:
-    """A data file given by path, or by a bare name under $CLUSTERFEM_DATA or ../shared/data of the checkout."""
+def find_data_file(name: str, manifest: str = "", what: str = "surface file") -> Path:
+    """A data file given by path, or by a bare name under $CLUSTERFEM_DATA or ../shared/data of the checkout;
+    ``what`` names it in the error."""
     import os
     p = Path(name)
     if p.is_file():
@@ -185,6 +186,6 @@ def find_data_file(name: str, manifest: str = "") -> Path:
         if (root / name).is_file():
             return root / name
     where = ", ".join(str(r) for r in roots)
-    raise FitError(f"surface file {name!r} is neither a path nor found under {where}: place it there (or set "
+    raise FitError(f"{what} {name!r} is neither a path nor found under {where}: place it there (or set "
                    f"CLUSTERFEM_DATA to the folder holding it)" + (f"; {manifest} says where it comes from"
                                                                   if manifest else ""))

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from .mounting import FREE_ROOT
 from .urdf_builder import AXES, UrdfBuilder
 
 PELVIS_HEIGHT = 0.95        # m, pelvis origin at q = 0
@@ -31,6 +32,7 @@ class HumanoidSpec:
     urdf: str
     bone_radius: dict[str, float] = field(default_factory=dict)   # bone link name -> capsule radius [m]
     height: float = 1.75                                          # m, standing, flesh included
+    leaf_shapes: dict = field(default_factory=dict)              # leaf link -> link_shapes.LinkShape list
 
     @property
     def joint_names(self) -> list[str]:
@@ -52,9 +54,7 @@ def humanoid_urdf() -> str:
             "upper_arm": 2.0, "forearm": 1.2, "hand": 0.5, "thigh": 8.0, "shin": 3.5, "foot": 1.0, "toes": 0.2}
     for n in ("pelvis", "abdomen", "chest", "neck", "head"):
         b.link(n, mass[n])
-    root = [("root_x", "prismatic", AXES["x"]), ("root_y", "prismatic", AXES["y"]),
-            ("root_z", "prismatic", AXES["z"])] + _joints("root", "yaw pitch roll")
-    b.chain("world", "pelvis", root, xyz=(0, 0, PELVIS_HEIGHT))
+    b.chain("world", "pelvis", FREE_ROOT, xyz=(0, 0, PELVIS_HEIGHT))
     b.chain("pelvis", "abdomen", _joints("abdomen", "yaw pitch roll"), xyz=(0, 0, 0.12))
     b.chain("abdomen", "chest", _joints("chest", "yaw pitch roll"), xyz=(0, 0, 0.18))
     b.chain("chest", "neck", _joints("neck", "pitch yaw"), xyz=(0, 0, 0.23))

@@ -134,19 +134,60 @@ def humanoid_capsules(spec, with_parents: bool = False):
     return caps + (np.array(parents, dtype=np.int64),)
 
 
+def leaf_shapes_placed(spec) -> list:
+    """The world placements at rest (q = 0) of ``spec.leaf_shapes`` (link_shapes.PlacedShape), each with
+    the index of its bone among ``humanoid_capsules(spec)``; [] when the spec has none."""
+    if not getattr(spec, "leaf_shapes", None):
+        return []
+    from .link_shapes import place_shapes
+    from .kinematics import Skeleton
+    sk = Skeleton.from_urdf_string(spec.urdf)
+    poses = sk.forward(sk.neutral())
+    kept = [n for n in sk.bone_names if n in spec.bone_radius]
+    return place_shapes(spec.leaf_shapes, sk.bone_names, poses.rotation, poses.translation,
+                        {n: k for k, n in enumerate(kept)})
+
+
+def _label(points: np.ndarray, s, e, r, shapes: list) -> np.ndarray:
+    """``nearest_capsule``, with the leaf shapes competing by their depth (link_shapes.shape_depth)."""
+    label = nearest_capsule(points, s, e, r)
+    if not shapes:
+        return label
+    from .link_shapes import shape_depth
+    d = e[label] - s[label]
+    L2 = np.einsum("kj,kj->k", d, d)
+    t = np.clip(np.einsum("kj,kj->k", points - s[label], d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+    best = np.linalg.norm(points - s[label] - t[:, None] * d, axis=1) - r[label]
+    for shape in shapes:
+        depth = shape_depth(points, shape)
+        closer = depth < best
+        label[closer], best[closer] = shape.bone, depth[closer]
+    return label
+
+
 def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue_hops: int | None = 2):
-    """Tet mesh of the capsules of ``spec`` with about ``target_tets`` tets (nearest count found by bisection);
-    voxels of bones more than ``glue_hops`` apart never touch (None: every touching voxel is glued)."""
+    """Tet mesh of the capsules of ``spec`` (and of its leaf shapes, if it has ``leaf_shapes``) with about
+    ``target_tets`` tets (nearest count found by bisection); voxels of bones more than ``glue_hops`` apart never
+    touch (None: every touching voxel is glued)."""
     from ..fem.voxel_mesh import grid_mesh, voxel_centres
     if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
         raise ValueError(f"target_tets = {target_tets!r}: give a whole number >= 50")
     s, e, r, parents = humanoid_capsules(spec, with_parents=True)
+    shapes = leaf_shapes_placed(spec)
     may_touch = None if glue_hops is None else bone_hops(parents) <= glue_hops
     lo = np.minimum(s, e).min(axis=0) - r.max()
     hi = np.maximum(s, e).max(axis=0) + r.max()
+    for shape in shapes:                        # the shape's bounding box in the world
+        half = shape.half + (np.array([0.0, 0.0, shape.half[0]]) if shape.kind == "capsule" else 0.0)
+        reach = np.abs(shape.rotation) @ half
+        lo, hi = np.minimum(lo, shape.translation - reach), np.maximum(hi, shape.translation + reach)
 
     def inside(p: np.ndarray) -> np.ndarray:
-        return capsule_inside(p, s, e, r)
+        out = capsule_inside(p, s, e, r)
+        if shapes:
+            from .link_shapes import shapes_inside
+            out |= shapes_inside(p, shapes)
+        return out
 
     # volume of the union by a coarse voxel count -> first guess of the spacing (5 tets per voxel)
     h0 = float(np.min(hi - lo)) / 40.0
@@ -164,7 +205,7 @@ def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue
             mask = inside(centres).reshape(n)
             if may_touch is not None:
                 label = np.zeros(mask.size, dtype=np.int64)
-                label[mask.ravel()] = nearest_capsule(centres[mask.ravel()], s, e, r)
+                label[mask.ravel()] = _label(centres[mask.ravel()], s, e, r, shapes)
                 mask = separate_limbs(mask, label.reshape(n), may_touch)
             cache[h] = grid_mesh(mask, lo, np.full(3, h))
         return cache[h]

@@ -7,12 +7,15 @@ turned into pinocchio's (cos, sin) pair internally.
 
 Floating base: the URDF's root joints define it. Our generated URDFs use 3 prismatic + 3 revolute
 scalar root joints. A ``floating``, ``planar`` or spherical joint raises ``NotImplementedError``
-(it has no scalar name per degree of freedom; replace it by scalar joints).
+(it has no scalar name per degree of freedom; replace it by scalar joints: a scene does so, skeleton/mounting.py
+makes a floating joint fixed and adds scalar root joints).
 
 Bones (``bone_names``) are the URDF links except helpers and tips (see ``urdf_builder``): a link whose
-``<inertial>`` mass is <= 1e-6 kg is a helper between the scalar joints of one multi-axis joint; a leaf
-link named ``*_tip`` on a fixed joint marks the end of its parent bone. A bone's segment runs from its
-origin to its tip if it has one, else to the origin of its farthest child bone, else it has zero length.
+``<inertial>`` mass is <= 1e-6 kg is a helper between the scalar joints of one multi-axis joint, and so is a
+link with neither inertia nor shapes whose child joints all sit at its origin (a 'virtual' link), or that is
+named 'world'; a leaf link named ``*_tip`` on a fixed joint marks the end of its parent bone.
+A bone's segment runs from its origin to its tip if it has one, else to the origin of its farthest child
+bone, else it has zero length.
 
 Array conventions: q, v (n,) float64 [rad, m, rad/s, m/s]; rotation (nb, 3, 3) and translation (nb, 3)
 place bone-local points in the world, x = R c + p [m]; twist (nb, 6) = (omega, v) [rad/s, m/s] in
@@ -59,6 +62,7 @@ class _Link:
     name: str
     mass: float | None
     parent_joint: str | None
+    shaped: bool = False        # has a <visual> or <collision> shape
 
 
 def _parse_tree(xml: str) -> tuple[dict[str, _Link], dict[str, dict]]:
@@ -89,7 +93,8 @@ def _parse_tree(xml: str) -> tuple[dict[str, _Link], dict[str, dict]]:
     for link in root.findall("link"):
         m = link.find("inertial/mass")
         mass = None if m is None else _numbers(m.get("value", ""), f"link {link.get('name')!r} <mass value>", 1)[0]
-        links[link.get("name")] = _Link(link.get("name"), mass, child_of.get(link.get("name")))
+        shaped = link.find("visual") is not None or link.find("collision") is not None
+        links[link.get("name")] = _Link(link.get("name"), mass, child_of.get(link.get("name")), shaped)
     return links, joints
 
 
@@ -142,9 +147,18 @@ class Skeleton:
             pj = links[n].parent_joint
             return n.endswith(TIP_SUFFIX) and not children[n] and pj is not None and joints[pj]["type"] == "fixed"
 
+        def is_frame(n: str) -> bool:
+            """A link without inertia or shapes whose child joints all sit at its origin: a frame between the
+            axes of one multi-axis joint (the '*_virtual' links of biomechanical URDFs), like our helpers; or
+            such a link named 'world' (the world frame a robot's base hangs on, by convention; the mounting may
+            have put it under the up-axis rotation)."""
+            out = [j for j in joints.values() if j["parent"] == n]
+            bare = links[n].mass is None and not links[n].shaped
+            return bare and bool(out) and (n == "world" or all(not j["xyz"].any() for j in out))
+
         def is_bone(n: str) -> bool:
             mass = links[n].mass
-            return not is_tip(n) and not (mass is not None and mass <= HELPER_MASS)
+            return not is_tip(n) and not (mass is not None and mass <= HELPER_MASS) and not is_frame(n)
 
         self.bone_names: list[str] = [n for n in links if is_bone(n)]
         if not self.bone_names:
