@@ -110,7 +110,8 @@ def test_equal_ranges_of_slices_carry_similar_work_for_the_threaded_sweep():
 def test_the_benchmarks_held_w_control_is_the_sweep_of_a_uniform_w(lanes):
     """benchmarks/core_benchmark's control (the sweep without the gather) computes K applied to w's row 0 in every
     vertex, bit for bit as the real sweep does, and a uniform w is a rigid translation: K w = 0."""
-    from clusterfem_ros.fem.cluster_force_kernel import stiffness_held_w_serial, stiffness_slices_serial
+    from benchmarks.core_benchmark import stiffness_held_w_serial
+    from clusterfem_ros.fem.cluster_force_kernel import stiffness_slices_serial
     mesh = paper_mesh("sphere")
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
     sl = slice_clusters(cl, lanes)

@@ -13,6 +13,12 @@ scene's damping keeps it bounded at 0.8.
 Python per step is kept to what can change: the sub-step plan is cached while h and the attachment gains'
 maxima are unchanged, prescribed vertices cost nothing when there are none, and divergence is still
 checked every step (the kernel returns whether every |u| stayed under the limit, which a nan fails).
+
+What a build injects: the step sources call compiled functions by global names that no import defines, bound
+per build by numba_config.compiled (``_builds``), hence ``# noqa: F821`` at each call: ``stiffness`` (the
+serial or threaded linear sweep) in ``_symplectic_euler``, ``warped_e`` (the vertex or element model's, serial
+or threaded) in ``_warped_symplectic_euler``, and ``step`` (the matching attached step, called with no
+attachments) in the two ``_free_`` sources.
 """
 from __future__ import annotations
 
