@@ -94,12 +94,12 @@ from numba.extending import intrinsic
 
 from clusterfem_ros.fem.cluster_force_kernel import (cluster_args, force_kernel_serial, scratch, slice_force_intrinsic,
                                                      stiffness_around, stiffness_slices_serial)
-from clusterfem_ros.fem.cluster_slices import aligned_zeros
+from clusterfem_ros.fem.cluster_slices import aligned_zeros, host_slices
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.llvm_ir import accumulating_loop, i64, vector_at
 from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
-from clusterfem_ros.fem.numba_config import contains_threads
+from clusterfem_ros.numba_config import contains_threads
 from clusterfem_ros.fem.voxel_mesh import PAPER_SHAPES, paper_mesh
 from .timing import interleaved_seconds, paired_ratio, table
 
@@ -218,7 +218,7 @@ def kernel_calls(model, reps: int = 200) -> dict[str, object]:
       faster of the two in each round (per_call);
     - slices4, slices8: the same bare reads of the kernel's slices (the same blocks plus 0.5-2.5 % padding)."""
     cl = model.clusters
-    sl = cl.slices
+    sl = host_slices(cl)
     n = model.n_vertices
     rng = np.random.default_rng(0)
     u, v = rng.normal(size=(2, n, 3))

@@ -149,7 +149,7 @@ class Scene:
     def _warm_up(self, progress, steps: int = 40) -> None:
         """Load the compiled kernels (and let the integrator settle on serial or threaded) on a throw-away
         state, so the first real steps are not a second-long stall that drops inputs."""
-        from .fem.numba_config import is_cached
+        from .numba_cache import is_cached
         if any(is_cached(k) is False for k in getattr(self.integrator, "kernels", ())):
             _say(progress, "compiling the step's kernels into numba's cache (the first start of this code on this "
                            "machine: 15-30 s on 2 cores, once; later starts load them in about a second)")

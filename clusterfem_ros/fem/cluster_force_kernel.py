@@ -24,11 +24,11 @@ from llvmlite import ir
 from numba import prange, types
 from numba.extending import intrinsic
 
-from .cluster_slices import W_ROW, ClusterSlices, aligned_zeros
+from .cluster_slices import W_ROW, ClusterSlices, aligned_zeros, host_slices
 from .clusters import Clusters
 from .llvm_ir import (F64, accumulating_loop, double_data, fused_multiply_add, gathered_rows, i64, lane_values,
                       position_entries, slice_kernel_args, slice_kernel_typing, store_lane_rows)
-from .numba_config import PARALLEL_MIN_VERTICES, compiled, serial_and_parallel
+from ..numba_config import PARALLEL_MIN_VERTICES, compiled, serial_and_parallel
 
 
 _LINEAR_SPECS = (("w_at", 2, types.int64), ("blocks", 3, types.float64), ("w", 2, types.float64),
@@ -233,7 +233,7 @@ def clustered_force(cl: Clusters, u: np.ndarray, v: np.ndarray, mass: np.ndarray
         out = np.empty((n, 3))
     elif out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous ({n}, 3) float64 array, got {out.dtype} {out.shape}")
-    sl = cl.slices
+    sl = host_slices(cl)
     w, kw = scratch(sl)
     pick_kernel(n, threads)(*cluster_args(sl), u, v, np.repeat(mass, 3), float(zeta), float(xi), w, kw, out)
     return out

@@ -57,7 +57,7 @@ from .kernel_args import checked_rows as _check
 from .kernel_args import output_rows
 from .kernel_args import pick_build as _pick
 from .model import FemModel
-from .numba_config import SERIAL, compiled, serial_and_parallel
+from ..numba_config import SERIAL, compiled, serial_and_parallel
 from .polar import LANES
 from .polar import chunk_start as _chunk_start
 from .polar import lane_accepted as _lane_accepted

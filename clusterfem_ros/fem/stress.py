@@ -23,7 +23,7 @@ import numpy as np
 
 from .assembly import shape_gradients
 from .model import FemModel
-from .numba_config import SERIAL
+from ..numba_config import SERIAL
 from .polar import LANES, chunk_start, lane_accepted, polar_lanes, scalar_rotation
 
 

@@ -37,7 +37,7 @@ from .cluster_force_kernel import slice_sweep
 from .cluster_slices import W_ROW
 from .llvm_ir import (F64, accumulating_loop, double_data, fused_multiply_add, gathered_rows, i64, lane_values,
                       position_entries, slice_kernel_args, slice_kernel_typing, store_lane_rows, vector_at)
-from .numba_config import serial_and_parallel
+from ..numba_config import serial_and_parallel
 
 # Doubles per vertex in the rotations' kernel copy: three rows of (R_a0, R_a1, R_a2, padding); a multiple of
 # W_ROW, so R_j's rows start at (ROT_ROW / W_ROW) w_at.

@@ -60,10 +60,10 @@ from numba import prange
 
 from .cluster_force_kernel import (finish_parallel, finish_serial, input_rows, kernel_input_parallel,
                                    kernel_input_serial)
-from .cluster_slices import ClusterSlices, aligned_zeros, lane_vertices, position_lanes, rest_offsets
+from .cluster_slices import ClusterSlices, aligned_zeros, host_slices, lane_vertices, position_lanes, rest_offsets
 from .kernel_args import checked_rows, output_rows, pick_build
 from .model import FemModel
-from .numba_config import SERIAL, compiled, serial_and_parallel
+from ..numba_config import SERIAL, compiled, serial_and_parallel
 from .polar import LANES, chunk_start, lane_accepted, polar_lanes, scalar_rotation
 from .warped_force_kernel import (ROT_ROW, copy_rows_parallel, copy_rows_serial, gradient_sweep_parallel,
                                   gradient_sweep_serial, warped_sweep_parallel, warped_sweep_serial)
@@ -183,7 +183,7 @@ class VertexFrames:
     def from_model(cls, model: FemModel, slices: ClusterSlices | None = None) -> "VertexFrames":
         """``slices``: the cluster slices to walk (default the model's, as wide as this host's vectors)."""
         n = model.n_vertices
-        sl = model.clusters.slices if slices is None else slices
+        sl = host_slices(model.clusters) if slices is None else slices
         lanes = len(sl.owner)
         chunks = -(-lanes // LANES)
         rest = np.ascontiguousarray(model.rest, dtype=np.float64)

@@ -29,8 +29,9 @@ import numpy as np
 
 from ..cluster_force_kernel import (cluster_args, kernel_input_serial, scratch, stiffness_slices_parallel,
                                     stiffness_slices_serial)
+from ..cluster_slices import host_slices
 from ..model import Control, FemModel, State
-from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
+from ...numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
 from ..element_warping import ElementFrames, check_warping_model, element_e_parallel, element_e_serial
 from ..warping import VertexFrames, warped_e_parallel, warped_e_serial
@@ -270,7 +271,7 @@ class ClusteredExplicit:
             self._builds = (_warped_step_serial, _warped_step_parallel)
             self._w, self._f = frames.w, frames.e     # w: rows of 3 and one more; e: the sweep's rows, as K w's
         else:
-            slices = model.clusters.slices
+            slices = host_slices(model.clusters)
             self._w, self._f = scratch(slices)  # w: rows of 3 and one more (4-wide loads); f: the sweep's K w rows
             self._model_args = cluster_args(slices)
             self._builds = (_step_serial, _step_parallel)
