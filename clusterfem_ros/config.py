@@ -16,7 +16,8 @@ from typing import Any
 import yaml
 
 from .errors import ClusterFemError
-from .fem.material import DEFAULT_MASS_DAMPING, DEFAULT_STIFFNESS_DAMPING
+from .fem.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSON_RATIO, DEFAULT_STIFFNESS_DAMPING,
+                           DEFAULT_YOUNG_MODULUS)
 
 WARPING_MODELS = ("element", "vertex")           # fem/element_warping.WARPING_MODELS (no numba here)
 
@@ -49,10 +50,10 @@ PARAMS: tuple[Param, ...] = (
     Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
-    Param("material.young_modulus", 3.0e4, "Young's modulus E [Pa]", 1.0, 1.0e10),
-    Param("material.poisson_ratio", 0.3, "Poisson ratio nu [-]", 0.0, 0.499),
-    Param("material.density", 1000.0, "density [kg/m^3]", 1.0, 1.0e5),
-    # the damping defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
+    # the material defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
+    Param("material.young_modulus", DEFAULT_YOUNG_MODULUS, "Young's modulus E [Pa]", 1.0, 1.0e10),
+    Param("material.poisson_ratio", DEFAULT_POISSON_RATIO, "Poisson ratio nu [-]", 0.0, 0.499),
+    Param("material.density", DEFAULT_DENSITY, "density [kg/m^3]", 1.0, 1.0e5),
     Param("material.mass_damping", DEFAULT_MASS_DAMPING, "Rayleigh xi [1/s]: D = xi M + zeta K", 0.0, 1.0e3),
     Param("material.stiffness_damping", DEFAULT_STIFFNESS_DAMPING, "Rayleigh zeta [s]", 0.0, 1.0),
     Param("method", "clustered", "integrator", choices=METHODS),
