@@ -2,35 +2,31 @@
 
 ``Scene`` is what the node wires to topics and what headless runs drive directly:
 
-    scene = Scene.build(config)                      # the model, integrator, skeleton and binding
-    scene.push_joint_state(stamp, names, q, v)       # inputs: checked, mapped by name, interpolated
-    scene.advance_to(t)                              # fixed physics steps up to time t
+    scene = Scene.build(config)                      # parts chosen by scene_build.py, wired here
+    scene.take_joint_state(stamp, names, q, v, received=t)   # an input, with the input-clock policy
+    scene.advance_to(t)                              # physics.clock = wall: fixed steps up to time t
     scene.surface(), scene.vertex_von_mises()        # outputs, computed only when asked for
 
-Time is in seconds on the input clock (joint-state stamps). Physics never extrapolates inputs: it
-runs on the last joint sample held when the stream stops.
+What to build (error budget, skeleton, mesh, material, integrator options) is chosen in scene_build.py; this
+module wires the parts and runs them. Time is in seconds on the input clock (joint-state stamps). Physics never
+extrapolates inputs: it runs on the last joint sample held when the stream stops.
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from .config import SceneConfig
 from .fem.integrators import make_integrator
-from .fem.material import Material
-from .fem.mesh_io import read_mesh
 from .fem.model import Attachments, Control, State, build_model
 from .fem.stability import DivergenceError
 from .fem.tet_mesh import TetMesh, boundary_triangles, total_volume
-from .fem.voxel_mesh import paper_mesh
-from .method_choice import SHIPPED_POINTS
+from .scene_build import integrator_choice, material_of, say as _say, scene_parts
 
 
-MEASURED_POINTS = SHIPPED_POINTS
 MAX_VOLUME_ERROR = 0.5      # |V/V0 - 1| beyond this is a diverged state, not a deformation
 REST_DISTANCE_FACTOR = 1.5  # a vertex may reach this multiple of its rest distance to its bone, if above the limit
 VOLUME_CHECK_STEPS = 50     # the step loop's volume check runs at least this many steps apart (outputs: always)
@@ -58,16 +54,6 @@ class InputCounters:
         return sum(self.rejected.values())
 
 
-def _material(c: SceneConfig) -> Material:
-    return Material(E=c["material.young_modulus"], nu=c["material.poisson_ratio"], rho=c["material.density"],
-                    xi=c["material.mass_damping"], zeta=c["material.stiffness_damping"])
-
-
-def _say(progress: Callable[[str], None] | None, text: str) -> None:
-    if progress is not None:
-        progress(text)
-
-
 class Scene:
     def __init__(self, config: SceneConfig, mesh: TetMesh, fixed: np.ndarray, skeleton=None,
                  urdf_xml: str | None = None, progress: Callable[[str], None] | None = None, surface=None,
@@ -77,19 +63,9 @@ class Scene:
         self.bind_all = bool(bind_all)    # the outermost level reaches every vertex (a capsule body: no free flesh)
         self.h = float(config["physics.step"])
         _say(progress, f"assembling {mesh.n_tets} tets / {mesh.n_vertices} vertices")
-        self.model = build_model(mesh, _material(config), fixed=fixed,
+        self.model = build_model(mesh, material_of(config), fixed=fixed,
                                  gravity=(0.0, 0.0, float(config["physics.gravity"])))
-        method = config["method"]
-        options: dict = {}
-        if method in ("clustered", "standard_explicit"):
-            options.update(safety=config["physics.safety"], max_substeps=config["physics.max_substeps"])
-        if method == "modal":
-            options["k"] = config["modal.k"]
-        if config["warping"] and method != "modal":
-            options["warp"] = True
-            options["warping_model"] = config["warping_model"]
-            if method.startswith("implicit"):
-                options["max_substeps"] = config["physics.max_substeps"]
+        method, options = integrator_choice(config)
         _say(progress, f"setting up method '{method}'"
                        f"{' with ' + config['warping_model'] + ' warping' if options.get('warp') else ''}")
         self.integrator = make_integrator(method, self.model, **options)
@@ -168,71 +144,11 @@ class Scene:
     @classmethod
     def build(cls, config: SceneConfig, urdf_xml: str | None = None,
               progress: Callable[[str], None] | None = None) -> "Scene":
-        """Build everything the config asks for (and nothing else)."""
-        if config["budget.max_error_mm"] > 0:
-            config = cls.apply_error_budget(config, progress)
-        skeleton = None
-        source = config["skeleton.source"]
-        if source != "none":
-            from .skeleton.kinematics import Skeleton, UrdfError
-            if source == "builtin":
-                from .skeleton.humanoid import default_humanoid
-                urdf_xml = default_humanoid().urdf
-            elif source == "urdf_file":
-                urdf_xml = Path(config["skeleton.urdf_file"]).read_text()
-            elif urdf_xml is None:
-                raise ValueError("skeleton.source is 'robot_description': pass the URDF text received on that "
-                                 "topic (the node waits for it)")
-            try:
-                skeleton = Skeleton.from_urdf_string(urdf_xml)
-            except UrdfError as exc:               # name the file the user can fix
-                if source != "urdf_file":
-                    raise
-                raise UrdfError(f"skeleton.urdf_file {config['skeleton.urdf_file']!r}: {exc}") from exc
-        kind = config["body.kind"]
-        fixed = None
-        if kind == "jelly_man":
-            from .skeleton.humanoid import HumanoidSpec, default_humanoid
-            from .skeleton.jelly_body import jelly_man_mesh
-            if skeleton is None:
-                raise ValueError("body.kind 'jelly_man' is built around a skeleton, but skeleton.source is 'none': "
-                                 "choose a skeleton source or a paper shape / mesh body")
-            if source == "builtin":
-                spec = default_humanoid()
-            else:
-                r = float(config["body.bone_radius"])
-                spec = HumanoidSpec(urdf_xml, {name: r for name in skeleton.bone_names})
-            _say(progress, f"voxelizing the jelly man (~{config['body.target_tets']} tets)")
-            mesh = jelly_man_mesh(spec, target_tets=config["body.target_tets"])
-        elif kind == "mesh":
-            mesh = read_mesh(config["body.mesh_file"])
-        elif kind == "surface":
-            from .body.surface_body import build_surface_body
-            surface = build_surface_body(config, skeleton, progress)
-            return cls(config, surface.mesh, np.zeros(surface.mesh.n_vertices, dtype=bool), skeleton=skeleton,
-                       urdf_xml=urdf_xml, progress=progress, surface=surface)
-        else:
-            mesh = paper_mesh(kind, config["body.scale"])
-        if skeleton is None and kind != "mesh" and config["body.fix_bottom"]:
-            z = mesh.vertices[:, 2]
-            fixed = z <= z.min() + 0.2 * np.ptp(z)
-        if fixed is None:
-            fixed = np.zeros(mesh.n_vertices, dtype=bool)
-        # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
-        # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
-        bind_all = kind == "jelly_man" and source != "builtin"
-        return cls(config, mesh, fixed, skeleton=skeleton, urdf_xml=urdf_xml, progress=progress, bind_all=bind_all)
-
-    @staticmethod
-    def apply_error_budget(config: SceneConfig, progress: Callable[[str], None] | None = None) -> SceneConfig:
-        """The config with method, step, warping (and modal.k) replaced by the cheapest measured point that
-        meets budget.max_error_mm; ChoiceError names the best achievable error when none does."""
-        from .method_choice import choose_from_file
-        path = config["budget.measured_points"] or str(MEASURED_POINTS)
-        choice = choose_from_file(path, scene=config["body.kind"], budget_mm=config["budget.max_error_mm"])
-        _say(progress, f"error budget {config['budget.max_error_mm']:g} mm: {choice.point.describe()}, "
-                       f"measured max error {choice.point.errors['max_mm']:.3g} mm ({path})")
-        return config.with_values(choice.overrides)
+        """Build everything the config asks for (and nothing else): what to build is chosen by
+        scene_build.scene_parts (error budget, skeleton, body mesh), the wiring is this constructor's."""
+        parts = scene_parts(config, urdf_xml, progress)
+        return cls(parts.config, parts.mesh, parts.fixed, skeleton=parts.skeleton, urdf_xml=parts.urdf_xml,
+                   progress=progress, surface=parts.surface, bind_all=parts.bind_all)
 
     def _bind(self, progress) -> None:
         from .body.binding import bind_to_skeleton
@@ -320,6 +236,28 @@ class Scene:
                 self._replace = True
         if result.accepted and not any(k in self.stream.FATAL for k, _ in problems):
             self.inputs.accepted += 1
+        return problems
+
+    def take_joint_state(self, stamp: float, names, positions, velocities, received: float,
+                         on_judged: Callable[[list], None] | None = None,
+                         on_step: Callable[[], None] | None = None) -> list[tuple[str, str]]:
+        """One joint-state sample with the whole input-clock policy: the node's physics thread (through
+        sim_loop.SimLoop) and a replay (replay.py) both take their samples here, so the same samples give the
+        same states.
+
+        An unstamped sample (stamp 0) takes its receive time ``received`` [s, the stamps' time base]; the sample
+        is judged and pushed (push_joint_state, checked against ``received``); ``on_judged(problems)`` runs next
+        (the node records what reached the joint stream, a replay's input); then with physics.clock = input the
+        body steps up to the newest stamp (follow_inputs: at most physics.max_catchup_steps behind,
+        ``on_step()`` after each step). With physics.clock = wall the caller steps (advance_to). Returns the
+        problems found; DivergenceError / StabilityError from the steps reach the caller, which resets."""
+        if stamp == 0.0:
+            stamp = received
+        problems = self.push_joint_state(stamp, names, positions, velocities, now=received)
+        if on_judged is not None:
+            on_judged(problems)
+        if self.config["physics.clock"] == "input":
+            self.follow_inputs(self.config["physics.max_catchup_steps"], on_step=on_step)
         return problems
 
     # -- physics ---------------------------------------------------------------------------------
@@ -429,8 +367,8 @@ class Scene:
 
     def follow_inputs(self, max_steps: int | None = None, on_step: Callable[[], None] | None = None) -> StepReport:
         """physics.clock = input, called after every joint-state sample: start at the first accepted stamp,
-        then step up to the newest. The node and a replay (clusterfem_ros/replay.py) both step through this, so
-        the same inputs give the same states. ``on_step()`` also sees the state at the start."""
+        then step up to the newest (take_joint_state calls it for the node and a replay). ``on_step()`` also
+        sees the state at the start."""
         if self.sim_time is None:
             if self.driver is None or not self.stream.ready:
                 return StepReport()
