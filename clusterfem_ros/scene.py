@@ -61,10 +61,10 @@ class Scene:
         self.config = config
         self.surface_body = surface     # body.surface_body.SurfaceBody of a surface body: bind pose, depth
         self.bind_all = bool(bind_all)    # the outermost level reaches every vertex (a capsule body: no free flesh)
-        self.h = float(config["physics.step"])
+        self.h = float(config.physics.step)
         _say(progress, f"assembling {mesh.n_tets} tets / {mesh.n_vertices} vertices")
         self.model = build_model(mesh, material_of(config), fixed=fixed,
-                                 gravity=(0.0, 0.0, float(config["physics.gravity"])))
+                                 gravity=(0.0, 0.0, float(config.physics.gravity)))
         method, options = integrator_choice(config)
         _say(progress, f"setting up method '{method}'"
                        f"{' with ' + config['warping_model'] + ' warping' if options.get('warp') else ''}")
@@ -110,15 +110,15 @@ class Scene:
         """The constraints of the scene's anchors: point, or line where anchors.sliding says so (none unless
         anchors.points lists some)."""
         c = self.config
-        if not c["anchors.points"]:
+        if not c.anchors.points:
             return []
         from .body.anchors import anchor_constraints
-        anchors = anchor_constraints(self.model.rest, c["anchors.points"], c["anchors.radius"], c["anchors.kp"],
-                                     c["anchors.kd"], c["anchors.bones"],
+        anchors = anchor_constraints(self.model.rest, c.anchors.points, c.anchors.radius, c.anchors.kp,
+                                     c.anchors.kd, c.anchors.bones,
                                      self.skeleton.bone_names if self.skeleton is not None else None,
-                                     c["anchors.sliding"])
-        slide = sum(1 for s in c["anchors.sliding"] if s)
-        _say(progress, f"anchoring {len(anchors)} vertices at {len(c['anchors.points']) // 3} points"
+                                     c.anchors.sliding)
+        slide = sum(1 for s in c.anchors.sliding if s)
+        _say(progress, f"anchoring {len(anchors)} vertices at {len(c.anchors.points) // 3} points"
                        + (f" ({slide} sliding along their bones)" if slide else ""))
         return anchors
 
@@ -162,15 +162,15 @@ class Scene:
         poses = sk.forward(q0, np.zeros(sk.nv))
         starts, ends = sk.bone_segments(q0)
         _say(progress, f"binding {self.model.n_vertices} vertices to {len(sk.bone_names)} bones")
-        depth = self.surface_body.depth if c["binding.relative_levels"] else None
+        depth = self.surface_body.depth if c.binding.relative_levels else None
         mask = None
-        if c["binding.skip_bones"]:
-            unknown = [b for b in c["binding.skip_bones"] if b not in sk.bone_names]
+        if c.binding.skip_bones:
+            unknown = [b for b in c.binding.skip_bones if b not in sk.bone_names]
             if unknown:
                 raise ValueError(f"binding.skip_bones names {unknown}, which are not bones of this skeleton; its bones "
                                  f"are {', '.join(sk.bone_names)}")
-            mask = np.array([b not in c["binding.skip_bones"] for b in sk.bone_names])
-        radii = list(c["binding.level_radii"])
+            mask = np.array([b not in c.binding.skip_bones for b in sk.bone_names])
+        radii = list(c.binding.level_radii)
         if self.bind_all:
             from .body.binding import segment_distance
             reach = float(segment_distance(self.model.rest, starts, ends).min(axis=1).max()) * (1 + 1e-9)
@@ -183,18 +183,18 @@ class Scene:
                                         bone_names=sk.bone_names, warn=False, surface_depth=depth)
         if self.surface_body is not None:
             self._refuse_islands()
-        gains = LevelGains(kp=tuple(c["binding.kp"]), kd=tuple(c["binding.kd"]))
-        self.driver = SkeletonDriver(self.binding, self.model.rest, gains, kinematic=c["binding.kinematic_core"],
-                                     bone_names=sk.bone_names, sliding_levels=c["binding.sliding_levels"],
+        gains = LevelGains(kp=tuple(c.binding.kp), kd=tuple(c.binding.kd))
+        self.driver = SkeletonDriver(self.binding, self.model.rest, gains, kinematic=c.binding.kinematic_core,
+                                     bone_names=sk.bone_names, sliding_levels=c.binding.sliding_levels,
                                      points=[a for a in self.anchors if isinstance(a, PointConstraint)],
                                      lines=[a for a in self.anchors if isinstance(a, LineConstraint)])
-        self.joints = JointMap(sk.joint_names, q0, max_names=c["input.max_names"])
+        self.joints = JointMap(sk.joint_names, q0, max_names=c.input.max_names)
         self.stream = JointStreamInterpolator(sk.joint_names, revolute=sk.revolute_mask(),
-                                              max_age=c["input.max_age"], max_future=c["input.max_future"],
-                                              teleport_distance=c["input.teleport_distance"],
+                                              max_age=c.input.max_age, max_future=c.input.max_future,
+                                              teleport_distance=c.input.teleport_distance,
                                               prismatic=~sk.revolute_mask(),
-                                              max_root_distance=c["input.max_root_distance"],
-                                              max_joint_speed=c["input.max_joint_speed"])
+                                              max_root_distance=c.input.max_root_distance,
+                                              max_joint_speed=c.input.max_joint_speed)
 
     def _refuse_islands(self) -> None:
         """A piece of a surface body that no bone reaches (no vertex in the innermost level: relative levels
@@ -256,8 +256,8 @@ class Scene:
         problems = self.push_joint_state(stamp, names, positions, velocities, now=received)
         if on_judged is not None:
             on_judged(problems)
-        if self.config["physics.clock"] == "input":
-            self.follow_inputs(self.config["physics.max_catchup_steps"], on_step=on_step)
+        if self.config.physics.clock == "input":
+            self.follow_inputs(self.config.physics.max_catchup_steps, on_step=on_step)
         return problems
 
     # -- physics ---------------------------------------------------------------------------------

@@ -42,8 +42,8 @@ class SceneParts:
 
 
 def material_of(c: SceneConfig) -> Material:
-    return Material(E=c["material.young_modulus"], nu=c["material.poisson_ratio"], rho=c["material.density"],
-                    xi=c["material.mass_damping"], zeta=c["material.stiffness_damping"])
+    m = c.material
+    return Material(E=m.young_modulus, nu=m.poisson_ratio, rho=m.density, xi=m.mass_damping, zeta=m.stiffness_damping)
 
 
 def integrator_choice(config: SceneConfig) -> tuple[str, dict]:
@@ -51,14 +51,14 @@ def integrator_choice(config: SceneConfig) -> tuple[str, dict]:
     method = config["method"]
     options: dict = {}
     if method in ("clustered", "standard_explicit"):
-        options.update(safety=config["physics.safety"], max_substeps=config["physics.max_substeps"])
+        options.update(safety=config.physics.safety, max_substeps=config.physics.max_substeps)
     if method == "modal":
         options["k"] = config["modal.k"]
     if config["warping"] and method != "modal":
         options["warp"] = True
         options["warping_model"] = config["warping_model"]
         if method.startswith("implicit"):
-            options["max_substeps"] = config["physics.max_substeps"]
+            options["max_substeps"] = config.physics.max_substeps
     return method, options
 
 
@@ -66,9 +66,9 @@ def apply_error_budget(config: SceneConfig, progress: Callable[[str], None] | No
     """The config with method, step, warping (and modal.k) replaced by the cheapest measured point that
     meets budget.max_error_mm; ChoiceError names the best achievable error when none does."""
     from .method_choice import choose_from_file
-    path = config["budget.measured_points"] or str(MEASURED_POINTS)
-    choice = choose_from_file(path, scene=config["body.kind"], budget_mm=config["budget.max_error_mm"])
-    say(progress, f"error budget {config['budget.max_error_mm']:g} mm: {choice.point.describe()}, "
+    path = config.budget.measured_points or str(MEASURED_POINTS)
+    choice = choose_from_file(path, scene=config["body.kind"], budget_mm=config.budget.max_error_mm)
+    say(progress, f"error budget {config.budget.max_error_mm:g} mm: {choice.point.describe()}, "
                   f"measured max error {choice.point.errors['max_mm']:.3g} mm ({path})")
     return config.with_values(choice.overrides)
 
@@ -99,7 +99,7 @@ def load_skeleton(config: SceneConfig, urdf_xml: str | None):
 def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
                 progress: Callable[[str], None] | None = None) -> SceneParts:
     """Everything the config asks for (and nothing else): the error budget's choice, the skeleton, the body."""
-    if config["budget.max_error_mm"] > 0:
+    if config.budget.max_error_mm > 0:
         config = apply_error_budget(config, progress)
     skeleton, urdf_xml = load_skeleton(config, urdf_xml)
     source = config["skeleton.source"]
