@@ -40,7 +40,7 @@ def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.
             k += 1
 
     from .fem.stability import DivergenceError, StabilityError
-    if scene.config["physics.clock"] != "input":
+    if scene.config.physics.clock != "input":
         raise ValueError("replay needs a scene with physics.clock = input (its states follow the stamps only)")
     for s in samples:
         try:
@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _compare(folder: Path, config, tolerance: float) -> int:
     from .scene import Scene
-    exact = config["physics.clock"] == "input"
+    exact = config.physics.clock == "input"
     if not exact:
         print("note: the bag was recorded with physics.clock = wall; its surfaces depend on timing and are "
               "compared only where the replay passes through their stamps", file=sys.stderr)

@@ -167,7 +167,7 @@ class SimLoop:
 
     def __init__(self, scene, now: Callable[[], float], timer_hz: float, max_catchup_steps: int,
                  log: Callable[[str, str], None], name: str = "physics"):
-        clock = scene.config["physics.clock"]
+        clock = scene.config.physics.clock
         if clock not in ("wall", "input"):
             raise ValueError(f"physics.clock {clock!r} is not 'wall' or 'input'")
         self.scene = scene

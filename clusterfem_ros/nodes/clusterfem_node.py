@@ -85,8 +85,8 @@ class ClusterFemNode(Node):
         log.info(f"scene ready in {time.perf_counter() - t0:.1f} s: {m.mesh.n_tets} tets, {m.n_vertices} vertices, "
                  f"method {self.config['method']}, warping {self.config['warping']}, h = {self.scene.h:g} s")
         c = self.config
-        self.physics = SimLoop(self.scene, self._now, c["physics.timer_hz"],
-                               c["physics.max_catchup_steps"], self._log, name=f"physics {self.get_fully_qualified_name()}")
+        self.physics = SimLoop(self.scene, self._now, c.physics.timer_hz,
+                               c.physics.max_catchup_steps, self._log, name=f"physics {self.get_fully_qualified_name()}")
         self.physics.start()
 
     def _log(self, level: str, text: str) -> None:
@@ -221,10 +221,10 @@ class ClusterFemNode(Node):
             return
         try:
             n_names = joint_state_name_count(data)     # refuse a huge message before decoding it
-            if n_names > self.config["input.max_names"]:
+            if n_names > self.config.input.max_names:
                 scene.inputs.count("too_many_names")
                 self._warn_input("too_many_names", f"joint state with {n_names} names dropped (input.max_names "
-                                 f"{self.config['input.max_names']})", scene.inputs.rejected["too_many_names"])
+                                 f"{self.config.input.max_names})", scene.inputs.rejected["too_many_names"])
                 return
             stamp, names, q, v = joint_state_fields(deserialize_message(data, JointState))
             exact = data[:joint_state_cdr_extent(data)]     # without a tail strict bag readers refuse
@@ -263,7 +263,7 @@ class ClusterFemNode(Node):
         return int(round(snap.sim_time * 1e9))
 
     def _stress_max(self) -> float:
-        return self.config["output.stress_max"] or self.config["material.young_modulus"] / 20.0
+        return self.config["output.stress_max"] or self.config.material.young_modulus / 20.0
 
     def _stress(self, snap: Snapshot):
         return snap.stress(self.scene.model, bool(self.config["warping"]), self.physics.stages)
