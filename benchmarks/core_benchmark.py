@@ -92,19 +92,22 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from clusterfem_ros.fem.cluster_force_kernel import (_k, _vector_at, accumulating_loop, cluster_args,
-                                                     force_kernel_serial, scratch, stiffness_held_w_serial,
-                                                     stiffness_slices_serial)
-from clusterfem_ros.fem.cluster_slices import aligned_zeros
+from clusterfem_ros.fem.cluster_force_kernel import (cluster_args, force_kernel_serial, scratch, slice_force_intrinsic,
+                                                     stiffness_around, stiffness_slices_serial)
+from clusterfem_ros.fem.cluster_slices import aligned_zeros, host_slices
 from clusterfem_ros.fem.integrators import make_integrator
+from clusterfem_ros.fem.llvm_ir import accumulating_loop, i64, vector_at
 from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
-from clusterfem_ros.fem.numba_config import contains_threads
+from clusterfem_ros.numba_config import contains_threads
 from clusterfem_ros.fem.voxel_mesh import PAPER_SHAPES, paper_mesh
 from .timing import interleaved_seconds, paired_ratio, table
 
 PAPER_MS = {"sphere": (1.60, 0.73, 0.83), "cube": (1.89, 0.92, 1.09), "torus": (2.15, 0.97, 1.12)}
 MATERIAL = Material(E=3.0e4, nu=0.3, rho=1000.0, xi=1.0, zeta=1e-5)
+# The gather's control: the serial stiffness sweep with w held at row 0 (the same block loads and FMAs, no
+# gather of w); its time against the full sweep's is the gather's cost.
+stiffness_held_w_serial = stiffness_around(slice_force_intrinsic(gather=False), "_held_w")
 
 
 @intrinsic(prefer_literal=True)
@@ -128,10 +131,10 @@ def _wide_sum(typingctx, lanes, a, m):
         zero = ir.Constant(vt, [0.0 if is_float else 0] * C)
 
         def four_vectors(k, acc):
-            return [add(a_k, builder.load(_vector_at(builder, data, builder.add(k, _k(j * C)), vt), align=8))
+            return [add(a_k, builder.load(vector_at(builder, data, builder.add(k, i64(j * C)), vt), align=8))
                     for j, a_k in enumerate(acc)]
 
-        totals = accumulating_loop(builder, _k(0), m, 4 * C, [zero] * 4, four_vectors)
+        totals = accumulating_loop(builder, i64(0), m, 4 * C, [zero] * 4, four_vectors)
         v = add(add(totals[0], totals[1]), add(totals[2], totals[3]))
         out = builder.extract_element(v, ir.Constant(ir.IntType(32), 0))
         for lane in range(1, C):
@@ -215,7 +218,7 @@ def kernel_calls(model, reps: int = 200) -> dict[str, object]:
       faster of the two in each round (per_call);
     - slices4, slices8: the same bare reads of the kernel's slices (the same blocks plus 0.5-2.5 % padding)."""
     cl = model.clusters
-    sl = cl.slices
+    sl = host_slices(cl)
     n = model.n_vertices
     rng = np.random.default_rng(0)
     u, v = rng.normal(size=(2, n, 3))

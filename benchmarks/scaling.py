@@ -60,6 +60,7 @@ def _reset_peak() -> bool:
 def measure_one(n: int, label: str) -> dict:
     """One (size, method) in this process; returns the numbers as a dict (printed as JSON by --one)."""
     from clusterfem_ros.fem.integrators import make_integrator
+    from clusterfem_ros.fem.cluster_slices import host_slices_nbytes
     from clusterfem_ros.fem.model import Control, State, build_model
     from clusterfem_ros.fem.stability import critical_step, max_eigenvalue
     from clusterfem_ros.fem.voxel_mesh import box_mesh
@@ -90,7 +91,7 @@ def measure_one(n: int, label: str) -> dict:
     return {"n": n, "method": label, "tets": mesh.n_tets, "vertices": mesh.n_vertices, "h": h,
             "ms": sec * 1e3, "setup_s": setup, "model_mb": (rss_model - rss0) / 1024,
             "method_mb": max(peak - rss_model, 0) / 1024, "peak_exact": exact,
-            "clusters_mb": model.clusters.nbytes / 1e6, "slices_mb": model.clusters.slices_nbytes / 1e6}
+            "clusters_mb": model.clusters.nbytes / 1e6, "slices_mb": host_slices_nbytes(model.clusters) / 1e6}
 
 
 def _child(n: int, label: str, timeout: float) -> dict:

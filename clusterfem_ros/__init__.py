@@ -11,4 +11,10 @@ the package: benchmarks/ in the source tree.
 Array conventions: vertices (n, 3) float64 in metres, tets (m, 4) int64 positively oriented,
 per-vertex vectors (n, 3) float64.
 """
+from .numba_cache import key_the_cache
+
 __version__ = "0.1.0"
+
+# The package's one set-up step: numba's on-disk cache keyed on the sources compiled code can read, before any
+# kernel of fem/, skeleton/ or body/ is made (numba fixes a kernel's cache path when it decorates it).
+key_the_cache()

@@ -9,14 +9,15 @@ from __future__ import annotations
 import difflib
 import re
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from .errors import ClusterFemError
-from .fem.material import DEFAULT_MASS_DAMPING, DEFAULT_STIFFNESS_DAMPING
+from .fem.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSON_RATIO, DEFAULT_STIFFNESS_DAMPING,
+                           DEFAULT_YOUNG_MODULUS)
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
 
 WARPING_MODELS = ("element", "vertex")           # fem/element_warping.WARPING_MODELS (no numba here)
@@ -50,10 +51,10 @@ PARAMS: tuple[Param, ...] = (
     Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
-    Param("material.young_modulus", 3.0e4, "Young's modulus E [Pa]", 1.0, 1.0e10),
-    Param("material.poisson_ratio", 0.3, "Poisson ratio nu [-]", 0.0, 0.499),
-    Param("material.density", 1000.0, "density [kg/m^3]", 1.0, 1.0e5),
-    # the damping defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
+    # the material defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
+    Param("material.young_modulus", DEFAULT_YOUNG_MODULUS, "Young's modulus E [Pa]", 1.0, 1.0e10),
+    Param("material.poisson_ratio", DEFAULT_POISSON_RATIO, "Poisson ratio nu [-]", 0.0, 0.499),
+    Param("material.density", DEFAULT_DENSITY, "density [kg/m^3]", 1.0, 1.0e5),
     Param("material.mass_damping", DEFAULT_MASS_DAMPING, "Rayleigh xi [1/s]: D = xi M + zeta K", 0.0, 1.0e3),
     Param("material.stiffness_damping", DEFAULT_STIFFNESS_DAMPING, "Rayleigh zeta [s]", 0.0, 1.0),
     Param("method", "clustered", "integrator", choices=METHODS),
@@ -206,12 +207,106 @@ def check_value(name: str, value: Any) -> Any:
     return value
 
 
+# Typed sections of the configuration: the parameters named <section>.<field>, as read by the code that uses
+# them (SceneConfig.material, .physics, ...). Their fields have no defaults: the one set of defaults, ranges and
+# descriptions is PARAMS (tests/test_config_sections.py checks that every parameter of a section is a field).
+
+@dataclass(frozen=True)
+class MaterialSection:
+    young_modulus: float            # E [Pa]
+    poisson_ratio: float            # nu [-]
+    density: float                  # rho [kg/m^3]
+    mass_damping: float             # Rayleigh xi [1/s]
+    stiffness_damping: float        # Rayleigh zeta [s]
+
+
+@dataclass(frozen=True)
+class PhysicsSection:
+    step: float                     # h [s]
+    timer_hz: float
+    safety: float
+    max_substeps: int
+    clock: str                      # 'wall' or 'input'
+    max_catchup_steps: int
+    gravity: float                  # along world z [m/s^2]
+
+
+@dataclass(frozen=True)
+class BudgetSection:
+    max_error_mm: float             # 0: off
+    measured_points: str            # '': the shipped points
+
+
+@dataclass(frozen=True)
+class BindingSection:
+    level_radii: list
+    relative_levels: bool
+    skip_bones: list
+    kp: list
+    kd: list
+    kinematic_core: bool
+    sliding_levels: int
+
+
+@dataclass(frozen=True)
+class AnchorsSection:
+    points: list                    # x, y, z, ... [m]
+    bones: list
+    sliding: list
+    radius: float
+    kp: float
+    kd: float
+
+
+@dataclass(frozen=True)
+class InputSection:
+    max_age: float
+    max_future: float
+    teleport_distance: float
+    max_joint_speed: float
+    max_root_distance: float
+    max_names: int
+
+
+SECTIONS = {"material": MaterialSection, "physics": PhysicsSection, "budget": BudgetSection,
+            "binding": BindingSection, "anchors": AnchorsSection, "input": InputSection}
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     values: dict = field(default_factory=lambda: {p.name: p.default for p in PARAMS})
 
     def __getitem__(self, name: str) -> Any:
         return self.values[name]
+
+    def section(self, name: str):
+        """The parameters ``<name>.*`` as the typed section SECTIONS[name]."""
+        cls = SECTIONS[name]
+        return cls(**{f.name: self.values[f"{name}.{f.name}"] for f in fields(cls)})
+
+    @property
+    def material(self) -> MaterialSection:
+        return self.section("material")
+
+    @property
+    def physics(self) -> PhysicsSection:
+        return self.section("physics")
+
+    @property
+    def budget(self) -> BudgetSection:
+        return self.section("budget")
+
+    @property
+    def binding(self) -> BindingSection:
+        return self.section("binding")
+
+    @property
+    def anchors(self) -> AnchorsSection:
+        return self.section("anchors")
+
+    @property
+    def input(self) -> InputSection:
+        return self.section("input")
 
     def with_values(self, values: dict[str, Any] | None = None, **overrides: Any) -> "SceneConfig":
         """A copy with parameters replaced, from a {name: value} mapping and/or keywords that use '__'

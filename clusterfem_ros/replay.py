@@ -22,9 +22,9 @@ from .recording.bag_reader import PARAMS_FILE, JointSample, read_joint_states, r
 
 
 def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.ndarray]:
-    """Drive ``scene`` (fresh) as the node does with physics.clock = input: take each sample, then step
-    up to the newest stamp (Scene.follow_inputs). Returns the triangle-list surface points at each
-    simulated time in ``at_ns`` that the replay passes through."""
+    """Drive ``scene`` (fresh, physics.clock = input) as the node does: each sample through
+    Scene.take_joint_state with its receive time, which steps up to the newest stamp. Returns the
+    triangle-list surface points at each simulated time in ``at_ns`` that the replay passes through."""
     wanted = sorted(set(at_ns))
     got: dict[int, np.ndarray] = {}
     k = 0
@@ -40,13 +40,12 @@ def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.
             k += 1
 
     from .fem.stability import DivergenceError, StabilityError
-    max_steps = scene.config["physics.max_catchup_steps"]
-    for s in samples:                                     # as ClusterFemNode._on_joint_state / SimLoop._follow_inputs
-        stamp = s.stamp if s.stamp != 0.0 else s.log_ns * 1e-9     # as the node stamps unstamped samples
-        scene.push_joint_state(stamp, s.names, s.q, s.v, now=s.log_ns * 1e-9)
+    if scene.config.physics.clock != "input":
+        raise ValueError("replay needs a scene with physics.clock = input (its states follow the stamps only)")
+    for s in samples:
         try:
-            scene.follow_inputs(max_steps, on_step=collect)
-        except (DivergenceError, StabilityError):
+            scene.take_joint_state(s.stamp, s.names, s.q, s.v, received=s.log_ns * 1e-9, on_step=collect)
+        except (DivergenceError, StabilityError):         # as the node's physics thread: reset, go on
             scene.reset()
     return got
 
@@ -72,14 +71,15 @@ def main(argv: list[str] | None = None) -> int:
 
 def _compare(folder: Path, config, tolerance: float) -> int:
     from .scene import Scene
-    exact = config["physics.clock"] == "input"
+    exact = config.physics.clock == "input"
     if not exact:
         print("note: the bag was recorded with physics.clock = wall; its surfaces depend on timing and are "
               "compared only where the replay passes through their stamps", file=sys.stderr)
     samples = read_joint_states(folder)
     surfaces = read_surfaces(folder)
     print(f"replaying {len(samples)} joint states; {len(surfaces)} recorded surfaces")
-    got = replay(Scene.build(config), samples, [t for t, _ in surfaces])
+    scene = Scene.build(config.with_values({"physics.clock": "input"}))     # a replay follows the stamps
+    got = replay(scene, samples, [t for t, _ in surfaces])
     diffs = [float(np.abs(got[t] - p).max()) for t, p in surfaces if t in got and got[t].shape == p.shape]
     worst = max(diffs) if diffs else float("nan")
     print(f"compared {len(diffs)} surfaces; max vertex difference {worst:.3g} m")

@@ -2,36 +2,31 @@
 
 ``Scene`` is what the node wires to topics and what headless runs drive directly:
 
-    scene = Scene.build(config)                      # the model, integrator, skeleton and binding
-    scene.push_joint_state(stamp, names, q, v)       # inputs: checked, mapped by name, interpolated
-    scene.advance_to(t)                              # fixed physics steps up to time t
+    scene = Scene.build(config)                      # parts chosen by scene_build.py, wired here
+    scene.take_joint_state(stamp, names, q, v, received=t)   # an input, with the input-clock policy
+    scene.advance_to(t)                              # physics.clock = wall: fixed steps up to time t
     scene.surface(), scene.vertex_von_mises()        # outputs, computed only when asked for
 
-Time is in seconds on the input clock (joint-state stamps). Physics never extrapolates inputs: it
-runs on the last joint sample held when the stream stops.
+What to build (error budget, skeleton, mesh, material, integrator options) is chosen in scene_build.py; this
+module wires the parts and runs them. Time is in seconds on the input clock (joint-state stamps). Physics never
+extrapolates inputs: it runs on the last joint sample held when the stream stops.
 """
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from .config import SceneConfig
 from .fem.integrators import make_integrator
-from .fem.material import Material
-from .fem.mesh_io import read_mesh
 from .fem.model import Attachments, Control, State, build_model
 from .fem.stability import DivergenceError
 from .fem.tet_mesh import TetMesh, boundary_triangles, total_volume
-from .fem.voxel_mesh import paper_mesh
-from .method_choice import SHIPPED_POINTS
+from .scene_build import integrator_choice, material_of, say as _say, scene_parts
 
 
-MEASURED_POINTS = SHIPPED_POINTS
-URDF_MANIFEST = "config/urdf_data.md"     # where skeleton.urdf_file data that is not in the repository comes from
 MAX_VOLUME_ERROR = 0.5      # |V/V0 - 1| beyond this is a diverged state, not a deformation
 REST_DISTANCE_FACTOR = 1.5  # a vertex may reach this multiple of its rest distance to its bone, if above the limit
 VOLUME_CHECK_STEPS = 50     # the step loop's volume check runs at least this many steps apart (outputs: always)
@@ -59,16 +54,6 @@ class InputCounters:
         return sum(self.rejected.values())
 
 
-def _material(c: SceneConfig) -> Material:
-    return Material(E=c["material.young_modulus"], nu=c["material.poisson_ratio"], rho=c["material.density"],
-                    xi=c["material.mass_damping"], zeta=c["material.stiffness_damping"])
-
-
-def _say(progress: Callable[[str], None] | None, text: str) -> None:
-    if progress is not None:
-        progress(text)
-
-
 class Scene:
     def __init__(self, config: SceneConfig, mesh: TetMesh, fixed: np.ndarray, skeleton=None,
                  urdf_xml: str | None = None, progress: Callable[[str], None] | None = None, surface=None,
@@ -76,21 +61,11 @@ class Scene:
         self.config = config
         self.surface_body = surface     # body.surface_body.SurfaceBody of a surface body: bind pose, depth
         self.bind_all = bool(bind_all)    # the outermost level reaches every vertex (a capsule body: no free flesh)
-        self.h = float(config["physics.step"])
+        self.h = float(config.physics.step)
         _say(progress, f"assembling {mesh.n_tets} tets / {mesh.n_vertices} vertices")
-        self.model = build_model(mesh, _material(config), fixed=fixed,
-                                 gravity=(0.0, 0.0, float(config["physics.gravity"])))
-        method = config["method"]
-        options: dict = {}
-        if method in ("clustered", "standard_explicit"):
-            options.update(safety=config["physics.safety"], max_substeps=config["physics.max_substeps"])
-        if method == "modal":
-            options["k"] = config["modal.k"]
-        if config["warping"] and method != "modal":
-            options["warp"] = True
-            options["warping_model"] = config["warping_model"]
-            if method.startswith("implicit"):
-                options["max_substeps"] = config["physics.max_substeps"]
+        self.model = build_model(mesh, material_of(config), fixed=fixed,
+                                 gravity=(0.0, 0.0, float(config.physics.gravity)))
+        method, options = integrator_choice(config)
         _say(progress, f"setting up method '{method}'"
                        f"{' with ' + config['warping_model'] + ' warping' if options.get('warp') else ''}")
         self.integrator = make_integrator(method, self.model, **options)
@@ -135,22 +110,22 @@ class Scene:
         """The constraints of the scene's anchors: point, or line where anchors.sliding says so (none unless
         anchors.points lists some)."""
         c = self.config
-        if not c["anchors.points"]:
+        if not c.anchors.points:
             return []
         from .body.anchors import anchor_constraints
-        anchors = anchor_constraints(self.model.rest, c["anchors.points"], c["anchors.radius"], c["anchors.kp"],
-                                     c["anchors.kd"], c["anchors.bones"],
+        anchors = anchor_constraints(self.model.rest, c.anchors.points, c.anchors.radius, c.anchors.kp,
+                                     c.anchors.kd, c.anchors.bones,
                                      self.skeleton.bone_names if self.skeleton is not None else None,
-                                     c["anchors.sliding"])
-        slide = sum(1 for s in c["anchors.sliding"] if s)
-        _say(progress, f"anchoring {len(anchors)} vertices at {len(c['anchors.points']) // 3} points"
+                                     c.anchors.sliding)
+        slide = sum(1 for s in c.anchors.sliding if s)
+        _say(progress, f"anchoring {len(anchors)} vertices at {len(c.anchors.points) // 3} points"
                        + (f" ({slide} sliding along their bones)" if slide else ""))
         return anchors
 
     def _warm_up(self, progress, steps: int = 40) -> None:
         """Load the compiled kernels (and let the integrator settle on serial or threaded) on a throw-away
         state, so the first real steps are not a second-long stall that drops inputs."""
-        from .fem.numba_config import is_cached
+        from .numba_cache import is_cached
         if any(is_cached(k) is False for k in getattr(self.integrator, "kernels", ())):
             _say(progress, "compiling the step's kernels into numba's cache (the first start of this code on this "
                            "machine: 15-30 s on 2 cores, once; later starts load them in about a second)")
@@ -169,81 +144,11 @@ class Scene:
     @classmethod
     def build(cls, config: SceneConfig, urdf_xml: str | None = None,
               progress: Callable[[str], None] | None = None) -> "Scene":
-        """Build everything the config asks for (and nothing else)."""
-        if config["budget.max_error_mm"] > 0:
-            config = cls.apply_error_budget(config, progress)
-        skeleton = None
-        source = config["skeleton.source"]
-        if source != "none":
-            from .skeleton.kinematics import Skeleton, UrdfError
-            if source == "builtin":
-                from .skeleton.humanoid import default_humanoid
-                urdf_xml = default_humanoid().urdf
-            elif source == "urdf_file":
-                from .body.fit import find_data_file
-                urdf_path = find_data_file(config["skeleton.urdf_file"], URDF_MANIFEST, "skeleton.urdf_file")
-                urdf_xml = urdf_path.read_text()
-            elif urdf_xml is None:
-                raise ValueError("skeleton.source is 'robot_description': pass the URDF text received on that "
-                                 "topic (the node waits for it)")
-            from .skeleton.link_shapes import prepare_urdf
-            prepared = prepare_urdf(urdf_xml, config["skeleton.up_axis"], config["skeleton.root_joint"],
-                                    leaf_shapes=config["body.kind"] == "jelly_man",
-                                    urdf_file=urdf_path if source == "urdf_file" else None)
-            urdf_xml = prepared.urdf
-            for note in prepared.notes:
-                _say(progress, note)
-            try:
-                skeleton = Skeleton.from_urdf_string(urdf_xml)
-            except UrdfError as exc:               # name the file the user can fix
-                if source != "urdf_file":
-                    raise
-                raise UrdfError(f"skeleton.urdf_file {config['skeleton.urdf_file']!r}: {exc}") from exc
-        kind = config["body.kind"]
-        fixed = None
-        if kind == "jelly_man":
-            from .skeleton.humanoid import HumanoidSpec, default_humanoid
-            from .skeleton.jelly_body import jelly_man_mesh
-            if skeleton is None:
-                raise ValueError("body.kind 'jelly_man' is built around a skeleton, but skeleton.source is 'none': "
-                                 "choose a skeleton source or a paper shape / mesh body")
-            if source == "builtin":
-                spec = default_humanoid()
-            else:
-                r = float(config["body.bone_radius"])
-                spec = HumanoidSpec(urdf_xml, {name: 0.0 if name in prepared.leaf_shapes else r
-                                               for name in skeleton.bone_names}, leaf_shapes=prepared.leaf_shapes)
-            _say(progress, f"voxelizing the jelly man (~{config['body.target_tets']} tets)")
-            mesh = jelly_man_mesh(spec, target_tets=config["body.target_tets"])
-        elif kind == "mesh":
-            mesh = read_mesh(config["body.mesh_file"])
-        elif kind == "surface":
-            from .body.surface_body import build_surface_body
-            surface = build_surface_body(config, skeleton, progress)
-            return cls(config, surface.mesh, np.zeros(surface.mesh.n_vertices, dtype=bool), skeleton=skeleton,
-                       urdf_xml=urdf_xml, progress=progress, surface=surface)
-        else:
-            mesh = paper_mesh(kind, config["body.scale"])
-        if skeleton is None and kind != "mesh" and config["body.fix_bottom"]:
-            z = mesh.vertices[:, 2]
-            fixed = z <= z.min() + 0.2 * np.ptp(z)
-        if fixed is None:
-            fixed = np.zeros(mesh.n_vertices, dtype=bool)
-        # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
-        # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
-        bind_all = kind == "jelly_man" and source != "builtin"
-        return cls(config, mesh, fixed, skeleton=skeleton, urdf_xml=urdf_xml, progress=progress, bind_all=bind_all)
-
-    @staticmethod
-    def apply_error_budget(config: SceneConfig, progress: Callable[[str], None] | None = None) -> SceneConfig:
-        """The config with method, step, warping (and modal.k) replaced by the cheapest measured point that
-        meets budget.max_error_mm; ChoiceError names the best achievable error when none does."""
-        from .method_choice import choose_from_file
-        path = config["budget.measured_points"] or str(MEASURED_POINTS)
-        choice = choose_from_file(path, scene=config["body.kind"], budget_mm=config["budget.max_error_mm"])
-        _say(progress, f"error budget {config['budget.max_error_mm']:g} mm: {choice.point.describe()}, "
-                       f"measured max error {choice.point.errors['max_mm']:.3g} mm ({path})")
-        return config.with_values(choice.overrides)
+        """Build everything the config asks for (and nothing else): what to build is chosen by
+        scene_build.scene_parts (error budget, skeleton, body mesh), the wiring is this constructor's."""
+        parts = scene_parts(config, urdf_xml, progress)
+        return cls(parts.config, parts.mesh, parts.fixed, skeleton=parts.skeleton, urdf_xml=parts.urdf_xml,
+                   progress=progress, surface=parts.surface, bind_all=parts.bind_all)
 
     def _bind(self, progress) -> None:
         from .body.binding import bind_to_skeleton
@@ -257,15 +162,15 @@ class Scene:
         poses = sk.forward(q0, np.zeros(sk.nv))
         starts, ends = sk.bone_segments(q0)
         _say(progress, f"binding {self.model.n_vertices} vertices to {len(sk.bone_names)} bones")
-        depth = self.surface_body.depth if c["binding.relative_levels"] else None
+        depth = self.surface_body.depth if c.binding.relative_levels else None
         mask = None
-        if c["binding.skip_bones"]:
-            unknown = [b for b in c["binding.skip_bones"] if b not in sk.bone_names]
+        if c.binding.skip_bones:
+            unknown = [b for b in c.binding.skip_bones if b not in sk.bone_names]
             if unknown:
                 raise ValueError(f"binding.skip_bones names {unknown}, which are not bones of this skeleton; its bones "
                                  f"are {', '.join(sk.bone_names)}")
-            mask = np.array([b not in c["binding.skip_bones"] for b in sk.bone_names])
-        radii = list(c["binding.level_radii"])
+            mask = np.array([b not in c.binding.skip_bones for b in sk.bone_names])
+        radii = list(c.binding.level_radii)
         if self.bind_all:
             from .body.binding import segment_distance
             reach = float(segment_distance(self.model.rest, starts, ends).min(axis=1).max()) * (1 + 1e-9)
@@ -278,18 +183,18 @@ class Scene:
                                         bone_names=sk.bone_names, warn=False, surface_depth=depth)
         if self.surface_body is not None:
             self._refuse_islands()
-        gains = LevelGains(kp=tuple(c["binding.kp"]), kd=tuple(c["binding.kd"]))
-        self.driver = SkeletonDriver(self.binding, self.model.rest, gains, kinematic=c["binding.kinematic_core"],
-                                     bone_names=sk.bone_names, sliding_levels=c["binding.sliding_levels"],
+        gains = LevelGains(kp=tuple(c.binding.kp), kd=tuple(c.binding.kd))
+        self.driver = SkeletonDriver(self.binding, self.model.rest, gains, kinematic=c.binding.kinematic_core,
+                                     bone_names=sk.bone_names, sliding_levels=c.binding.sliding_levels,
                                      points=[a for a in self.anchors if isinstance(a, PointConstraint)],
                                      lines=[a for a in self.anchors if isinstance(a, LineConstraint)])
-        self.joints = JointMap(sk.joint_names, q0, max_names=c["input.max_names"])
+        self.joints = JointMap(sk.joint_names, q0, max_names=c.input.max_names)
         self.stream = JointStreamInterpolator(sk.joint_names, revolute=sk.revolute_mask(),
-                                              max_age=c["input.max_age"], max_future=c["input.max_future"],
-                                              teleport_distance=c["input.teleport_distance"],
+                                              max_age=c.input.max_age, max_future=c.input.max_future,
+                                              teleport_distance=c.input.teleport_distance,
                                               prismatic=~sk.revolute_mask(),
-                                              max_root_distance=c["input.max_root_distance"],
-                                              max_joint_speed=c["input.max_joint_speed"])
+                                              max_root_distance=c.input.max_root_distance,
+                                              max_joint_speed=c.input.max_joint_speed)
 
     def _refuse_islands(self) -> None:
         """A piece of a surface body that no bone reaches (no vertex in the innermost level: relative levels
@@ -331,6 +236,28 @@ class Scene:
                 self._replace = True
         if result.accepted and not any(k in self.stream.FATAL for k, _ in problems):
             self.inputs.accepted += 1
+        return problems
+
+    def take_joint_state(self, stamp: float, names, positions, velocities, received: float,
+                         on_judged: Callable[[list], None] | None = None,
+                         on_step: Callable[[], None] | None = None) -> list[tuple[str, str]]:
+        """One joint-state sample with the whole input-clock policy: the node's physics thread (through
+        sim_loop.SimLoop) and a replay (replay.py) both take their samples here, so the same samples give the
+        same states.
+
+        An unstamped sample (stamp 0) takes its receive time ``received`` [s, the stamps' time base]; the sample
+        is judged and pushed (push_joint_state, checked against ``received``); ``on_judged(problems)`` runs next
+        (the node records what reached the joint stream, a replay's input); then with physics.clock = input the
+        body steps up to the newest stamp (follow_inputs: at most physics.max_catchup_steps behind,
+        ``on_step()`` after each step). With physics.clock = wall the caller steps (advance_to). Returns the
+        problems found; DivergenceError / StabilityError from the steps reach the caller, which resets."""
+        if stamp == 0.0:
+            stamp = received
+        problems = self.push_joint_state(stamp, names, positions, velocities, now=received)
+        if on_judged is not None:
+            on_judged(problems)
+        if self.config.physics.clock == "input":
+            self.follow_inputs(self.config.physics.max_catchup_steps, on_step=on_step)
         return problems
 
     # -- physics ---------------------------------------------------------------------------------
@@ -440,8 +367,8 @@ class Scene:
 
     def follow_inputs(self, max_steps: int | None = None, on_step: Callable[[], None] | None = None) -> StepReport:
         """physics.clock = input, called after every joint-state sample: start at the first accepted stamp,
-        then step up to the newest. The node and a replay (clusterfem_ros/replay.py) both step through this, so
-        the same inputs give the same states. ``on_step()`` also sees the state at the start."""
+        then step up to the newest (take_joint_state calls it for the node and a replay). ``on_step()`` also
+        sees the state at the start."""
         if self.sim_time is None:
             if self.driver is None or not self.stream.ready:
                 return StepReport()

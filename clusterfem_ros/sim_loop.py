@@ -1,8 +1,8 @@
 """Physics on a thread of its own, handing finished states to the outputs as snapshots. No ROS.
 
-    loop = SimLoop(scene, clock="wall", now=ros_seconds, timer_hz=100.0, max_catchup_steps=250, log=log)
+    loop = SimLoop(scene, now=ros_seconds, timer_hz=100.0, max_catchup_steps=250, log=log)
     loop.start()
-    loop.take_input(lambda: scene.push_joint_state(...))   # from the subscription callback: queued
+    loop.take_input(lambda: scene.take_joint_state(...))   # from the subscription callback: queued
     snap = loop.snapshot                                    # from the output timers: never half written
     loop.stop()                                             # joins the thread
 
@@ -13,8 +13,9 @@ lock is held across one. The outputs never read the scene's state: batches of st
 a fresh, read-only copy of the state, put in place by one reference assignment (atomic in Python); the copy
 being read stays whole while the next is made.
 
-Clock "input" steps in a replay's order (push a sample, step up to its stamp, next sample), so a replay of
-the recorded joint states (replay.py) reproduces every published state bit for bit. Clock "wall"
+The clock is the scene's physics.clock. Clock "input": each sample is taken by Scene.take_joint_state, which
+steps up to its stamp, as a replay of the recorded joint states (replay.py) does, so the replay reproduces
+every published state bit for bit. Clock "wall"
 steps up to the clock whenever a joint state arrives or 1 / timer_hz has passed, at most 0.7 / timer_hz per
 batch (then a snapshot, then on), in slow motion up to ``max_catchup_steps`` behind.
 
@@ -164,8 +165,9 @@ class LatencyMeter:
 class SimLoop:
     """The physics thread of one scene; see the module docstring."""
 
-    def __init__(self, scene, clock: str, now: Callable[[], float], timer_hz: float, max_catchup_steps: int,
+    def __init__(self, scene, now: Callable[[], float], timer_hz: float, max_catchup_steps: int,
                  log: Callable[[str, str], None], name: str = "physics"):
+        clock = scene.config.physics.clock
         if clock not in ("wall", "input"):
             raise ValueError(f"physics.clock {clock!r} is not 'wall' or 'input'")
         self.scene = scene
@@ -213,9 +215,9 @@ class SimLoop:
 
     # -- inputs ----------------------------------------------------------------------------------
     def take_input(self, push: Callable[[], None]) -> None:
-        """Hand one joint-state sample over: ``push()`` pushes it into the scene, on the physics thread (the
-        callback never waits for a step). Clock "wall": every sample queued is pushed before the next step;
-        clock "input": one sample is pushed, then the steps up to its stamp are done, then the next."""
+        """Hand one joint-state sample over: ``push()`` gives it to the scene (Scene.take_joint_state), on the
+        physics thread (the callback never waits for a step). Clock "wall": every sample queued is pushed before
+        the next step; clock "input": one sample is taken, with the steps up to its stamp, then the next."""
         if len(self._queue) >= INPUT_QUEUE:
             self.queue_full += 1
             self.log("warning", f"joint state dropped: {INPUT_QUEUE} samples wait for physics "
@@ -227,14 +229,19 @@ class SimLoop:
             self._wake.notify()
 
     def _push_next(self) -> None:
+        """The oldest queued sample given to the scene; its time less the steps it made goes to the inputs
+        stage (the steps' to skeleton and physics: _timed)."""
         push, arrived = self._queue.popleft()
         t = time.perf_counter()
-        before = self.scene.inputs.accepted
-        push()
-        if self.scene.inputs.accepted > before:
-            self._accepted += 1
-            self.latency.arrived(self._accepted, arrived)
-        self.stages.add("inputs", time.perf_counter() - t)
+        s = self.scene
+        before, wall0 = s.inputs.accepted, s.step_wall_s
+        try:
+            push()
+        finally:                                    # counted also when the steps after the push diverged
+            if s.inputs.accepted > before:
+                self._accepted += 1
+                self.latency.arrived(self._accepted, arrived)
+            self.stages.add("inputs", time.perf_counter() - t - (s.step_wall_s - wall0))
 
     # -- the thread ------------------------------------------------------------------------------
     def _run(self) -> None:
@@ -259,13 +266,13 @@ class SimLoop:
             self._pending = False
 
     def _follow_inputs(self) -> None:
-        """Clock "input": each sample pushed, then steps up to its stamp, as replay.py does."""
+        """Clock "input": each sample taken with the steps up to its stamp (Scene.take_joint_state), as
+        replay.py does."""
         if not self._queue:
             self._wait()
             return
-        self._push_next()
+        n = self._timed(self._push_next)
         used = self._accepted
-        n = self._timed(lambda: self.scene.follow_inputs(self.max_steps))
         if n or self.snapshot is None:
             self._take_snapshot(used)
 

@@ -17,7 +17,7 @@ fi
 . "$VENV/bin/activate"
 export FASTDDS_BUILTIN_TRANSPORTS=SHM
 export ROS_DOMAIN_ID="${ROS_DOMAIN_ID:-$(( ( $$ % 100 ) + 100 ))}"
-# numba's cache directory is keyed on the sources compiled code can read by clusterfem_ros.fem.numba_config
+# numba's cache directory is keyed on the sources compiled code can read by clusterfem_ros.numba_cache
 # (key_the_cache),
 # in $VENV/numba_cache/<key>, unless NUMBA_CACHE_DIR is set.
 export PYTHONUNBUFFERED=1

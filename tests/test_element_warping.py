@@ -168,7 +168,10 @@ def test_warping_model_choices_are_checked_and_shared_with_the_config():
             make_integrator(method, model, warp=True, warping_model="cluster")
 
 
-def test_material_and_scene_share_one_set_of_damping_defaults():
+def test_material_and_scene_share_one_set_of_material_defaults():
     params = {p.name: p.default for p in config.PARAMS}
+    assert Material().E == params["material.young_modulus"] == 3.0e4
+    assert Material().nu == params["material.poisson_ratio"]
+    assert Material().rho == params["material.density"]
     assert Material().xi == params["material.mass_damping"]
     assert Material().zeta == params["material.stiffness_damping"]

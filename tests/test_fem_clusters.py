@@ -7,9 +7,10 @@ from numba import prange
 
 from clusterfem_ros.fem.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
 from clusterfem_ros.fem.cluster_force_kernel import cluster_args, clustered_force, scratch, stiffness_slices_serial
+from clusterfem_ros.fem.cluster_slices import host_slices
 from clusterfem_ros.fem.clusters import build_clusters
 from clusterfem_ros.fem.material import Material
-from clusterfem_ros.fem.numba_config import serial_and_parallel
+from clusterfem_ros.numba_config import serial_and_parallel
 from clusterfem_ros.fem.voxel_mesh import paper_mesh
 from tests import naive
 from tests.meshes import random_delaunay_mesh
@@ -89,22 +90,22 @@ def test_slice_kernel_refuses_a_workspace_without_the_row_after_the_last():
     the array's end at the last vertex, and rows padded to 4 would be read at the wrong places."""
     mesh = paper_mesh("cube")
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
-    w, kw = scratch(cl.slices)
-    lanes = len(cl.slices.owner)
+    w, kw = scratch(host_slices(cl))
+    lanes = len(host_slices(cl).owner)
     assert w.shape == (lanes + 1, 3)
     for bad in (np.zeros((mesh.n_vertices, 3)), np.zeros((lanes, 3)), np.zeros((mesh.n_vertices + 8, 4))):
         with pytest.raises(ValueError, match="rows of 3 .* a row per lane of the slices and one more"):
-            stiffness_slices_serial(*cluster_args(cl.slices), bad, kw)
-    stiffness_slices_serial(*cluster_args(cl.slices), w, kw)
+            stiffness_slices_serial(*cluster_args(host_slices(cl)), bad, kw)
+    stiffness_slices_serial(*cluster_args(host_slices(cl)), w, kw)
 
 
 def test_slice_kernel_refuses_an_output_without_a_row_per_lane():
     """The sweep writes lane l's sums to row owner[l]: an (n, 3) output would miss the padding lanes' rows."""
     mesh = paper_mesh("cube")
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
-    w, _ = scratch(cl.slices)
+    w, _ = scratch(host_slices(cl))
     with pytest.raises(ValueError, match="a row of 3 per lane"):
-        stiffness_slices_serial(*cluster_args(cl.slices), w, np.zeros((mesh.n_vertices, 3)))
+        stiffness_slices_serial(*cluster_args(host_slices(cl)), w, np.zeros((mesh.n_vertices, 3)))
 
 
 def _thread_ids(out):

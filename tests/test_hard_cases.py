@@ -6,7 +6,8 @@ from benchmarks import stability_table as st
 from clusterfem_ros.fem.corotational import ElementCorotation
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.model import Control, State
-from clusterfem_ros.fem.warping import AssembledWarp, vertex_rotations
+from clusterfem_ros.fem.assembled_warp import AssembledWarp
+from clusterfem_ros.fem.warping import vertex_rotations
 from tests import naive_warping as naive
 
 STEPS = 40

@@ -32,6 +32,7 @@ from clusterfem_ros.config import default_scene_path, load_scene_file
 from clusterfem_ros.method_choice import SHIPPED_POINTS
 from clusterfem_ros.motion import load_motion
 from clusterfem_ros.scene import Scene
+from clusterfem_ros.scene_build import apply_error_budget
 from clusterfem_ros.skeleton.keyframes import example_path
 
 config = load_scene_file(default_scene_path()).with_values({"physics.clock": "input"})
@@ -40,13 +41,13 @@ scene = Scene.build(config)
 pushed = 0
 for k in range(101):                                  # 1 s of the wave at 100 Hz, stamps from t = 1 s
     q, v = motion.trajectory.sample(0.01 * k)
-    scene.push_joint_state(1.0 + 0.01 * k, motion.trajectory.names, q, v)
-    scene.follow_inputs(config["physics.max_catchup_steps"])
+    t = 1.0 + 0.01 * k
+    scene.take_joint_state(t, motion.trajectory.names, q, v, received=t)
     pushed += 1
     if k == 0:
         x0 = scene.positions().copy()                 # on the skeleton at the first key frame
 x = scene.positions()
-budget = Scene.apply_error_budget(config.with_values({"budget.max_error_mm": 25.0}))
+budget = apply_error_budget(config.with_values({"budget.max_error_mm": 25.0}))
 print(json.dumps({"package": clusterfem_ros.__file__, "scene_file": str(default_scene_path()),
                   "points": str(SHIPPED_POINTS), "keyframes": str(example_path("wave.yaml")),
                   "pushed": pushed, "accepted": scene.inputs.accepted, "rejected": scene.inputs.rejected,

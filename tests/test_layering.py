@@ -24,23 +24,15 @@ INSTALLED = ("clusterfem_ros", "msg_adapters")
 # part of the core -> the parts it may import besides itself ('' = the modules directly in clusterfem_ros/)
 ALLOWED = {
     "errors": set(),
+    "numba_cache": set(),                         # where numba's cache lives (the package keys it at import)
+    "numba_config": set(),                        # numba build flags for every part that compiles code
     "recording": {"errors"},                      # a leaf: it records bytes, knows no physics and no scene
-    "fem": {"errors"},
-    "skeleton": {"errors", "fem"},                # the jelly body's mesh, numba build flags
-    "body": {"errors", "fem", "skeleton"},
-    "": {"errors", "recording", "fem", "skeleton", "body", ""},     # config, scene, replay, method choice, ...
+    "fem": {"errors", "numba_config"},
+    "skeleton": {"errors", "numba_config", "fem"},      # the jelly body's mesh
+    "body": {"errors", "numba_config", "fem", "skeleton"},
+    "": {"errors", "numba_cache", "numba_config", "recording", "fem", "skeleton", "body", ""},  # config, scene, ...
 }
 PHYSICS = {"numba", "scipy", "pinocchio", "llvmlite"}
-# circles another change is taking apart (fem/ is being rewritten): listed so that no new circle hides among
-# them; test_the_known_fem_circles_are_gone fails (strict xfail) the day they are gone, to drop them here
-KNOWN_CIRCLES = [
-    frozenset({"clusterfem_ros.fem.integrators.base", "clusterfem_ros.fem.integrators.clustered_explicit",
-               "clusterfem_ros.fem.integrators.standard_explicit", "clusterfem_ros.fem.integrators.standard_implicit",
-               "clusterfem_ros.fem.modal"}),                # make_integrator in base.py imports every method
-    frozenset({"clusterfem_ros.fem.clusters", "clusterfem_ros.fem.cluster_slices"}),    # a lazy property
-]
-
-
 def module_files(root: Path = ROOT, packages=PACKAGES) -> dict[str, Path]:
     """Dotted module name -> file, for every .py of the packages (a package by its __init__.py)."""
     out = {}
@@ -80,7 +72,7 @@ def part(module: str, graph: dict) -> str:
     parts = module.split(".")
     if len(parts) == 1:
         return ""
-    if parts[1] == "errors" or len(parts) > 2 or any(m.startswith(module + ".") for m in graph):
+    if parts[1] in ALLOWED or len(parts) > 2 or any(m.startswith(module + ".") for m in graph):
         return parts[1]
     return ""
 
@@ -186,7 +178,7 @@ def test_the_graph_reads_every_kind_of_import(tmp_path):
     bad = "\n".join(layer_violations(g))
     for expected in ("fem.bad imports clusterfem_ros.nodes.node: the core never imports nodes/",
                      "fem.bad imports sensor_msgs.msg: the core (below nodes/) imports no ROS",
-                     "fem.up imports clusterfem_ros.scene: fem may import only ['errors']",
+                     "fem.up imports clusterfem_ros.scene: fem may import only ['errors', 'numba_config']",
                      "recording.rec imports clusterfem_ros.scene: recording may import only ['errors']",
                      "msg_adapters.m imports numba: msg_adapters holds no physics",
                      "msg_adapters.m imports clusterfem_ros.fem.kern: msg_adapters converts messages"):
@@ -209,16 +201,9 @@ def test_every_module_keeps_to_its_layer():
     assert not bad, "imports against the layers:\n" + "\n".join(bad)
 
 
-def test_no_import_circles_but_the_known_fem_ones():
-    new = [sorted(c) for c in circles(GRAPH) if not any(c <= known for known in KNOWN_CIRCLES)]
-    assert not new, f"modules importing each other in a circle: {new}"
-
-
-@pytest.mark.xfail(strict=True, reason="fem/ keeps two circles (integrators/base <-> the integrators and modal "
-                   "through make_integrator; clusters <-> cluster_slices through a lazy property) while another "
-                   "change rewrites those files; when this passes, empty KNOWN_CIRCLES")
-def test_the_known_fem_circles_are_gone():
-    assert not [sorted(c) for c in circles(GRAPH) if any(c <= known for known in KNOWN_CIRCLES)]
+def test_no_import_circles():
+    found = [sorted(c) for c in circles(GRAPH)]
+    assert not found, f"modules importing each other in a circle: {found}"
 
 
 def _core_modules():

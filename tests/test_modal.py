@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from clusterfem_ros.fem import modal
+from clusterfem_ros.fem.integrators import modal
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.material import Material, ParameterError
-from clusterfem_ros.fem.modal import ModalIntegrator, modal_basis
+from clusterfem_ros.fem.integrators.modal import ModalIntegrator, modal_basis
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.fem.voxel_mesh import box_mesh
 

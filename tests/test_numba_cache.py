@@ -24,7 +24,7 @@ from numba.core.caching import NullCache
 from numba.core.registry import CPUDispatcher
 
 import clusterfem_ros
-from clusterfem_ros.fem.numba_config import contains_threads
+from clusterfem_ros.numba_config import contains_threads
 
 CHILD = Path(__file__).with_name("test_numba_cache_child.py")
 
@@ -110,7 +110,7 @@ def test_the_source_key_follows_every_file_compiled_code_can_read_and_no_other(t
     """A kernel module, the modules it imports (at any depth, relative or absolute) and their packages'
     __init__.py are keyed; a module that only imports a kernel (a node, the scene) is not, so editing it keeps
     the cache, and one that starts using numba joins the key."""
-    from clusterfem_ros.fem.numba_config import kernel_sources, source_key
+    from clusterfem_ros.numba_cache import kernel_sources, source_key
     pkg = tmp_path / "pkg"
     (pkg / "sub").mkdir(parents=True)
     files = {"__init__.py": "", "kern.py": "import numba\nfrom .consts import C\n",
@@ -134,7 +134,7 @@ def test_the_source_key_follows_every_file_compiled_code_can_read_and_no_other(t
 
 def test_without_numba_cache_dir_the_cache_is_keyed_on_the_package_source(tmp_path):
     """numba re-checks a cached kernel only against its own file: a bare pytest run after editing a callee
-    could load stale kernels. numba_config keys the directory on the package's source instead."""
+    could load stale kernels. the package keys the directory on its source when first imported (numba_cache)."""
     code = ("import os, sys\n"
             "from clusterfem_ros.fem.cluster_force_kernel import force_kernel_serial as k\n"
             "print(os.environ['NUMBA_CACHE_DIR']); print(k._cache._cache_path); print(sys.prefix)\n")
@@ -142,7 +142,7 @@ def test_without_numba_cache_dir_the_cache_is_keyed_on_the_package_source(tmp_pa
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr[-2000:]
     cache_dir, kernel_dir, prefix = run.stdout.split()
-    from clusterfem_ros.fem.numba_config import source_key
+    from clusterfem_ros.numba_cache import source_key
     assert Path(cache_dir) == Path(prefix) / "numba_cache" / source_key(Path(clusterfem_ros.__file__).parent)
     assert Path(kernel_dir).is_relative_to(cache_dir)
     given = subprocess.run([sys.executable, "-c", code], env=dict(env, NUMBA_CACHE_DIR=str(tmp_path)),
@@ -160,14 +160,14 @@ def test_keying_keeps_the_two_caches_used_last_besides_its_own(tmp_path):
     pkg.mkdir()
     (pkg / "a.py").write_text("x = 1\n")
     code = ("import os, sys\nfrom pathlib import Path\n"
-            "from clusterfem_ros.fem import numba_config as c\n"
+            "from clusterfem_ros import numba_cache as c\n"
             "os.environ.pop('NUMBA_CACHE_DIR')\n"
             "print(c.key_the_cache(Path(sys.argv[1]), Path(sys.argv[2])), os.environ['NUMBA_CACHE_DIR'])\n")
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     run = subprocess.run([sys.executable, "-c", code, str(pkg), str(root)], env=env, capture_output=True, text=True,
                          timeout=120)
     assert run.returncode == 0, run.stderr[-2000:]
-    from clusterfem_ros.fem.numba_config import source_key
+    from clusterfem_ros.numba_cache import source_key
     returned, exported = run.stdout.split()
     assert returned == exported == str(root / source_key(pkg))
     assert sorted(p.name for p in root.iterdir()) == sorted([source_key(pkg), "older", "recent"])
@@ -184,7 +184,7 @@ def _fresh_module(path: Path, name: str):
 def test_is_cached_tells_a_build_that_will_compile_from_one_that_will_load(tmp_path):
     """A cached numba function seen for the first time is not cached; after its first call it is, also for a
     new dispatcher of the same source (a later process). A function numba does not cache: cannot tell."""
-    from clusterfem_ros.fem.numba_config import is_cached
+    from clusterfem_ros.numba_cache import is_cached
     src = tmp_path / "tiny_kernel.py"
     src.write_text("import numba\n\n@numba.njit(cache=True)\ndef f(x):\n    return x + 1\n\n"
                    "@numba.njit\ndef g(x):\n    return x + 1\n")
@@ -214,3 +214,22 @@ def test_a_scene_whose_step_will_compile_says_so_and_how_long_it_takes(tmp_path,
     said = []
     Scene.build(config, progress=said.append)
     assert any("compiling the step's kernels" in s and "15-30 s" in s for s in said), said
+
+
+def test_importing_the_flags_and_the_cache_modules_sets_nothing_up(tmp_path):
+    """numba_config and numba_cache, loaded on their own (not through the package, whose first import keys the
+    cache), neither point numba's cache anywhere nor create or delete a directory: setting up is the package's
+    explicit call (clusterfem_ros/__init__.py)."""
+    package = Path(clusterfem_ros.__file__).parent
+    code = ("import importlib.util, os, sys\n"
+            "for name in ('numba_config', 'numba_cache'):\n"
+            "    spec = importlib.util.spec_from_file_location(name, os.path.join(sys.argv[1], name + '.py'))\n"
+            "    spec.loader.exec_module(importlib.util.module_from_spec(spec))\n"
+            "print(os.environ.get('NUMBA_CACHE_DIR', 'unset'))\n")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    before = sorted((Path(sys.prefix) / "numba_cache").glob("*"))
+    run = subprocess.run([sys.executable, "-c", code, str(package)], env=env, cwd=tmp_path, capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split() == ["unset"]
+    assert sorted((Path(sys.prefix) / "numba_cache").glob("*")) == before

@@ -5,6 +5,7 @@ import pytest
 from clusterfem_ros.config import SceneConfig
 from clusterfem_ros.motion import load_motion
 from clusterfem_ros.scene import Scene
+from clusterfem_ros.scene_build import apply_error_budget
 
 SMALL = dict(body__target_tets=700)
 
@@ -89,12 +90,12 @@ def test_an_error_budget_picks_the_cheapest_measured_method_and_refuses_an_impos
     f = write_points(tmp_path / "points.csv", pts)
     base = SceneConfig().with_values(body__kind="sphere", skeleton__source="none", budget__measured_points=str(f))
     said = []
-    c = Scene.apply_error_budget(base.with_values(budget__max_error_mm=1.0), said.append)
+    c = apply_error_budget(base.with_values(budget__max_error_mm=1.0), said.append)
     assert (c["method"], c["physics.step"]) == ("clustered", 1e-3) and "clustered" in said[0]
-    c = Scene.apply_error_budget(base.with_values(budget__max_error_mm=0.4))
+    c = apply_error_budget(base.with_values(budget__max_error_mm=0.4))
     assert (c["method"], c["physics.step"]) == ("clustered", 5e-4)
     with pytest.raises(ChoiceError, match="0.3"):
-        Scene.apply_error_budget(base.with_values(budget__max_error_mm=0.1))
+        apply_error_budget(base.with_values(budget__max_error_mm=0.1))
     scene = Scene.build(base.with_values(budget__max_error_mm=0.4, warping=True))
     assert scene.h == 5e-4 and scene.integrator.name == "clustered"       # warping off: the measured point's
 
@@ -181,3 +182,38 @@ def test_sliding_levels_are_built_only_when_asked_and_let_the_flesh_slide_along_
           f"{slide.mean() * 1e3:.1f} mm sliding; volume error {vol_held:.4f} / {vol_sliding:.4f}")
     assert slide.mean() > 3 * slide_held.mean()
     assert vol_sliding < 0.02 and np.isfinite(sliding.state.u).all()
+
+
+def test_take_joint_state_is_push_then_follow_on_the_input_clock_and_push_alone_on_the_wall_clock():
+    """The one entry for a joint sample (node and replay): on physics.clock = input it gives the states of
+    push_joint_state then follow_inputs, bit for bit; an unstamped sample takes its receive time; on_judged sees
+    the problems before the sample's steps; on the wall clock it steps nothing."""
+    m = load_motion()
+    config = SceneConfig().with_values(physics__clock="input", **SMALL)
+    taken, reference = Scene.build(config), Scene.build(config)
+    judged, steps_before = [], []
+    for k in range(30):
+        t = 1000.0 + k / 120.0
+        q, v = m.trajectory.sample(k / 120.0, loop=True)
+        stamp = 0.0 if k == 29 else t                   # the last one unstamped: it takes its receive time
+        got = taken.take_joint_state(stamp, m.trajectory.names, q, v, received=t,
+                                     on_judged=lambda p: judged.append((p, taken.steps_done)))
+        steps_before.append(reference.steps_done)
+        assert reference.push_joint_state(t, m.trajectory.names, q, v, now=t) == got == []
+        reference.follow_inputs(config["physics.max_catchup_steps"])
+        assert taken.steps_done == reference.steps_done
+    assert taken.steps_done > 20 and taken.sim_time == reference.sim_time
+    assert np.array_equal(taken.positions(), reference.positions())
+    assert judged == [([], n) for n in steps_before]
+    wall = Scene.build(SceneConfig().with_values(**SMALL))
+    q, v = m.trajectory.sample(0.0)
+    wall.take_joint_state(1000.0, m.trajectory.names, q, v, received=1000.0)
+    wall.take_joint_state(1000.5, m.trajectory.names, q, v, received=1000.5)
+    assert wall.steps_done == 0 and wall.sim_time is None and wall.inputs.accepted == 2
+
+
+def test_replay_refuses_a_scene_on_the_wall_clock():
+    from clusterfem_ros.replay import replay
+    scene = Scene.build(SceneConfig().with_values(body__kind="sphere", skeleton__source="none", warping=False))
+    with pytest.raises(ValueError, match="physics.clock = input"):
+        replay(scene, [], [])

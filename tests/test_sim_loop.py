@@ -12,6 +12,7 @@ from clusterfem_ros.scene import Scene
 from clusterfem_ros.sim_loop import MAX_CRASHES_IN_A_ROW, LatencyMeter, SimLoop, StageClock
 
 SMALL_MAN = dict(body__target_tets=700, warping=True)
+INPUT_CLOCK = dict(SMALL_MAN, physics__clock="input")
 T0 = 1000.0                                   # stamps far from zero, as on a ROS clock
 
 
@@ -36,14 +37,15 @@ class _Log(list):
         self.append((level, text))
 
 
-def _loop(scene, clock="input", now=lambda: 0.0, **kw):
+def _loop(scene, now=lambda: 0.0, **kw):
+    """A loop on the scene's physics.clock."""
     log = _Log()
-    loop = SimLoop(scene, clock, now, kw.pop("timer_hz", 100.0), kw.pop("max_catchup_steps", 250), log)
+    loop = SimLoop(scene, now, kw.pop("timer_hz", 100.0), kw.pop("max_catchup_steps", 250), log)
     return loop, log
 
 
 def test_input_clock_on_the_thread_gives_the_states_of_push_then_follow_bit_for_bit():
-    config = SceneConfig().with_values(**SMALL_MAN)
+    config = SceneConfig().with_values(**INPUT_CLOCK)
     direct, threaded = Scene.build(config), Scene.build(config)
     expected = {}
     for stamp, names, q, v in _samples(0.5):              # what the node did on its executor thread
@@ -55,7 +57,7 @@ def test_input_clock_on_the_thread_gives_the_states_of_push_then_follow_bit_for_
     loop.start()
     try:
         for stamp, names, q, v in _samples(0.5):
-            loop.take_input(lambda s=stamp, n=names, q=q, v=v: threaded.push_joint_state(s, n, q, v, now=s))
+            loop.take_input(lambda s=stamp, n=names, q=q, v=v: threaded.take_joint_state(s, n, q, v, received=s))
             snap = loop.snapshot
             if snap is not None:
                 seen[snap.steps] = threaded.model.rest + snap.u
@@ -72,20 +74,20 @@ def test_input_clock_on_the_thread_gives_the_states_of_push_then_follow_bit_for_
 
 
 def test_a_snapshot_is_never_written_after_it_is_handed_over():
-    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    scene = Scene.build(SceneConfig().with_values(**INPUT_CLOCK))
     loop, _ = _loop(scene)
     loop.start()
     try:
         samples = list(_samples(0.4))
         for stamp, names, q, v in samples[:10]:
-            loop.take_input(lambda s=stamp, n=names, q=q, v=v: scene.push_joint_state(s, n, q, v, now=s))
+            loop.take_input(lambda s=stamp, n=names, q=q, v=v: scene.take_joint_state(s, n, q, v, received=s))
         _wait_for(lambda: loop.snapshot is not None and loop.snapshot.steps > 0, 30, "a snapshot")
         first = loop.snapshot
         kept = first.u.copy(), first.v.copy()
         with pytest.raises(ValueError):
             first.u[0, 0] = 1.0                                 # read-only: no output can scribble on it
         for stamp, names, q, v in samples[10:]:
-            loop.take_input(lambda s=stamp, n=names, q=q, v=v: scene.push_joint_state(s, n, q, v, now=s))
+            loop.take_input(lambda s=stamp, n=names, q=q, v=v: scene.take_joint_state(s, n, q, v, received=s))
         _wait_for(lambda: loop.snapshot.steps > first.steps + 200, 30, "200 more steps")
     finally:
         assert loop.stop()
@@ -96,14 +98,14 @@ def test_a_snapshot_is_never_written_after_it_is_handed_over():
 def test_nothing_is_handed_over_before_a_joint_state_places_the_body():
     scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
     clock = {"now": T0}
-    loop, log = _loop(scene, clock="wall", now=lambda: clock["now"])
+    loop, log = _loop(scene, now=lambda: clock["now"])
     loop.start()
     try:
         _wait_for(lambda: scene.sim_time is not None, 10, "the wall clock to start the scene")
         _wait_for(lambda: loop.unpublishable > 0, 10, "a state refused before any joint state")
         assert loop.snapshot is None                      # the body stands at the neutral pose, not on the clip
         stamp, names, q, v = next(_samples(0.1))
-        loop.take_input(lambda: scene.push_joint_state(T0, names, q, v, now=T0))
+        loop.take_input(lambda: scene.take_joint_state(T0, names, q, v, received=T0))
         clock["now"] = T0 + 1.5 * scene.h                 # one step due: it puts the body on the sample's pose
         _wait_for(lambda: loop.snapshot is not None, 10, "the placed body's snapshot")
     finally:
@@ -114,7 +116,7 @@ def test_nothing_is_handed_over_before_a_joint_state_places_the_body():
 def test_wall_clock_follows_the_clock_and_counts_the_stages():
     scene = Scene.build(SceneConfig().with_values(body__kind="sphere", skeleton__source="none", warping=False))
     t_start = time.perf_counter()
-    loop, log = _loop(scene, clock="wall", now=lambda: time.perf_counter() - t_start)
+    loop, log = _loop(scene, now=lambda: time.perf_counter() - t_start)
     loop.start()
     try:
         _wait_for(lambda: scene.sim_time is not None and scene.sim_time > 0.2, 30, "0.2 s of physics")
@@ -143,7 +145,7 @@ def test_a_failing_step_is_reported_the_body_reset_and_physics_goes_on():
 
     scene.integrator.step = step
     t_start = time.perf_counter()
-    loop, log = _loop(scene, clock="wall", now=lambda: time.perf_counter() - t_start)
+    loop, log = _loop(scene, now=lambda: time.perf_counter() - t_start)
     loop.start()
     try:
         _wait_for(lambda: scene.steps_done > 100, 30, "steps after the failure")
@@ -160,7 +162,7 @@ def test_failures_in_a_row_stop_the_thread_and_stop_still_returns():
         raise FloatingPointError("always")
 
     scene.integrator.step = step
-    loop, log = _loop(scene, clock="wall", now=lambda: time.perf_counter())
+    loop, log = _loop(scene, now=lambda: time.perf_counter())
     loop.start()
     _wait_for(lambda: not loop.running, 10, "the thread to give up")
     assert loop.stopped and loop.crashes == MAX_CRASHES_IN_A_ROW
@@ -200,7 +202,7 @@ def test_stage_shares_are_seconds_per_wall_second():
 def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_waiting_for_the_batch():
     scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
     clock = {"now": T0}
-    loop, log = _loop(scene, clock="wall", now=lambda: clock["now"])
+    loop, log = _loop(scene, now=lambda: clock["now"])
     handed = []
     original = loop.latency.handed_over
     loop.latency.handed_over = lambda used, t: handed.append((used, loop.snapshot.steps)) or original(used, t)
@@ -208,7 +210,7 @@ def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_wait
     try:
         _wait_for(lambda: scene.sim_time is not None, 10, "the wall clock to start the scene")
         stamp, names, q, v = next(_samples(0.1))
-        loop.take_input(lambda: scene.push_joint_state(T0, names, q, v, now=T0))
+        loop.take_input(lambda: scene.take_joint_state(T0, names, q, v, received=T0))
         clock["now"] = T0 + 5.5 * scene.h                         # five steps due
         _wait_for(lambda: scene.steps_done == 5 and handed[-1][1] == 5, 10, "five steps")
     finally:

@@ -11,7 +11,8 @@ from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.fem.tet_mesh import signed_volumes
 from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
-from clusterfem_ros.fem.warping import AssembledWarp, VertexFrames, vertex_rotations, warped_force
+from clusterfem_ros.fem.assembled_warp import AssembledWarp
+from clusterfem_ros.fem.warping import VertexFrames, vertex_rotations, warped_force
 from tests import naive_warping as naive
 from tests.meshes import random_delaunay_mesh
 
@@ -162,7 +163,7 @@ def test_bar_bent_90_degrees_keeps_its_volume_with_warping(method):
 
 def test_rotations_match_the_svd_polar_within_the_iteration_tolerance():
     """The lane-batched polar iteration stops at a squared change of 1e-12 per step, which bounds its error by
-    ~1.5e-12 (warping.POLAR_TOL): checked against the SVD on strains from 0.1 % to 40 % plus a large rotation,
+    ~1.5e-12 (polar.POLAR_TOL): checked against the SVD on strains from 0.1 % to 40 % plus a large rotation,
     with one inverted vertex inside a chunk of normal ones (that lane alone takes the Mueller fallback)."""
     model = build_model(paper_mesh("torus"), MAT)          # 656 vertices: several chunks, a partial last one
     rows = model.clusters.to_dense_rows()

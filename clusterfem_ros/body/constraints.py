@@ -23,7 +23,7 @@ from typing import Protocol, Sequence
 import numba
 import numpy as np
 
-from ..fem.numba_config import SERIAL
+from ..numba_config import SERIAL
 
 
 class PoseLike(Protocol):

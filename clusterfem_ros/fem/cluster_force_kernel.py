@@ -8,164 +8,34 @@ contribution plus the boundary clusters'. The sweep runs over the clusters packe
 f_i = -(K w)_i - xi m_i v_i (the clustered integrator folds that pass into its velocity update).
 ``clustered_force`` is the checked public entry; the ``_`` kernels take arrays and scalars only.
 tests/naive.py holds the plain numpy twin.
+
+What a build injects: kernel sources here call compiled functions by global names that no import defines,
+bound per build by numba_config.compiled (hence ``# noqa: F821`` at each call): ``slice_kernel`` in ``_sweep``
+(the slice kernel of slice_sweep: ``_slice_force`` or the warped passes'), ``sweep`` in ``_stiffness_slices``
+(the serial or threaded linear sweep, or a sweep around another slice kernel: stiffness_around), and
+``kernel_input``, ``stiffness`` and ``finish`` in ``_force_kernel`` (their serial or threaded builds). One
+source thus yields serial and threaded builds that cannot drift apart and that numba caches on disk (a
+closure over a compiled function would miss the cache in every process).
 """
 from __future__ import annotations
 
 import numpy as np
 from llvmlite import ir
 from numba import prange, types
-from numba.core import cgutils
-from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from .cluster_slices import W_ROW, ClusterSlices, aligned_zeros
+from .cluster_slices import W_ROW, ClusterSlices, aligned_zeros, host_slices
 from .clusters import Clusters
-from .numba_config import PARALLEL_MIN_VERTICES, compiled, serial_and_parallel
-
-
-_F64 = ir.DoubleType()
-_V4 = ir.VectorType(_F64, 4)
-_I64 = ir.IntType(64)
-_I32 = ir.IntType(32)
-
-
-def _k(x):
-    return ir.Constant(_I64, x)
-
-
-def _mask(idx):
-    return ir.Constant(ir.VectorType(_I32, len(idx)), list(idx))
-
-
-def _fma(builder, a, b, c):
-    """a * b + c, one rounding (llvm.fma: exact on every target, no fastmath flag involved)."""
-    name = f"llvm.fma.v{a.type.count}f64"
-    fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(a.type, [a.type] * 3), name)
-    return builder.call(fn, [a, b, c])
-
-
-def _vector_at(builder, p, offset, vtype):
-    return builder.bitcast(builder.gep(p, [offset]), vtype.as_pointer())
-
-
-def accumulating_loop(builder, start, stop, step, zeros, body):
-    """LLVM IR for ``accs = zeros; for i in range(start, stop, step): accs = body(i, accs)``; returns the final
-    accumulators (the zeros when the range is empty). start, stop: i64 values; step: a Python int; body gets
-    the i64 index and the accumulators' current values and returns their next values. Shared by the slice
-    kernel and the benchmark's wide read (benchmarks/core_benchmark.py)."""
-    entry = builder.basic_block
-    loop = builder.function.append_basic_block("acc.loop")
-    done = builder.function.append_basic_block("acc.done")
-    builder.cbranch(builder.icmp_signed("<", start, stop), loop, done)
-    builder.position_at_end(loop)
-    i = builder.phi(_I64)
-    i.add_incoming(start, entry)
-    accs = [builder.phi(z.type) for z in zeros]
-    for a, z in zip(accs, zeros):
-        a.add_incoming(z, entry)
-    new = body(i, accs)
-    i_next = builder.add(i, _k(step))
-    loop_end = builder.basic_block
-    i.add_incoming(i_next, loop_end)
-    for a, val in zip(accs, new):
-        a.add_incoming(val, loop_end)
-    builder.cbranch(builder.icmp_signed("<", i_next, stop), loop, done)
-    builder.position_at_end(done)
-    totals = []
-    for z, val in zip(zeros, new):
-        total = builder.phi(z.type)
-        total.add_incoming(z, entry)
-        total.add_incoming(val, loop_end)
-        totals.append(total)
-    return totals
-
-
-def _transpose(builder, rows):
-    """C rows (x, y, z, anything) of <4 x double> -> the C x's, y's and z's as three <C x double>."""
-    level = rows
-    while len(level) > 1:                      # concatenate pairwise: one <4C x double>
-        n = level[0].type.count
-        level = [builder.shuffle_vector(level[i], level[i + 1], _mask(range(2 * n)))
-                 for i in range(0, len(level), 2)]
-    every = level[0]
-    return [builder.shuffle_vector(every, every, _mask([4 * lane + c for lane in range(len(rows))]))
-            for c in range(3)]
-
-
-def lane_values(builder, ptr, first, lanes):
-    """The ``lanes`` int64 values ptr[first + l], l = 0..C-1: a position's column offsets (w_at), or a slice's
-    per-lane vertices or output rows (first = C s)."""
-    return [builder.load(builder.gep(ptr, [builder.add(first, _k(lane))]), align=8) for lane in range(lanes)]
-
-
-def gathered_rows(builder, data, offsets):
-    """The rows (x, y, z) that start at ``offsets`` in ``data`` (one per lane), each loaded as 4 doubles (the
-    fourth is unused: a row of 3 and the next row's first, or a row's padding) and transposed (_transpose): their
-    x's, y's and z's as three C-wide vectors. How every slice kernel gathers a per-vertex array."""
-    return _transpose(builder, [builder.load(_vector_at(builder, data, at, _V4), align=8) for at in offsets])
-
-
-def position_entries(builder, data, p, count, vtype):
-    """The ``count`` C-wide vectors of position p of a (P, count, C) array: a block's nine entries, an
-    offset's or a gradient weight's three."""
-    base = builder.mul(p, _k(count * vtype.count))
-    return [builder.load(_vector_at(builder, data, builder.add(base, _k(e * vtype.count)), vtype), align=8)
-            for e in range(count)]
-
-
-def store_lane_rows(builder, out, owner, first_lane, totals):
-    """out[owner[first_lane + l], c] <- lane l of totals[c] (c = 0, 1, 2): each lane's sums to its vertex's row
-    of an (S C, 3) array."""
-    lanes = totals[0].type.count
-    for lane, own in enumerate(lane_values(builder, owner, first_lane, lanes)):
-        row = builder.mul(own, _k(3))
-        for c, total in enumerate(totals):
-            builder.store(builder.extract_element(total, ir.Constant(_I32, lane)),
-                          builder.gep(out, [builder.add(row, _k(c))]), align=8)
-
-
-def slice_kernel_typing(kernel, lanes, s, p0, p1, per_position, common, specs):
-    """The typing checks every slice kernel makes; returns C and the kernel's signature. A slice kernel is
-    called as ``kernel(lanes, s, p0, p1, per_position, common)`` (slice_sweep): ``lanes`` (C) a literal 2, 4
-    or 8, slice s, positions p0..p1, and two tuples of C-contiguous arrays, per position (w_at first) and
-    common; specs: (name, ndim, dtype) of every array of the two, in order."""
-    if not isinstance(lanes, types.IntegerLiteral) or lanes.literal_value not in (2, 4, 8):
-        raise TypingError(f"{kernel}: lanes must be the literal 2, 4 or 8, got {lanes}")
-    for name, a in (("s", s), ("p0", p0), ("p1", p1)):
-        if not isinstance(a, types.Integer):
-            raise TypingError(f"{kernel}: {name} must be an integer, got {a}")
-    for name, group in (("per_position", per_position), ("common", common)):
-        if not isinstance(group, types.BaseTuple):
-            raise TypingError(f"{kernel}: {name} must be a tuple of arrays, got {group}")
-    arrays = [*per_position.types, *common.types]
-    if len(arrays) != len(specs):
-        raise TypingError(f"{kernel}: expected the arrays {[sp[0] for sp in specs]}, got {len(arrays)} arrays")
-    for (name, ndim, dtype), a in zip(specs, arrays):
-        if not (isinstance(a, types.Array) and a.ndim == ndim and a.dtype == dtype and a.layout == "C"):
-            raise TypingError(f"{kernel}: {name} must be a C-contiguous {ndim}-d {dtype} array, got {a}")
-    return lanes.literal_value, types.void(lanes, s, p0, p1, per_position, common)
-
-
-def slice_kernel_args(context, builder, signature, args):
-    """(s, p0, p1 as i64 values, the arrays of both tuples in order) inside a slice kernel's codegen."""
-    sv, p0v, p1v = [context.cast(builder, a, t, types.int64) for a, t in zip(args[1:4], signature.args[1:4])]
-    arrays = []
-    for group, value in zip(signature.args[4:6], args[4:6]):
-        for t, v in zip(group.types, cgutils.unpack_tuple(builder, value, len(group.types))):
-            arrays.append(context.make_array(t)(context, builder, v))
-    return sv, p0v, p1v, arrays
-
-
-def double_data(builder, array):
-    """An array struct's data as a double pointer."""
-    return builder.bitcast(array.data, _F64.as_pointer())
+from .llvm_ir import (F64, accumulating_loop, double_data, fused_multiply_add, gathered_rows, i64, lane_values,
+                      position_entries, slice_kernel_args, slice_kernel_typing, store_lane_rows)
+from ..numba_config import PARALLEL_MIN_VERTICES, compiled, serial_and_parallel
 
 
 _LINEAR_SPECS = (("w_at", 2, types.int64), ("blocks", 3, types.float64), ("w", 2, types.float64),
                  ("owner", 1, types.int64), ("out", 2, types.float64))
 
 
-def _slice_force_intrinsic(gather: bool):
+def slice_force_intrinsic(gather: bool):
     """The slice kernel below; ``gather=False`` builds the benchmark's control, which reads the same blocks and
     does the same FMAs but holds w at row 0 instead of gathering each position's C rows (its time against the
     full kernel's is the gather's cost: benchmarks/core_benchmark.py)."""
@@ -188,7 +58,7 @@ def _slice_force_intrinsic(gather: bool):
 
 def _slice_force_typing(gather, lanes, s, p0, p1, per_position, common):
     C, sig = slice_kernel_typing("_slice_force", lanes, s, p0, p1, per_position, common, _LINEAR_SPECS)
-    VC = ir.VectorType(_F64, C)
+    VC = ir.VectorType(F64, C)
 
     def codegen(context, builder, signature, args):
         sv, p0v, p1v, arrays = slice_kernel_args(context, builder, signature, args)
@@ -196,28 +66,27 @@ def _slice_force_typing(gather, lanes, s, p0, p1, per_position, common):
         blkp, wp, outp = (double_data(builder, arrays[k]) for k in (1, 2, 4))
         zero = ir.Constant(VC, [0.0] * C)
         if not gather:                          # row 0 of w in every lane, loaded once
-            held = gathered_rows(builder, wp, [_k(0)] * C)
+            held = gathered_rows(builder, wp, [i64(0)] * C)
 
         def position(p, acc):
-            wxyz = gathered_rows(builder, wp, lane_values(builder, atp, builder.mul(p, _k(C)), C)) if gather else held
+            wxyz = gathered_rows(builder, wp, lane_values(builder, atp, builder.mul(p, i64(C)), C)) if gather else held
             K = position_entries(builder, blkp, p, 9, VC)
             new = []
             for r in range(3):                  # row r of the C blocks: entries (r, 0..2)
                 a = acc[r]
                 for c in range(3):
-                    a = _fma(builder, K[3 * r + c], wxyz[c], a)
+                    a = fused_multiply_add(builder, K[3 * r + c], wxyz[c], a)
                 new.append(a)
             return new
 
         totals = accumulating_loop(builder, p0v, p1v, 1, [zero] * 3, position)
-        store_lane_rows(builder, outp, ownp, builder.mul(sv, _k(C)), totals)    # lane l -> row owner[C s + l]
+        store_lane_rows(builder, outp, ownp, builder.mul(sv, i64(C)), totals)    # lane l -> row owner[C s + l]
         return context.get_dummy_value()
 
     return sig, codegen
 
 
-_slice_force = _slice_force_intrinsic(gather=True)
-slice_force_held_w = _slice_force_intrinsic(gather=False)
+_slice_force = slice_force_intrinsic(gather=True)
 
 
 def _sweep(sh_ptr, shared, boundary, common):
@@ -251,7 +120,7 @@ def slice_sweep(slice_fn, name: str):
 
 def _stiffness_slices(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner, w, kw):
     """kw[i] <- (K w)_i for every vertex i (rows past n: the padding lanes', zero), by the global ``sweep``
-    (bound per build: serial or threaded, or the benchmark's control that holds w)."""
+    (bound per build: serial or threaded, or a sweep around another slice kernel: stiffness_around)."""
     if kw.shape[0] != owner.shape[0] or kw.shape[1] != 3:
         raise ValueError("the cluster force kernel needs kw with a row of 3 per lane of the slices (scratch())")
     if w.shape[1] != W_ROW or w.shape[0] <= owner.shape[0]:
@@ -264,9 +133,13 @@ _linear_sweeps = slice_sweep(_slice_force, "linear")
 # no loop of their own: the sweeps carry the threads
 stiffness_slices_serial, stiffness_slices_parallel = (compiled(_stiffness_slices, suffix, sweep=sweep)
                                                       for suffix, sweep in zip(("", "_parallel"), _linear_sweeps))
-# the benchmark's control: the serial sweep with w held at row 0 (no gather of w)
-stiffness_held_w_serial = compiled(_stiffness_slices, "_held_w",
-                                   sweep=compiled(_sweep, "_held_w", slice_kernel=slice_force_held_w))
+
+
+def stiffness_around(slice_kernel, suffix: str):
+    """A serial build of the stiffness pass (stiffness_slices_serial's arguments) around another slice kernel
+    with the linear one's arguments, e.g. slice_force_intrinsic(gather=False), the benchmark's control
+    (benchmarks/core_benchmark.py); ``suffix`` keeps its cache entries apart."""
+    return compiled(_stiffness_slices, suffix, sweep=compiled(_sweep, suffix, slice_kernel=slice_kernel))
 
 
 def _finish_kernel(kw, v, mass3, xi, out):
@@ -360,7 +233,7 @@ def clustered_force(cl: Clusters, u: np.ndarray, v: np.ndarray, mass: np.ndarray
         out = np.empty((n, 3))
     elif out.shape != (n, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
         raise ValueError(f"out must be a C-contiguous ({n}, 3) float64 array, got {out.dtype} {out.shape}")
-    sl = cl.slices
+    sl = host_slices(cl)
     w, kw = scratch(sl)
     pick_kernel(n, threads)(*cluster_args(sl), u, v, np.repeat(mass, 3), float(zeta), float(xi), w, kw, out)
     return out

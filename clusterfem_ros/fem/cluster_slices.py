@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .clusters import Clusters
+from ..numba_config import simd_lanes
 
 
 # Shared rows are sorted by length within windows of this many rows, not globally. A global sort put all
@@ -139,6 +140,25 @@ def slice_clusters(cl: Clusters, lanes: int) -> ClusterSlices:
     owner[padding] = cl.n_vertices + np.arange(int(padding.sum()))
     return ClusterSlices(lanes=lanes, n_vertices=cl.n_vertices, shared_ptr=shared_ptr, shared_w_at=W_ROW * sh_cols,
                          shared_blocks=sh_blocks, boundary_w_at=W_ROW * bd_cols, boundary_blocks=bd_blocks, owner=owner)
+
+
+def host_slices(cl: Clusters) -> ClusterSlices:
+    """cl's blocks packed C rows at a time for the SIMD force kernels, C = this host's doubles per vector
+    register (simd_lanes); built on first use and kept with cl, so a model that never runs a slice kernel does
+    not hold the copy."""
+    built = vars(cl).get(_HOST_SLICES)
+    if built is None:
+        built = vars(cl)[_HOST_SLICES] = slice_clusters(cl, simd_lanes())     # beside the frozen fields
+    return built
+
+
+def host_slices_nbytes(cl: Clusters) -> int:
+    """Bytes cl's host slices hold, 0 while they have not been built (host_slices would build them)."""
+    built = vars(cl).get(_HOST_SLICES)
+    return built.nbytes if built is not None else 0
+
+
+_HOST_SLICES = "_host_slices"
 
 
 def lane_vertices(sl: ClusterSlices) -> np.ndarray:

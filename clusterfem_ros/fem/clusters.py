@@ -10,7 +10,6 @@ once. Nothing is approximated: the blocks are the assembled K's blocks.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 
@@ -37,21 +36,6 @@ class Clusters:
     def nbytes(self) -> int:
         return sum(a.nbytes for a in (self.shared_rows, self.shared_ptr, self.shared_cols, self.shared_blocks,
                                       self.boundary_rows, self.boundary_cols, self.boundary_blocks))
-
-    @cached_property
-    def slices(self):
-        """The same blocks packed C rows at a time for the SIMD force kernel (cluster_slices.py), C = this
-        host's doubles per vector register; built on first use, so a model that never runs the linear
-        kernel (warping has its own) does not hold the copy."""
-        from .cluster_slices import slice_clusters
-        from .numba_config import simd_lanes
-        return slice_clusters(self, simd_lanes())
-
-    @property
-    def slices_nbytes(self) -> int:
-        """Bytes the slices hold, 0 while they have not been built (reading ``slices`` would build them)."""
-        built = self.__dict__.get("slices")         # where cached_property keeps its value
-        return built.nbytes if built is not None else 0
 
     def neighbours(self) -> tuple[np.ndarray, np.ndarray]:
         """CSR (ptr (n+1,), cols) of every vertex's cluster neighbours (itself included), in vertex order."""

@@ -37,6 +37,11 @@ a vertex torn 0.5 m away ran bounded at safety 0.2 and grew at 0.8 (tests/test_h
 
 ``element_force`` and ``element_rotations`` are the checked public entries; ``ElementFrames`` holds the
 element data and workspace; fem/corotational.py (numpy) is the twin the tests compare against.
+
+What a build injects: the kernel sources ``_element_e`` and ``_element_force`` call compiled functions by
+global names that no import defines, bound per build (serial or threaded) by numba_config.compiled, hence
+``# noqa: F821`` at each call: ``element_pass`` and ``gather_rows`` in ``_element_e``; ``kernel_input``,
+``element_e`` and ``finish`` in ``_element_force``.
 """
 from __future__ import annotations
 
@@ -48,10 +53,16 @@ from numba import prange
 
 from .assembly import shape_gradients
 from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
+from .kernel_args import checked_rows as _check
+from .kernel_args import output_rows
+from .kernel_args import pick_build as _pick
 from .model import FemModel
-from .numba_config import SERIAL, compiled, serial_and_parallel
-from .warping import (LANES, _check, _chunk_start, _lane_accepted, _pick, _polar_lanes, _scalar_rotation,
-                      output_rows)
+from ..numba_config import SERIAL, compiled, serial_and_parallel
+from .polar import LANES
+from .polar import chunk_start as _chunk_start
+from .polar import lane_accepted as _lane_accepted
+from .polar import polar_lanes as _polar_lanes
+from .polar import scalar_rotation as _scalar_rotation
 
 WARPING_MODELS = ("element", "vertex")
 

@@ -8,7 +8,12 @@ import numpy as np
 from ..errors import ClusterFemError
 
 
-# The one set of default Rayleigh damping values: Material()'s and the scene's (config.py reads these).
+# The one set of default material values: Material()'s and the scene's (config.py reads these). E = 30 kPa,
+# nu = 0.3, rho = 1000 kg/m^3: a soft jelly of water's density, the paper's test material.
+DEFAULT_YOUNG_MODULUS = 3.0e4
+DEFAULT_POISSON_RATIO = 0.3
+DEFAULT_DENSITY = 1000.0
+# Rayleigh damping:
 # zeta = 1e-4 s, not 1e-5: a joint-state stall of ~80 ms and the burst after it made the warped jelly man's one-
 # and two-tet flaps (free vertices on the shins) flutter and diverge within a second at 1e-5. 1e-4 damps the
 # mesh's highest modes (damping ratio ~0.04 at ~800 rad/s) and leaves the body's own (< 0.003 below 50 rad/s);
@@ -29,9 +34,9 @@ class Material:
 
     Rayleigh damping D = xi * M + zeta * K: ``xi`` [1/s] damps low frequencies, ``zeta`` [s] high ones.
     """
-    E: float = 5.0e4
-    nu: float = 0.3
-    rho: float = 1000.0
+    E: float = DEFAULT_YOUNG_MODULUS
+    nu: float = DEFAULT_POISSON_RATIO
+    rho: float = DEFAULT_DENSITY
     xi: float = DEFAULT_MASS_DAMPING
     zeta: float = DEFAULT_STIFFNESS_DAMPING
 

@@ -7,7 +7,7 @@ stress of the corotated linear model; invariants such as von Mises do not depend
 von Mises = sqrt(3/2 dev(sigma) : dev(sigma)); principal stresses = eigvalsh(sigma), ascending.
 Per vertex: the volume-weighted average of the adjacent elements' tensors, and its invariants.
 
-The corotated rotations come from the warping's polar iteration on LANES elements at once (fem/warping.py:
+The corotated rotations come from the polar iteration on LANES elements at once (fem/polar.py:
 scaled Newton, then Newton-Schulz, all lanes of a chunk together), with the scalar path for inverted, flat
 or non-converged elements; the element stress, its von Mises value and the vertex averages follow in the
 same compiled call. The node computes this for every surface marker (30 Hz): on the default jelly man
@@ -23,8 +23,8 @@ import numpy as np
 
 from .assembly import shape_gradients
 from .model import FemModel
-from .numba_config import SERIAL
-from .warping import LANES, _chunk_start, _lane_accepted, _polar_lanes, _scalar_rotation
+from ..numba_config import SERIAL
+from .polar import LANES, chunk_start, lane_accepted, polar_lanes, scalar_rotation
 
 
 @dataclass(frozen=True)
@@ -102,7 +102,7 @@ def _deformation_lanes(g, tets, u, F):
 @numba.njit(**SERIAL)
 def _element_rotations(F, R):
     """R[e] <- polar(F_e) by chunks of LANES elements (the warping's lanes iteration); inverted, flat and
-    non-converged elements take the scalar path (_scalar_rotation, started from I)."""
+    non-converged elements take the scalar path (scalar_rotation, started from I)."""
     m = F.shape[1]
     buf = np.empty((2, 9, LANES))
     how = np.empty(LANES, dtype=np.int8)
@@ -110,16 +110,16 @@ def _element_rotations(F, R):
     for k0 in range(0, m, LANES):
         nl = min(LANES, m - k0)
         Fc = F[:, k0:k0 + nl]
-        _chunk_start(nl, Fc, buf[0], how)
-        P, converged = _polar_lanes(nl, buf[0], buf[1])
+        chunk_start(nl, Fc, buf[0], how)
+        P, converged = polar_lanes(nl, buf[0], buf[1])
         for l in range(nl):
-            if _lane_accepted(l, P, converged, how):
+            if lane_accepted(l, P, converged, how):
                 for a in range(3):
                     for b in range(3):
                         R[k0 + l, a, b] = P[3 * a + b, l]
             else:
                 R[k0 + l] = np.eye(3)
-                _scalar_rotation(l, Fc, tmp, R[k0 + l])
+                scalar_rotation(l, Fc, tmp, R[k0 + l])
 
 
 @numba.njit(**SERIAL)

@@ -29,7 +29,7 @@ import numba
 import numpy as np
 
 from .assembly import shape_gradients
-from .numba_config import SERIAL
+from ..numba_config import SERIAL
 
 SQRT3 = math.sqrt(3.0)
 

@@ -21,6 +21,10 @@ walk the same slices with g stored per block (P, 3, C) and u copied (``copy_rows
 per lane and one more: cluster_force_kernel.input_rows): nine C-wide FMAs per position. Lane l of slice s
 writes column C s + l of F (9, S C), so the polar iteration that follows runs over contiguous lanes in slice
 order. The row loop it replaced took 5.6 ns per block, most of the rotations' time.
+
+What a build injects: nothing here is called by an unbound name. The two slice kernels are numba intrinsics
+(LLVM IR from llvm_ir.py); cluster_force_kernel.slice_sweep builds the loop over every slice around each, binding
+the kernel as that loop's global ``slice_kernel``.
 """
 from __future__ import annotations
 
@@ -29,11 +33,11 @@ from numba import prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .cluster_force_kernel import (_F64, _fma, _k, _vector_at, accumulating_loop, double_data, gathered_rows,
-                                   lane_values, position_entries, slice_kernel_args, slice_kernel_typing, slice_sweep,
-                                   store_lane_rows)
+from .cluster_force_kernel import slice_sweep
 from .cluster_slices import W_ROW
-from .numba_config import serial_and_parallel
+from .llvm_ir import (F64, accumulating_loop, double_data, fused_multiply_add, gathered_rows, i64, lane_values,
+                      position_entries, slice_kernel_args, slice_kernel_typing, store_lane_rows, vector_at)
+from ..numba_config import serial_and_parallel
 
 # Doubles per vertex in the rotations' kernel copy: three rows of (R_a0, R_a1, R_a2, padding); a multiple of
 # W_ROW, so R_j's rows start at (ROT_ROW / W_ROW) w_at.
@@ -59,7 +63,7 @@ def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
     (checked at typing); the caller checks the shapes.
     """
     C, sig = slice_kernel_typing("_warped_slice", lanes, s, p0, p1, per_position, common, _WARPED_SPECS)
-    VC = ir.VectorType(_F64, C)
+    VC = ir.VectorType(F64, C)
 
     def codegen(context, builder, signature, args):
         sv, p0v, p1v, arrays = slice_kernel_args(context, builder, signature, args)
@@ -68,21 +72,21 @@ def _warped_slice(typingctx, lanes, s, p0, p1, per_position, common):
         mul, sub, add = builder.fmul, builder.fsub, builder.fadd
 
         def fma(a, b, c):
-            return _fma(builder, a, b, c)
+            return fused_multiply_add(builder, a, b, c)
 
         def gathered(w_offsets):
             """w_j (3 vectors) and R_j (3 x 3 vectors, [a][b] = R[a, b]) of the lanes' w offsets W_ROW j."""
-            r_at = [builder.mul(at, _k(ROT_ROW // W_ROW)) for at in w_offsets]
+            r_at = [builder.mul(at, i64(ROT_ROW // W_ROW)) for at in w_offsets]
             return (gathered_rows(builder, wp, w_offsets),
-                    [gathered_rows(builder, rp, [builder.add(at, _k(4 * a)) for at in r_at]) for a in range(3)])
+                    [gathered_rows(builder, rp, [builder.add(at, i64(4 * a)) for at in r_at]) for a in range(3)])
 
-        first_lane = builder.mul(sv, _k(C))
-        wi, ri = gathered([builder.mul(i, _k(W_ROW)) for i in lane_values(builder, lvp, first_lane, C)])
+        first_lane = builder.mul(sv, i64(C))
+        wi, ri = gathered([builder.mul(i, i64(W_ROW)) for i in lane_values(builder, lvp, first_lane, C)])
         zero = ir.Constant(VC, [0.0] * C)
 
         def position(p, acc):
             f, g = acc[:3], acc[3:]
-            wj, rj = gathered(lane_values(builder, atp, builder.mul(p, _k(C)), C))
+            wj, rj = gathered(lane_values(builder, atp, builder.mul(p, i64(C)), C))
             K = position_entries(builder, blkp, p, 9, VC)
             d = position_entries(builder, offp, p, 3, VC)
             z = [sub(wj[c], wi[c]) for c in range(3)]
@@ -121,7 +125,7 @@ def _gradient_slice(typingctx, lanes, s, p0, p1, per_position, common):
     order. w_at (P, C) int64, grads (P, 3, C), u_rows (S C + 1, 3) (input_rows), lane_vertex (S C,) int64,
     F (9, S C), C-contiguous (checked at typing); the caller checks the shapes."""
     C, sig = slice_kernel_typing("_gradient_slice", lanes, s, p0, p1, per_position, common, _GRADIENT_SPECS)
-    VC = ir.VectorType(_F64, C)
+    VC = ir.VectorType(F64, C)
 
     def codegen(context, builder, signature, args):
         sv, p0v, p1v, arrays = slice_kernel_args(context, builder, signature, args)
@@ -129,21 +133,21 @@ def _gradient_slice(typingctx, lanes, s, p0, p1, per_position, common):
         gp, up, fp = (double_data(builder, arrays[k]) for k in (1, 2, 4))
         columns = cgutils.unpack_tuple(builder, arrays[4].shape, 2)[1]
 
-        first_lane = builder.mul(sv, _k(C))
-        ui = gathered_rows(builder, up, [builder.mul(i, _k(W_ROW)) for i in lane_values(builder, lvp, first_lane, C)])
+        first_lane = builder.mul(sv, i64(C))
+        ui = gathered_rows(builder, up, [builder.mul(i, i64(W_ROW)) for i in lane_values(builder, lvp, first_lane, C)])
 
         def position(p, acc):
-            uj = gathered_rows(builder, up, lane_values(builder, atp, builder.mul(p, _k(C)), C))
+            uj = gathered_rows(builder, up, lane_values(builder, atp, builder.mul(p, i64(C)), C))
             e = [builder.fsub(uj[c], ui[c]) for c in range(3)]
             g = position_entries(builder, gp, p, 3, VC)
-            return [_fma(builder, e[a], g[b], acc[3 * a + b]) for a in range(3) for b in range(3)]
+            return [fused_multiply_add(builder, e[a], g[b], acc[3 * a + b]) for a in range(3) for b in range(3)]
 
         acc = accumulating_loop(builder, p0v, p1v, 1, [ir.Constant(VC, [0.0] * C)] * 9, position)
         one = ir.Constant(VC, [1.0] * C)
         for a in range(9):
             value = builder.fadd(acc[a], one) if a % 4 == 0 else acc[a]
-            at = builder.add(builder.mul(_k(a), columns), first_lane)
-            builder.store(value, _vector_at(builder, fp, at, VC), align=8)
+            at = builder.add(builder.mul(i64(a), columns), first_lane)
+            builder.store(value, vector_at(builder, fp, at, VC), align=8)
         return context.get_dummy_value()
 
     return sig, codegen

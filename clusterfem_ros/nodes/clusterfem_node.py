@@ -7,7 +7,7 @@ recording). Bad input is counted, warned about (throttled) and never stops the n
 reset, never published; a failing step is reported on the log and the diagnostics (ERROR).
 
 A joint state is size-checked and decoded in the callback, judged on the physics thread
-(Scene.push_joint_state), and recorded only once judged; the recording never raises into a callback: a full
+(Scene.take_joint_state), and recorded only once judged; the recording never raises into a callback: a full
 queue drops and counts (recording.max_queue_mb), a write failure stops the recording with an ERROR log and an
 ERROR diagnostic while the simulation goes on.
 
@@ -85,8 +85,8 @@ class ClusterFemNode(Node):
         log.info(f"scene ready in {time.perf_counter() - t0:.1f} s: {m.mesh.n_tets} tets, {m.n_vertices} vertices, "
                  f"method {self.config['method']}, warping {self.config['warping']}, h = {self.scene.h:g} s")
         c = self.config
-        self.physics = SimLoop(self.scene, c["physics.clock"], self._now, c["physics.timer_hz"],
-                               c["physics.max_catchup_steps"], self._log, name=f"physics {self.get_fully_qualified_name()}")
+        self.physics = SimLoop(self.scene, self._now, c.physics.timer_hz,
+                               c.physics.max_catchup_steps, self._log, name=f"physics {self.get_fully_qualified_name()}")
         self.physics.start()
 
     def _log(self, level: str, text: str) -> None:
@@ -210,7 +210,7 @@ class ClusterFemNode(Node):
             self.get_logger().warning(f"{message} [{kind}: {count} so far]")
 
     def _on_joint_state(self, data: bytes) -> None:
-        """Check the size and decode here; the physics thread judges it (Scene.push_joint_state) and records what
+        """Check the size and decode here; the physics thread judges it (Scene.take_joint_state) and records what
         reached the joint stream: the samples a replay needs to take the same decisions. Refused messages are
         counted, not recorded."""
         now_ns = self.get_clock().now().nanoseconds
@@ -221,10 +221,10 @@ class ClusterFemNode(Node):
             return
         try:
             n_names = joint_state_name_count(data)     # refuse a huge message before decoding it
-            if n_names > self.config["input.max_names"]:
+            if n_names > self.config.input.max_names:
                 scene.inputs.count("too_many_names")
                 self._warn_input("too_many_names", f"joint state with {n_names} names dropped (input.max_names "
-                                 f"{self.config['input.max_names']})", scene.inputs.rejected["too_many_names"])
+                                 f"{self.config.input.max_names})", scene.inputs.rejected["too_many_names"])
                 return
             stamp, names, q, v = joint_state_fields(deserialize_message(data, JointState))
             exact = data[:joint_state_cdr_extent(data)]     # without a tail strict bag readers refuse
@@ -233,18 +233,18 @@ class ClusterFemNode(Node):
             self._warn_input("malformed", f"joint state rejected: {exc}; fix the publisher",
                              scene.inputs.rejected["malformed"])
             return
-        if stamp == 0.0:
-            stamp = now_ns * 1e-9
-        # queued for the physics thread, which judges it, records it if the joint stream took it in, and (on the
-        # input clock) steps up to its stamp
-        self.physics.take_input(lambda: self._push_sample(scene, stamp, names, q, v, now_ns, exact))
+        # queued for the physics thread, which gives it to the scene (Scene.take_joint_state: an unstamped sample
+        # takes its receive time), records it if the joint stream took it in, and (on the input clock) steps up
+        # to its stamp
+        self.physics.take_input(lambda: self._take_sample(scene, stamp, names, q, v, now_ns, exact))
 
-    def _push_sample(self, scene: Scene, stamp: float, names, q, v, now_ns: int, exact: bytes) -> None:
-        problems = scene.push_joint_state(stamp, names, q, v, now=now_ns * 1e-9)
-        if scene.inputs.reached_stream:               # the receive time is what a replay passes as 'now'
-            self._record(JOINTS_TOPIC, exact, now_ns)
-        for kind, message in problems:
-            self._warn_input(kind, message, scene.inputs.rejected.get(kind, 0))
+    def _take_sample(self, scene: Scene, stamp: float, names, q, v, now_ns: int, exact: bytes) -> None:
+        def judged(problems: list) -> None:
+            if scene.inputs.reached_stream:           # the receive time is what a replay passes as 'received'
+                self._record(JOINTS_TOPIC, exact, now_ns)
+            for kind, message in problems:
+                self._warn_input(kind, message, scene.inputs.rejected.get(kind, 0))
+        scene.take_joint_state(stamp, names, q, v, received=now_ns * 1e-9, on_judged=judged)
 
     # -- outputs ---------------------------------------------------------------------------------
     def _snapshot_for(self, pub) -> Snapshot | None:
@@ -263,7 +263,7 @@ class ClusterFemNode(Node):
         return int(round(snap.sim_time * 1e9))
 
     def _stress_max(self) -> float:
-        return self.config["output.stress_max"] or self.config["material.young_modulus"] / 20.0
+        return self.config["output.stress_max"] or self.config.material.young_modulus / 20.0
 
     def _stress(self, snap: Snapshot):
         return snap.stress(self.scene.model, bool(self.config["warping"]), self.physics.stages)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..fem.numba_config import SERIAL
+from ..numba_config import SERIAL
 
 
 @numba.njit(**SERIAL)

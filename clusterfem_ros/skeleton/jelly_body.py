@@ -18,7 +18,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from ..fem.numba_config import SERIAL
+from ..numba_config import SERIAL
 
 
 @numba.njit(**SERIAL)

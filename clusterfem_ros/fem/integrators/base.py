@@ -69,23 +69,3 @@ class StepCommon:
         state.t += h
         if not checked:
             check_finite(state.u, state.v, self.limit, where=f"in {name} at t = {state.t:.6g} s")
-
-
-def make_integrator(method: str, model: FemModel, **options) -> Integrator:
-    """'clustered', 'standard_explicit', 'implicit_direct', 'implicit_cg' or 'modal' (options per class)."""
-    from .clustered_explicit import ClusteredExplicit
-    from .standard_explicit import StandardExplicit
-    from .standard_implicit import StandardImplicit
-    if method == "clustered":
-        return ClusteredExplicit(model, **options)
-    if method == "standard_explicit":
-        return StandardExplicit(model, **options)
-    if method == "implicit_direct":
-        return StandardImplicit(model, solver="direct", **options)
-    if method == "implicit_cg":
-        return StandardImplicit(model, solver="cg", **options)
-    if method == "modal":
-        from ..modal import ModalIntegrator
-        return ModalIntegrator(model, **options)
-    raise ValueError(f"unknown method {method!r}: choose clustered, standard_explicit, implicit_direct, "
-                     "implicit_cg or modal")

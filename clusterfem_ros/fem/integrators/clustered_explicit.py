@@ -13,6 +13,12 @@ away stays bounded at the default safety (tests/test_hard_cases.py).
 Python per step is kept to what can change: the sub-step plan is cached while h and the attachment gains'
 maxima are unchanged, prescribed vertices cost nothing when there are none, and divergence is still
 checked every step (the kernel returns whether every |u| stayed under the limit, which a nan fails).
+
+What a build injects: the step sources call compiled functions by global names that no import defines, bound
+per build by numba_config.compiled (``_builds``), hence ``# noqa: F821`` at each call: ``stiffness`` (the
+serial or threaded linear sweep) in ``_symplectic_euler``, ``warped_e`` (the vertex or element model's, serial
+or threaded) in ``_warped_symplectic_euler``, and ``step`` (the matching attached step, called with no
+attachments) in the two ``_free_`` sources.
 """
 from __future__ import annotations
 
@@ -23,8 +29,9 @@ import numpy as np
 
 from ..cluster_force_kernel import (cluster_args, kernel_input_serial, scratch, stiffness_slices_parallel,
                                     stiffness_slices_serial)
+from ..cluster_slices import host_slices
 from ..model import Control, FemModel, State
-from ..numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
+from ...numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
 from ..stretch import StretchPlan
 from ..element_warping import ElementFrames, check_warping_model, element_e_parallel, element_e_serial
@@ -266,7 +273,7 @@ class ClusteredExplicit:
             self._builds = (_warped_step_serial, _warped_step_parallel)
             self._w, self._f = frames.w, frames.e     # w: rows of 3 and one more; e: the sweep's rows, as K w's
         else:
-            slices = model.clusters.slices
+            slices = host_slices(model.clusters)
             self._w, self._f = scratch(slices)  # w: rows of 3 and one more (4-wide loads); f: the sweep's K w rows
             self._model_args = cluster_args(slices)
             self._builds = (_step_serial, _step_parallel)

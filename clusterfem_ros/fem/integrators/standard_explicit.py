@@ -6,7 +6,7 @@ warped kernels must match to round-off. ``warping_model="element"`` (default): e
 rotations R_e are extracted (the compiled polar iteration, fem/element_warping.py) and the force is
 sum_e -R_e K_e (R_e^T w_e - x0_e) in numpy (fem/corotational.py). ``"vertex"`` (eq. 10 symmetrised,
 fem/warping.py): the vertex rotations R_i and the block-sparse K warped, blocks
-(R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (warping.AssembledWarp). A warped step plans its sub-steps for the
+(R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (assembled_warp.AssembledWarp). A warped step plans its sub-steps for the
 body's stretch (fem/stretch.py), as the clustered step does."""
 from __future__ import annotations
 
@@ -17,7 +17,8 @@ from ..stability import control_critical_step, max_eigenvalue, plan_substeps
 from ..stretch import StretchPlan
 from ..corotational import ElementCorotation
 from ..element_warping import ElementFrames, check_warping_model, element_rotations
-from ..warping import AssembledWarp, VertexFrames, vertex_rotations
+from ..assembled_warp import AssembledWarp
+from ..warping import VertexFrames, vertex_rotations
 from .base import StepCommon, StepInfo
 
 

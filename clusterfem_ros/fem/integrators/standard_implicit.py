@@ -53,7 +53,8 @@ from ..spd_factor import factorize_spd
 from ..stability import StabilityError
 from ..corotational import ElementCorotation
 from ..element_warping import ElementFrames, check_warping_model, element_force, element_rotations
-from ..warping import AssembledWarp, VertexFrames, vertex_rotations, warped_force
+from ..assembled_warp import AssembledWarp
+from ..warping import VertexFrames, vertex_rotations, warped_force
 from .base import StepCommon, StepInfo
 
 WARP_MAX_NU = 0.49

@@ -28,10 +28,10 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse.linalg as spla
 
-from .integrators.base import StepCommon, StepInfo
-from .material import ParameterError
-from .model import Control, FemModel, State
-from .spd_factor import factorize_spd
+from ..material import ParameterError
+from ..model import Control, FemModel, State
+from ..spd_factor import factorize_spd
+from .base import StepCommon, StepInfo
 
 DENSE_MAX_DOFS = 600
 

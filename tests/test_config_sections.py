@@ -1,0 +1,32 @@
+"""The typed sections of the scene configuration: one field per parameter of the section, no defaults of their
+own (PARAMS holds the one set), the values the flat table holds."""
+import dataclasses
+
+import pytest
+
+from clusterfem_ros.config import PARAMS, SECTIONS, SceneConfig
+
+
+@pytest.mark.parametrize("name", sorted(SECTIONS))
+def test_a_section_has_a_field_for_every_parameter_it_names_and_no_default_of_its_own(name):
+    fields = dataclasses.fields(SECTIONS[name])
+    params = [p.name.split(".", 1)[1] for p in PARAMS if p.name.startswith(name + ".")]
+    assert sorted(f.name for f in fields) == sorted(params)
+    assert all(f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING for f in fields)
+
+
+@pytest.mark.parametrize("name", sorted(SECTIONS))
+def test_a_section_reads_the_values_of_its_config(name):
+    changed = {p.name: p.default for p in PARAMS if p.name.startswith(name + ".")}
+    numbers = [k for k, v in changed.items() if isinstance(v, float) and not isinstance(v, bool)]
+    config = SceneConfig()
+    if numbers:                                         # one value away from its default, inside its range
+        p = next(p for p in PARAMS if p.name == numbers[0])
+        value = p.default + 0.5 * ((p.hi if p.hi is not None else p.default + 1.0) - p.default)
+        config = config.with_values({p.name: value})
+    section = getattr(config, name)
+    assert section == config.section(name)
+    for f in dataclasses.fields(section):
+        assert getattr(section, f.name) == config[f"{name}.{f.name}"], f.name
+    if numbers:
+        assert getattr(section, numbers[0].split(".", 1)[1]) != changed[numbers[0]]
