@@ -74,21 +74,29 @@ BLOCKS = 16
 
 
 @numba.njit(**SERIAL)
+def _corner_differences(corner, l, p, out):
+    """out[3 (c - 1) + a, l] <- p[i_c, a] - p[i_0, a] (c = 1, 2, 3; i_c = corner[c, l]). All twelve loads come
+    first: a store to ``out`` may alias ``p`` for all LLVM knows, so a load after it would be repeated."""
+    i0, i1, i2, i3 = corner[0, l], corner[1, l], corner[2, l], corner[3, l]
+    x0, y0, z0 = p[i0, 0], p[i0, 1], p[i0, 2]
+    x1, y1, z1 = p[i1, 0], p[i1, 1], p[i1, 2]
+    x2, y2, z2 = p[i2, 0], p[i2, 1], p[i2, 2]
+    x3, y3, z3 = p[i3, 0], p[i3, 1], p[i3, 2]
+    out[l], out[LANES + l], out[2 * LANES + l] = x1 - x0, y1 - y0, z1 - z0
+    out[3 * LANES + l], out[4 * LANES + l], out[5 * LANES + l] = x2 - x0, y2 - y0, z2 - z0
+    out[6 * LANES + l], out[7 * LANES + l], out[8 * LANES + l] = x3 - x0, y3 - y0, z3 - z0
+
+
+@numba.njit(**SERIAL)
 def _differences(corner, u, w, D, DW, forces):
     """D[3 (c - 1) + a, l] <- u[i_c, a] - u[i_0, a] (c = 1, 2, 3; i_c = corner[c, l]); with ``forces`` DW the
     same of w: differences, so the round-off is relative to the element's size, not to its distance from the
     origin."""
     for l in range(LANES):
-        i0 = corner[0, l]
-        for c in range(1, 4):
-            i = corner[c, l]
-            for a in range(3):
-                D[(3 * (c - 1) + a) * LANES + l] = u[i, a] - u[i0, a]
-        if forces:
-            for c in range(1, 4):
-                i = corner[c, l]
-                for a in range(3):
-                    DW[(3 * (c - 1) + a) * LANES + l] = w[i, a] - w[i0, a]
+        _corner_differences(corner, l, u, D)
+    if forces:
+        for l in range(LANES):
+            _corner_differences(corner, l, w, DW)
 
 
 @numba.njit(**SERIAL)
