@@ -135,8 +135,8 @@ def _warm_gradients(D, grad, rot, X):
 
 @numba.njit(**SERIAL)
 def _chunk_forces(DW, grad, vol, lam, mu, R, fe):
-    """fe[(3 c + a) LANES + l] <- component a of V R sigma g_c per lane (module docstring; the force is -fe): G = sum_c dw_c g_c^T the
-    gradient of w, A = R^T G, sigma = mu (A + A^T) - 2 mu I + lambda tr(A - I) I."""
+    """fe[(3 c + a) LANES + l] <- component a of V R sigma g_c per lane (module docstring; the force is -fe):
+    G = sum_c dw_c g_c^T the gradient of w, A = R^T G, sigma = mu (A + A^T) - 2 mu I + lambda tr(A - I) I."""
     for l in range(LANES):
         g10, g11, g12 = grad[l], grad[1 * LANES + l], grad[2 * LANES + l]
         g20, g21, g22 = grad[3 * LANES + l], grad[4 * LANES + l], grad[5 * LANES + l]
