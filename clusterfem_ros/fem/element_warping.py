@@ -19,15 +19,14 @@ field integrated by symplectic Euler keeps a shadow energy bounded; the damping 
 The paper's per-vertex warping (fem/warping.py, ``warping_model = "vertex"``) has no such energy: where
 neighbouring rotations differ sharply (a torn vertex, an inverting sliver) it fed energy in.
 
-Rotations: the warping's lane polar iteration (fem/warping.py: scaled Newton, then Newton-Schulz, LANES
-elements at once) on R_e^T F_e, R_e the element's rotation from the previous call (polar(R^T F) =
-R^T polar(F) for any rotation R: near the identity while elements turn little between calls, so fewer
-passes); an inverted or nearly flat element (det F <= 1e-3 |F|^3 / 3^1.5) or a lane that did not converge
-takes the scalar path, Mueller et al. (2016)'s iteration warm-started from the element's previous rotation,
-which follows one branch of the nearest proper rotation continuously through inversion. Chunks of LANES
-elements are independent: the threaded build runs them in parallel. Each element writes its four vertex
-forces to its own rows; a second pass gathers them per vertex in element order, so serial and threaded
-builds give the same bits (no atomics, no colouring).
+Rotations: fem/element_rotation.py, Newton's method on each element's rotation started from its rotation of
+the previous call (two passes to round-off in smooth motion, whatever the strain), the lane polar iteration of
+fem/polar.py and Mueller et al. (2016)'s scalar iteration for inverted or flat elements and chunks Newton
+does not settle. Per chunk of LANES elements one call does the vertex differences, the gradients, the
+rotations and the forces, on (9 LANES,) arrays by lane, so every loop but the differences' gather runs on
+vectors. Chunks are independent: the threaded build runs them in parallel. Each element writes its four
+vertex forces to its own slots; a second pass gathers them per vertex in element order, so serial and
+threaded builds give the same bits (no atomics, no colouring).
 
 A bounded shadow energy needs the step below the tangent's critical step. Under moderate deformation the
 corotated tangent's eigenvalues are K's, but an element stretched several times its size stiffens in its
@@ -53,16 +52,10 @@ from numba import prange
 
 from .assembly import shape_gradients
 from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
-from .kernel_args import checked_rows as _check
-from .kernel_args import output_rows
-from .kernel_args import pick_build as _pick
+from .kernel_args import checked_rows, output_rows, pick_build
 from .model import FemModel
 from ..numba_config import SERIAL, compiled, serial_and_parallel
-from .polar import LANES
-from .polar import chunk_start as _chunk_start
-from .polar import lane_accepted as _lane_accepted
-from .polar import polar_lanes as _polar_lanes
-from .polar import scalar_rotation as _scalar_rotation
+from .element_rotation import LANES, chunk_rotations
 
 WARPING_MODELS = ("element", "vertex")
 
@@ -75,90 +68,113 @@ def check_warping_model(name: str) -> str:
     return name
 
 
-@numba.njit(**SERIAL)
-def _chunk_gradients(k0, nl, tets, g, u, F):
-    """F[:, l] <- F_e = I + sum_c (u_c - u_0) g_c^T (row-major) of element e = k0 + l, l < nl: differences of
-    displacements, so the round-off is relative to the element's size, not to its distance from the origin."""
-    for l in range(nl):
-        e = k0 + l
-        i0 = tets[e, 0]
-        for a in range(3):
-            d1 = u[tets[e, 1], a] - u[i0, a]
-            d2 = u[tets[e, 2], a] - u[i0, a]
-            d3 = u[tets[e, 3], a] - u[i0, a]
-            for b in range(3):
-                F[3 * a + b, l] = ((1.0 if a == b else 0.0) + d1 * g[e, 1, b]) + (d2 * g[e, 2, b] + d3 * g[e, 3, b])
+# Elements are processed in chunks of LANES (fem/element_rotation.py), each chunk's 3x3 matrices as flat
+# (9 LANES,) arrays, entry k of lane l at k LANES + l (structure of arrays: every per-element loop below runs
+# on vectors). 64 lanes keep a chunk's working set (rest gradients, rotations, differences, iterates: ~25 KiB)
+# in L1; the padding lanes of the last chunk are an element with zero gradients, which stays at F = I, R = I
+# and zero force.
+# Chunks are handed to threads in BLOCKS contiguous runs, each with its own workspace (a chunk's result does
+# not depend on the workspace it used, so serial and threaded builds give the same bits).
+BLOCKS = 16
 
 
 @numba.njit(**SERIAL)
-def _warm_start(k0, nl, F, rot, X, how):
-    """X[:, l] <- R_e^T F_e (R_e: element e = k0 + l's previous rotation), whose polar factor is R_e^T polar(F_e):
-    near the identity while the element turns little between calls, so the iteration starts close to it.
-    how[l] = 1 (X = I, unused) where F_e is inverted or nearly flat, as warping._chunk_start decides."""
-    _chunk_start(nl, F, X, how)
-    for l in range(nl):
-        if how[l] == 0:
-            e = k0 + l
-            for a in range(3):
-                for b in range(3):
-                    X[3 * a + b, l] = rot[e, 0, a] * F[b, l] + rot[e, 1, a] * F[3 + b, l] + rot[e, 2, a] * F[6 + b, l]
+def _corner_differences(corner, l, p, out):
+    """out[3 (c - 1) + a, l] <- p[i_c, a] - p[i_0, a] (c = 1, 2, 3; i_c = corner[c, l]). All twelve loads come
+    first: a store to ``out`` may alias ``p`` for all LLVM knows, so a load after it would be repeated."""
+    i0, i1, i2, i3 = corner[0, l], corner[1, l], corner[2, l], corner[3, l]
+    x0, y0, z0 = p[i0, 0], p[i0, 1], p[i0, 2]
+    x1, y1, z1 = p[i1, 0], p[i1, 1], p[i1, 2]
+    x2, y2, z2 = p[i2, 0], p[i2, 1], p[i2, 2]
+    x3, y3, z3 = p[i3, 0], p[i3, 1], p[i3, 2]
+    out[l], out[LANES + l], out[2 * LANES + l] = x1 - x0, y1 - y0, z1 - z0
+    out[3 * LANES + l], out[4 * LANES + l], out[5 * LANES + l] = x2 - x0, y2 - y0, z2 - z0
+    out[6 * LANES + l], out[7 * LANES + l], out[8 * LANES + l] = x3 - x0, y3 - y0, z3 - z0
 
 
 @numba.njit(**SERIAL)
-def _chunk_store(k0, nl, F, P, converged, how, tmp, rot):
-    """rot[k0 + l] <- R_e times lane l's polar factor (of R_e^T F_e) if accepted, else the scalar path's rotation
-    of F_e (warm-started from R_e)."""
-    for l in range(nl):
-        e = k0 + l
-        if _lane_accepted(l, P, converged, how):
-            for a in range(3):
-                r0, r1, r2 = rot[e, a, 0], rot[e, a, 1], rot[e, a, 2]
-                for b in range(3):
-                    tmp[0, a, b] = r0 * P[b, l] + r1 * P[3 + b, l] + r2 * P[6 + b, l]
-            for a in range(3):
-                for b in range(3):
-                    rot[e, a, b] = tmp[0, a, b]
-        else:
-            _scalar_rotation(l, F, tmp, rot[e])
+def _differences(corner, u, w, D, DW, forces):
+    """D[3 (c - 1) + a, l] <- u[i_c, a] - u[i_0, a] (c = 1, 2, 3; i_c = corner[c, l]); with ``forces`` DW the
+    same of w: differences, so the round-off is relative to the element's size, not to its distance from the
+    origin."""
+    for l in range(LANES):
+        _corner_differences(corner, l, u, D)
+    if forces:
+        for l in range(LANES):
+            _corner_differences(corner, l, w, DW)
 
 
 @numba.njit(**SERIAL)
-def _chunk_forces(k0, nl, tets, g, vol, lam, mu, w, rot, fe):
-    """fe[e, c] <- V_e R_e sigma_e g_c for the chunk's elements (module docstring; the force is -fe). Scalars
-    throughout (small local arrays kept LLVM from holding the 3x3 products in registers: twice the time)."""
-    for l in range(nl):
-        e = k0 + l
-        i0, i1, i2, i3 = tets[e, 0], tets[e, 1], tets[e, 2], tets[e, 3]
-        r00, r01, r02 = rot[e, 0, 0], rot[e, 0, 1], rot[e, 0, 2]
-        r10, r11, r12 = rot[e, 1, 0], rot[e, 1, 1], rot[e, 1, 2]
-        r20, r21, r22 = rot[e, 2, 0], rot[e, 2, 1], rot[e, 2, 2]
-        # q_c = R^T (w_c - w_0), c = 1, 2, 3
-        x, y, z = w[i1, 0] - w[i0, 0], w[i1, 1] - w[i0, 1], w[i1, 2] - w[i0, 2]
-        q10, q11, q12 = r00 * x + r10 * y + r20 * z, r01 * x + r11 * y + r21 * z, r02 * x + r12 * y + r22 * z
-        x, y, z = w[i2, 0] - w[i0, 0], w[i2, 1] - w[i0, 1], w[i2, 2] - w[i0, 2]
-        q20, q21, q22 = r00 * x + r10 * y + r20 * z, r01 * x + r11 * y + r21 * z, r02 * x + r12 * y + r22 * z
-        x, y, z = w[i3, 0] - w[i0, 0], w[i3, 1] - w[i0, 1], w[i3, 2] - w[i0, 2]
-        q30, q31, q32 = r00 * x + r10 * y + r20 * z, r01 * x + r11 * y + r21 * z, r02 * x + r12 * y + r22 * z
-        g10, g11, g12 = g[e, 1, 0], g[e, 1, 1], g[e, 1, 2]
-        g20, g21, g22 = g[e, 2, 0], g[e, 2, 1], g[e, 2, 2]
-        g30, g31, g32 = g[e, 3, 0], g[e, 3, 1], g[e, 3, 2]
-        # A = R^T G = sum_c q_c g_c^T
-        a00 = q10 * g10 + q20 * g20 + q30 * g30
-        a01 = q10 * g11 + q20 * g21 + q30 * g31
-        a02 = q10 * g12 + q20 * g22 + q30 * g32
-        a10 = q11 * g10 + q21 * g20 + q31 * g30
-        a11 = q11 * g11 + q21 * g21 + q31 * g31
-        a12 = q11 * g12 + q21 * g22 + q31 * g32
-        a20 = q12 * g10 + q22 * g20 + q32 * g30
-        a21 = q12 * g11 + q22 * g21 + q32 * g31
-        a22 = q12 * g12 + q22 * g22 + q32 * g32
-        # sigma = mu (A + A^T) - 2 mu I + lambda tr(A - I) I, times the volume
-        v = vol[e]
+def _warm_gradients(D, grad, rot, X):
+    """X <- R^T F per lane: F = I + sum_c d_c g_c^T (d_c = D's rows 3 (c - 1)..), R the element's previous
+    rotation, whose polar factor R^T polar(F) is near the identity while the element turns little."""
+    for l in range(LANES):
+        g10, g11, g12 = grad[l], grad[1 * LANES + l], grad[2 * LANES + l]
+        g20, g21, g22 = grad[3 * LANES + l], grad[4 * LANES + l], grad[5 * LANES + l]
+        g30, g31, g32 = grad[6 * LANES + l], grad[7 * LANES + l], grad[8 * LANES + l]
+        d10, d11, d12 = D[l], D[1 * LANES + l], D[2 * LANES + l]
+        d20, d21, d22 = D[3 * LANES + l], D[4 * LANES + l], D[5 * LANES + l]
+        d30, d31, d32 = D[6 * LANES + l], D[7 * LANES + l], D[8 * LANES + l]
+        f00 = (1.0 + d10 * g10) + (d20 * g20 + d30 * g30)
+        f01 = d10 * g11 + (d20 * g21 + d30 * g31)
+        f02 = d10 * g12 + (d20 * g22 + d30 * g32)
+        f10 = d11 * g10 + (d21 * g20 + d31 * g30)
+        f11 = (1.0 + d11 * g11) + (d21 * g21 + d31 * g31)
+        f12 = d11 * g12 + (d21 * g22 + d31 * g32)
+        f20 = d12 * g10 + (d22 * g20 + d32 * g30)
+        f21 = d12 * g11 + (d22 * g21 + d32 * g31)
+        f22 = (1.0 + d12 * g12) + (d22 * g22 + d32 * g32)
+        r00, r01, r02 = rot[l], rot[1 * LANES + l], rot[2 * LANES + l]
+        r10, r11, r12 = rot[3 * LANES + l], rot[4 * LANES + l], rot[5 * LANES + l]
+        r20, r21, r22 = rot[6 * LANES + l], rot[7 * LANES + l], rot[8 * LANES + l]
+        X[l] = r00 * f00 + r10 * f10 + r20 * f20
+        X[1 * LANES + l] = r00 * f01 + r10 * f11 + r20 * f21
+        X[2 * LANES + l] = r00 * f02 + r10 * f12 + r20 * f22
+        X[3 * LANES + l] = r01 * f00 + r11 * f10 + r21 * f20
+        X[4 * LANES + l] = r01 * f01 + r11 * f11 + r21 * f21
+        X[5 * LANES + l] = r01 * f02 + r11 * f12 + r21 * f22
+        X[6 * LANES + l] = r02 * f00 + r12 * f10 + r22 * f20
+        X[7 * LANES + l] = r02 * f01 + r12 * f11 + r22 * f21
+        X[8 * LANES + l] = r02 * f02 + r12 * f12 + r22 * f22
+
+
+@numba.njit(**SERIAL)
+def _chunk_forces(DW, grad, vol, lam, mu, R, fe):
+    """fe[(3 c + a) LANES + l] <- component a of V R sigma g_c per lane (module docstring; the force is -fe):
+    G = sum_c dw_c g_c^T the gradient of w, A = R^T G, sigma = mu (A + A^T) - 2 mu I + lambda tr(A - I) I."""
+    for l in range(LANES):
+        g10, g11, g12 = grad[l], grad[1 * LANES + l], grad[2 * LANES + l]
+        g20, g21, g22 = grad[3 * LANES + l], grad[4 * LANES + l], grad[5 * LANES + l]
+        g30, g31, g32 = grad[6 * LANES + l], grad[7 * LANES + l], grad[8 * LANES + l]
+        d10, d11, d12 = DW[l], DW[1 * LANES + l], DW[2 * LANES + l]
+        d20, d21, d22 = DW[3 * LANES + l], DW[4 * LANES + l], DW[5 * LANES + l]
+        d30, d31, d32 = DW[6 * LANES + l], DW[7 * LANES + l], DW[8 * LANES + l]
+        G00 = d10 * g10 + (d20 * g20 + d30 * g30)
+        G01 = d10 * g11 + (d20 * g21 + d30 * g31)
+        G02 = d10 * g12 + (d20 * g22 + d30 * g32)
+        G10 = d11 * g10 + (d21 * g20 + d31 * g30)
+        G11 = d11 * g11 + (d21 * g21 + d31 * g31)
+        G12 = d11 * g12 + (d21 * g22 + d31 * g32)
+        G20 = d12 * g10 + (d22 * g20 + d32 * g30)
+        G21 = d12 * g11 + (d22 * g21 + d32 * g31)
+        G22 = d12 * g12 + (d22 * g22 + d32 * g32)
+        r00, r01, r02 = R[l], R[1 * LANES + l], R[2 * LANES + l]
+        r10, r11, r12 = R[3 * LANES + l], R[4 * LANES + l], R[5 * LANES + l]
+        r20, r21, r22 = R[6 * LANES + l], R[7 * LANES + l], R[8 * LANES + l]
+        a00 = r00 * G00 + r10 * G10 + r20 * G20                  # A = R^T G
+        a01 = r00 * G01 + r10 * G11 + r20 * G21
+        a02 = r00 * G02 + r10 * G12 + r20 * G22
+        a10 = r01 * G00 + r11 * G10 + r21 * G20
+        a11 = r01 * G01 + r11 * G11 + r21 * G21
+        a12 = r01 * G02 + r11 * G12 + r21 * G22
+        a20 = r02 * G00 + r12 * G10 + r22 * G20
+        a21 = r02 * G01 + r12 * G11 + r22 * G21
+        a22 = r02 * G02 + r12 * G12 + r22 * G22
+        v = vol[l]
         diag = lam * (a00 + a11 + a22 - 3.0) - 2.0 * mu
         s00, s11, s22 = v * (2.0 * mu * a00 + diag), v * (2.0 * mu * a11 + diag), v * (2.0 * mu * a22 + diag)
         s01, s02, s12 = v * mu * (a01 + a10), v * mu * (a02 + a20), v * mu * (a12 + a21)
-        # P = R sigma; fe_c = P g_c, fe_0 = -(fe_1 + fe_2 + fe_3) (sum_c g_c = 0)
-        p00 = r00 * s00 + r01 * s01 + r02 * s02
+        p00 = r00 * s00 + r01 * s01 + r02 * s02                  # P = R V sigma
         p01 = r00 * s01 + r01 * s11 + r02 * s12
         p02 = r00 * s02 + r01 * s12 + r02 * s22
         p10 = r10 * s00 + r11 * s01 + r12 * s02
@@ -167,7 +183,7 @@ def _chunk_forces(k0, nl, tets, g, vol, lam, mu, w, rot, fe):
         p20 = r20 * s00 + r21 * s01 + r22 * s02
         p21 = r20 * s01 + r21 * s11 + r22 * s12
         p22 = r20 * s02 + r21 * s12 + r22 * s22
-        f10 = p00 * g10 + p01 * g11 + p02 * g12
+        f10 = p00 * g10 + p01 * g11 + p02 * g12                  # fe_c = P g_c, fe_0 = -(fe_1 + fe_2 + fe_3)
         f11 = p10 * g10 + p11 * g11 + p12 * g12
         f12 = p20 * g10 + p21 * g11 + p22 * g12
         f20 = p00 * g20 + p01 * g21 + p02 * g22
@@ -176,54 +192,55 @@ def _chunk_forces(k0, nl, tets, g, vol, lam, mu, w, rot, fe):
         f30 = p00 * g30 + p01 * g31 + p02 * g32
         f31 = p10 * g30 + p11 * g31 + p12 * g32
         f32 = p20 * g30 + p21 * g31 + p22 * g32
-        fe[e, 1, 0], fe[e, 1, 1], fe[e, 1, 2] = f10, f11, f12
-        fe[e, 2, 0], fe[e, 2, 1], fe[e, 2, 2] = f20, f21, f22
-        fe[e, 3, 0], fe[e, 3, 1], fe[e, 3, 2] = f30, f31, f32
-        fe[e, 0, 0], fe[e, 0, 1], fe[e, 0, 2] = -(f10 + f20 + f30), -(f11 + f21 + f31), -(f12 + f22 + f32)
+        fe[l], fe[LANES + l], fe[2 * LANES + l] = -(f10 + f20 + f30), -(f11 + f21 + f31), -(f12 + f22 + f32)
+        fe[3 * LANES + l], fe[4 * LANES + l], fe[5 * LANES + l] = f10, f11, f12
+        fe[6 * LANES + l], fe[7 * LANES + l], fe[8 * LANES + l] = f20, f21, f22
+        fe[9 * LANES + l], fe[10 * LANES + l], fe[11 * LANES + l] = f30, f31, f32
 
 
 @numba.njit(**SERIAL)
-def _element_chunk(c, forces, tets, g, vol, lam, mu, u, w, rot, F, scratch, how, tmp, fe):
-    """Chunk c (elements c LANES ..): gradients, polar iteration on all lanes, rotations stored, and with
-    ``forces`` the element forces."""
-    m = tets.shape[0]
-    k0 = c * LANES
-    nl = min(LANES, m - k0)
-    Fc = F[c]
-    _chunk_gradients(k0, nl, tets, g, u, Fc)
-    buf = scratch[c]
-    _warm_start(k0, nl, Fc, rot, buf[0], how[c])
-    P, converged = _polar_lanes(nl, buf[0], buf[1])
-    _chunk_store(k0, nl, Fc, P, converged, how[c], tmp[c], rot)
+def _element_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, rot, fe):
+    """Chunk c: differences, warm-started gradients, rotations (fem/element_rotation.py) stored in rot[c], and
+    with ``forces`` the element forces. buf: (6, 9 LANES) workspace."""
+    D, DW, X = buf[0], buf[1], buf[2]
+    _differences(corner[c], u, w, D, DW, forces)
+    _warm_gradients(D, grad[c], rot[c], X)
+    R = chunk_rotations(X, D, buf[3], buf[4], buf[5], how, tmp, rot[c])     # D is free once X is made
+    rot[c, :] = R
     if forces:
-        _chunk_forces(k0, nl, tets, g, vol, lam, mu, w, rot, fe)
+        _chunk_forces(DW, grad[c], vol[c], lam, mu, R, fe[c])
 
 
-# Argument groups (ElementFrames): ``elems`` = (tets, g, vol, lame), the fixed element data; ``gather`` =
-# (vptr, slot), each vertex's element-corner rows in element order; ``work`` = (rot, F, scratch, how, tmp, fe,
-# e), rotations (kept between calls: the fallback's warm start) and workspace.
+# Argument groups (ElementFrames): ``elems`` = (corner, grad, vol, lame), the fixed element data by chunk;
+# ``gather`` = (vptr, slot), each vertex's element-corner rows in element order; ``work`` = (rot, buf, how,
+# tmp, fe, e), rotations by chunk (kept between calls: the warm start) and workspace.
 
 def _element_pass(elems, u, w, work, forces):
-    """rot <- the element rotations of u; with ``forces``, fe <- the element forces of w (chunks in parallel)."""
-    tets, g, vol, lame = elems
-    rot, F, scratch, how, tmp, fe, _ = work
-    for c in prange(scratch.shape[0]):
-        _element_chunk(c, forces, tets, g, vol, lame[0], lame[1], u, w, rot, F, scratch, how, tmp, fe)
+    """rot <- the element rotations of u; with ``forces``, fe <- the element forces of w (blocks of chunks in
+    parallel)."""
+    corner, grad, vol, lame = elems
+    rot, buf, how, tmp, fe, _ = work
+    chunks = rot.shape[0]
+    blocks = buf.shape[0]
+    per = -(-chunks // blocks)
+    for b in prange(blocks):
+        for c in range(b * per, min((b + 1) * per, chunks)):
+            _element_chunk(c, buf[b], how[b], tmp[b], forces, corner, grad, vol, lame[0], lame[1], u, w, rot, fe)
 
 
 def _gather(gather, fe, e):
     """e[i] <- sum of fe over vertex i's element corners, in element order (vertices in parallel)."""
     vptr, slot = gather
-    rows = fe.reshape(-1, 3)
+    flat = fe.reshape(-1)
     for i in prange(vptr.shape[0] - 1):
         x = 0.0
         y = 0.0
         z = 0.0
         for k in range(vptr[i], vptr[i + 1]):
             r = slot[k]
-            x += rows[r, 0]
-            y += rows[r, 1]
-            z += rows[r, 2]
+            x += flat[r]
+            y += flat[r + LANES]
+            z += flat[r + 2 * LANES]
         e[i, 0] = x
         e[i, 1] = y
         e[i, 2] = z
@@ -238,14 +255,14 @@ def _element_e(elems, gather, u, w, work):
     rows by vertex; rot <- the element rotations of u. Same arguments as warping._warped_e, so the clustered
     integrator's warped step source runs either (``element_pass`` and ``gather_rows``: bound per build)."""
     element_pass(elems, u, w, work, True)  # noqa: F821 (bound)
-    gather_rows(gather, work[5], work[6])  # noqa: F821
+    gather_rows(gather, work[4], work[5])  # noqa: F821
 
 
 def _element_force(elems, gather, rest, u, v, w, mass3, zeta, xi, work, out):
     """out <- the element-warped force of (u, v), f = -e - xi M v (mass3: the lumped mass per coordinate)."""
     kernel_input(u.shape[0], zeta, rest, u, v, w, True)  # noqa: F821 (bound)
     element_e(elems, gather, u, w, work)  # noqa: F821
-    finish(work[6], v, mass3, xi, out)  # noqa: F821
+    finish(work[5], v, mass3, xi, out)  # noqa: F821
 
 
 # no loop of their own: their callees carry the threads
@@ -257,21 +274,36 @@ element_kernel_parallel = compiled(_element_force, "_parallel", kernel_input=ker
                                    element_e=element_e_parallel, finish=finish_parallel)
 
 
+def _by_chunk(a: np.ndarray, chunks: int) -> np.ndarray:
+    """(m, k) per-element rows -> (chunks, k, LANES), lanes past m zero."""
+    out = np.zeros((chunks * LANES,) + a.shape[1:], dtype=a.dtype)
+    out[:a.shape[0]] = a
+    return np.ascontiguousarray(np.moveaxis(out.reshape((chunks, LANES) + a.shape[1:]), 1, -1))
+
+
+def _flat_lanes(a: np.ndarray, chunks: int) -> np.ndarray:
+    """(m, 9) per-element rows -> (chunks, 9 LANES), entry k of lane l at k LANES + l."""
+    return _by_chunk(a, chunks).reshape(chunks, -1)
+
+
 @dataclass
 class ElementFrames:
-    """What element warping keeps per model: the element data, each element's last rotation (the fallback's
-    warm start), the per-vertex gather and workspace. Build once per model (``from_model``)."""
+    """What element warping keeps per model: the element data by chunk, each element's last rotation (the warm
+    start), the per-vertex gather and workspace. Build once per model (``from_model``)."""
     rest: np.ndarray        # (n, 3)
-    elems: tuple            # (tets (m, 4) int64, g (m, 4, 3) rest shape gradients, vol (m,), lame (2,) = (lambda, mu))
-    gather: tuple           # (vptr (n + 1,), slot (4 m,)): vertex i's rows 4 e + c of fe, ascending
-    rot: np.ndarray         # (m, 3, 3), updated by every force / rotation call
-    F: np.ndarray           # (chunks, 9, LANES) workspace: deformation gradients by lane
-    scratch: np.ndarray     # (chunks, 2, 9, LANES) workspace: polar iterates
-    how: np.ndarray         # (chunks, LANES) workspace: 0 polar, 1 inverted/flat
-    tmp: np.ndarray         # (chunks, 2, 3, 3) workspace of the scalar fallback
-    fe: np.ndarray          # (m, 4, 3) workspace: element corner forces (-f)
+    elems: tuple            # (corner (chunks, 4, LANES) int64, grad (chunks, 9 LANES): rest gradients g_1..g_3,
+                            #   vol (chunks, LANES), lame (2,) = (lambda, mu)); padding lanes: vertex 0, zeros
+    gather: tuple           # (vptr (n + 1,), slot (4 m,)): where vertex i's element corners' x components are in
+                            #   fe (flat), by ascending element
+    rot_lanes: np.ndarray   # (chunks, 9 LANES) rotations by lane, updated by every force / rotation call
+    buf: np.ndarray         # (BLOCKS, 6, 9 LANES) workspace: differences, iterates
+    how: np.ndarray         # (BLOCKS, LANES) workspace of the robust path: 0 polar, 1 inverted/flat
+    tmp: np.ndarray         # (BLOCKS, 3, 3, 3) workspace of the scalar fallback
+    fe: np.ndarray          # (chunks, 12 LANES) workspace: element corner forces (-f), component a of corner c
+                            #   of lane l at (3 c + a) LANES + l
     e: np.ndarray           # (n + 1, 3) workspace: their sums by vertex (the last row unused)
     w: np.ndarray           # (n + 1, 3) workspace: x0 + u + zeta v
+    m: int                  # elements
 
     @classmethod
     def from_model(cls, model: FemModel) -> "ElementFrames":
@@ -279,42 +311,54 @@ class ElementFrames:
         m, n = tets.shape[0], model.n_vertices
         g, vol = shape_gradients(model.rest, tets)
         lam, mu = model.material.lame
-        order = np.argsort(tets.reshape(-1), kind="stable")         # rows 4 e + c by vertex, element order kept
+        order = np.argsort(tets.reshape(-1), kind="stable")         # corners 4 e + c by vertex, element order kept
         vptr = np.zeros(n + 1, dtype=np.int64)
         vptr[1:] = np.cumsum(np.bincount(tets.reshape(-1), minlength=n))
         chunks = -(-m // LANES)
-        return cls(np.ascontiguousarray(model.rest, dtype=np.float64),
-                   (tets, np.ascontiguousarray(g), np.ascontiguousarray(vol), np.array([lam, mu], dtype=np.float64)),
-                   (vptr, order.astype(np.int64)), np.repeat(np.eye(3)[None], m, axis=0),
-                   np.zeros((chunks, 9, LANES)), np.zeros((chunks, 2, 9, LANES)),
-                   np.zeros((chunks, LANES), dtype=np.int8), np.zeros((chunks, 2, 3, 3)), np.zeros((m, 4, 3)),
-                   np.zeros((n + 1, 3)), np.zeros((n + 1, 3)))
+        blocks = min(BLOCKS, chunks)
+        e, c = order // 4, order % 4
+        slot = (e // LANES) * (12 * LANES) + 3 * c * LANES + e % LANES
+        rot = _by_chunk(np.repeat(np.eye(3).reshape(1, 9), m, axis=0), chunks)
+        rot[:, [0, 4, 8], :] = 1.0                                  # padding lanes too
+        rot = rot.reshape(chunks, -1)
+        elems = (_by_chunk(tets, chunks), _flat_lanes(g[:, 1:].reshape(m, 9), chunks), _by_chunk(vol, chunks),
+                 np.array([lam, mu], dtype=np.float64))
+        return cls(np.ascontiguousarray(model.rest, dtype=np.float64), elems, (vptr, slot.astype(np.int64)), rot,
+                   np.zeros((blocks, 6, 9 * LANES)), np.zeros((blocks, LANES), dtype=np.int8),
+                   np.zeros((blocks, 3, 3, 3)), np.zeros((chunks, 12 * LANES)), np.zeros((n + 1, 3)),
+                   np.zeros((n + 1, 3)), m)
 
     @property
     def work(self) -> tuple:
-        """The kernels' workspace group: (rot, F, scratch, how, tmp, fe, e)."""
-        return self.rot, self.F, self.scratch, self.how, self.tmp, self.fe, self.e
+        """The kernels' workspace group: (rot_lanes, buf, how, tmp, fe, e)."""
+        return self.rot_lanes, self.buf, self.how, self.tmp, self.fe, self.e
+
+    @property
+    def rot(self) -> np.ndarray:
+        """The element rotations, (m, 3, 3) (a copy of rot_lanes by element)."""
+        chunks = self.rot_lanes.shape[0]
+        return np.moveaxis(self.rot_lanes.reshape(chunks, 9, LANES), 2, 1).reshape(-1, 3, 3)[:self.m].copy()
 
 
 def element_rotations(model: FemModel, u: np.ndarray, frames: ElementFrames | None = None,
                       threads: bool | None = None) -> np.ndarray:
     """R_e for every element, (m, 3, 3), of the displacement u (n, 3); ``frames`` keeps the warm start."""
-    (u,) = _check(model, u=u)
+    (u,) = checked_rows(model, u=u)
     frames = ElementFrames.from_model(model) if frames is None else frames
-    kern = _pick(model.n_vertices, threads, element_pass_serial, element_pass_parallel)
+    kern = pick_build(model.n_vertices, threads, element_pass_serial, element_pass_parallel)
     kern(frames.elems, u, frames.w, frames.work, False)
-    return frames.rot.copy()
+    return frames.rot
 
 
 def element_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None, frames: ElementFrames | None = None,
                   out: np.ndarray | None = None, threads: bool | None = None) -> np.ndarray:
     """Element-warped elastic + damping force, (n, 3) (module docstring), including -xi M v."""
-    (u,) = _check(model, u=u)
-    (v,) = _check(model, v=np.zeros_like(u) if v is None else v)
+    (u,) = checked_rows(model, u=u)
+    (v,) = checked_rows(model, v=np.zeros_like(u) if v is None else v)
     frames = ElementFrames.from_model(model) if frames is None else frames
     n = model.n_vertices
     out = output_rows(n, out)
-    kern = _pick(n, threads, element_kernel_serial, element_kernel_parallel)
+    kern = pick_build(n, threads, element_kernel_serial, element_kernel_parallel)
     m = model.material
     kern(frames.elems, frames.gather, frames.rest, u, v, frames.w, np.repeat(model.mass, 3), float(m.zeta),
          float(m.xi), frames.work, out)
