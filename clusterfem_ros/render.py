@@ -51,7 +51,7 @@ def render_surface_png(path: str | Path, vertices: np.ndarray, triangles: np.nda
     vmax = float(vmax if vmax else max(np.percentile(s, 99), 1e-12))
     norm = matplotlib.colors.Normalize(0.0, vmax)
     colours = matplotlib.colormaps[cmap](norm(s))
-    fig = plt.figure(figsize=(10, 7), dpi=110)
+    fig = plt.figure(figsize=(10, 5.5), dpi=110)
     centre = 0.5 * (v.min(0) + v.max(0))
     extent = np.maximum(np.ptp(v, axis=0), 0.05 * np.ptp(v, axis=0).max()) * 1.05
     for k, (elev, azim, name) in enumerate(PNG_VIEWS):
