@@ -9,7 +9,8 @@ tet count, its error from the request, the minimum dihedral angle and radius rat
 Part 2, at the scene's body.target_tets: the scene driven by the BVH's trajectory (the skeleton the
 player latches on robot_description, bvh_urdf) for --duration seconds of simulated time, and the voxel
 jelly man on the same skeleton at the same tet count: steps/s (wall, JIT excluded), the worst relative
-volume error, the innermost level's worst tracking error, whether a divergence reset was needed.
+volume error, the innermost level's worst tracking error, the worst distance of a surface vertex to its bone,
+the divergence resets and the sampled states the node's output checks would withhold.
 Timings depend on the machine and its load: re-measure on a quiet one.
 """
 from __future__ import annotations
@@ -50,7 +51,7 @@ def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0) -> dict:
     """Play ``traj`` into the scene at ``rate_hz`` for ``duration`` s of input time; measure as it goes."""
     from clusterfem_ros.fem.stability import DivergenceError
     names = traj.names
-    worst_volume, worst_track, resets = 0.0, 0.0, 0
+    worst_volume, worst_track, worst_bone, resets, withheld = 0.0, 0.0, 0.0, 0, 0
     wall0, steps0 = scene.step_wall_s, scene.steps_done
     for k in range(int(duration * rate_hz) + 1):
         t = k / rate_hz
@@ -62,11 +63,16 @@ def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0) -> dict:
             resets += 1
             scene.reset()
         if scene.sim_time is not None and k % 12 == 0:
+            if scene.output_problem() is not None:      # what the node would withhold from its topics and bag
+                withheld += 1
+                continue
             worst_volume = max(worst_volume, abs(scene.volume_error()))
             worst_track = max(worst_track, innermost_tracking_error(scene))
+            worst_bone = max(worst_bone, float(scene.bone_distance()[0].max()))
     steps = scene.steps_done - steps0
     return {"steps": steps, "steps_per_s": steps / max(scene.step_wall_s - wall0, 1e-12),
-            "volume_error": worst_volume, "tracking_m": worst_track, "resets": resets,
+            "volume_error": worst_volume, "tracking_m": worst_track, "bone_distance_m": worst_bone, "resets": resets,
+            "withheld": withheld,
             "finite": bool(np.isfinite(scene.positions()).all())}
 
 
@@ -121,7 +127,8 @@ def main(argv=None) -> None:
         scene = Scene.build(c, urdf_xml=urdf)
         r = drive(scene, traj, a.duration)
         rows.append([name, scene.model.mesh.n_tets, f"{r['steps_per_s']:.0f}", f"{r['volume_error']:.2%}",
-                     f"{r['tracking_m'] * 1000:.1f}", r["resets"], r["finite"]])
+                     f"{r['tracking_m'] * 1000:.1f}", f"{r['bone_distance_m']:.3f}", r["resets"], r["withheld"],
+                     r["finite"]])
         if a.png is not None and name.startswith("character"):
             from clusterfem_ros.render import render_surface_png
             verts, tris = scene.surface()
@@ -131,8 +138,8 @@ def main(argv=None) -> None:
             print(f"picture: {a.png}")
     print(f"the walk ({a.bvh.name}, {a.duration:g} s simulated, method {config['method']}, warping "
           f"{config['warping']}, step {config['physics.step']:g} s):")
-    print(table(["body", "tets", "steps/s", "worst |V/V0-1|", "worst level-0 tracking [mm]", "resets", "finite"],
-                rows))
+    print(table(["body", "tets", "steps/s", "worst |V/V0-1|", "worst level-0 tracking [mm]",
+                 "worst skin to bone [m]", "resets", "withheld", "finite"], rows))
 
 
 if __name__ == "__main__":

@@ -144,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
                      f"{r.joint_speed:.0f} / {r.raw_joint_speed:.0f}"])
         if args.node:
             from .node_soak import node_soak
-            n = node_soak(path, overrides, args.seconds)
+            n = node_soak(path, overrides, args.seconds, scene_file=args.scene)
             node_rows.append([n.clip, f"{n.seconds:.1f}", n.resets, n.withheld, n.markers, n.markers_far,
                               f"{n.worst_distance:.3f}", n.rejected, f"{n.dropped_s:.2f}"])
     print(f"\nheadless, {args.scene or 'default scene'} on each clip's skeleton{' with ' + ', '.join(args.set) if args.set else ''} "

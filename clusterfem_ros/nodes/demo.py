@@ -262,6 +262,9 @@ def _final(sim, ns: str, args: argparse.Namespace) -> None:
     mean_ms = scene.step_wall_s / max(scene.steps_done, 1) * 1e3
     print(f"  physics steps   {d['steps']} of {scene.h * 1e3:g} ms; mean step {mean_ms:.3f} ms over the run; "
           f"real-time factor {d['real_time_factor']:.2f}")
+    if d.get("dropped_time_s", 0.0) > 0:
+        print(f"  behind          {d['dropped_time_s']:.1f} s of simulated time dropped: physics fell more than "
+              f"physics.max_catchup_steps behind its inputs and the body was put back on the skeleton")
     print(f"  stability       sub-steps {d['substeps']}, margin {d['stability_margin']:.2f}")
     print(f"  volume error    {d['volume_error'] * 100:+.3f} %;  energy {d['energy_J']:.4g} J")
     print(f"  inputs          {d['inputs_accepted']} joint states used, {d['inputs_rejected']} rejected, "
