@@ -1,7 +1,7 @@
 """The character walk, headless: surface -> ready scene time, and the walk beside the voxel jelly man.
 
     python -m benchmarks.character_report [--tets 2000 5000 20000] [--duration 3] [--png FILE]
-        [--scene config/character_walk.yaml] [--bvh ../shared/data/mocap/cmu_06_01_walk.bvh] [--skip-walk]
+        [--scene config/character_walk.yaml] [--bvh ../shared/data/mocap/cmu_06_01_walk.bvh] [--skip-walk] [--late S]
 
 Part 1, per tet count: the time from the surface file to a ready Scene (tetrahedralize, fit, check,
 bind, assemble, load kernels), cold (an empty cache folder) and cached (the same folder again), with the
@@ -47,10 +47,15 @@ def innermost_tracking_error(scene: Scene) -> float:
     return float(np.linalg.norm(scene.positions()[idx] - target, axis=1).max())
 
 
-def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0) -> dict:
-    """Play ``traj`` into the scene at ``rate_hz`` for ``duration`` s of input time; measure as it goes."""
+def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0, late: float = 0.0, seed: int = 0) -> dict:
+    """Play ``traj`` into the scene at ``rate_hz`` for ``duration`` s of input time; measure as it goes.
+
+    ``late`` = 0: physics on the input clock (as physics.clock input). ``late`` > 0: physics on a wall clock that
+    runs ahead of each sample by a random 0..``late`` s (seeded), as in a node whose executor is starved of CPU:
+    the skeleton is held past the newest sample, then jumps on when the late samples come in."""
     from clusterfem_ros.fem.stability import DivergenceError
     names = traj.names
+    rng = np.random.default_rng(seed)
     worst_volume, worst_track, worst_bone, resets, withheld = 0.0, 0.0, 0.0, 0, 0
     wall0, steps0 = scene.step_wall_s, scene.steps_done
     for k in range(int(duration * rate_hz) + 1):
@@ -58,7 +63,10 @@ def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0) -> dict:
         q, v = traj.sample(t, loop=True)
         scene.push_joint_state(t, names, q, v)
         try:
-            scene.follow_inputs()
+            if late <= 0 or scene.sim_time is None:
+                scene.follow_inputs()
+            else:
+                scene.advance_to(t + late * rng.random(), max_steps=250)
         except DivergenceError:
             resets += 1
             scene.reset()
@@ -110,6 +118,8 @@ def main(argv=None) -> None:
     ap.add_argument("--duration", type=float, default=3.0, help="simulated seconds of the walk (default 3)")
     ap.add_argument("--png", type=Path, default=None, help="picture of the character at the end of the walk")
     ap.add_argument("--skip-walk", action="store_true")
+    ap.add_argument("--late", type=float, default=0.0, help="inputs reach the physics up to this late [s] (a node "
+                    "starved of CPU), physics on a wall clock; default 0: on the input clock")
     a = ap.parse_args(argv)
     config = load_scene_file(a.scene)
     urdf, traj = bvh_skeleton(a.bvh)
@@ -125,7 +135,7 @@ def main(argv=None) -> None:
                     ("voxel jelly man", config.with_values({"body.kind": "jelly_man", "binding.relative_levels": False,
                                                             "binding.level_radii": [0.035, 0.06]}))):
         scene = Scene.build(c, urdf_xml=urdf)
-        r = drive(scene, traj, a.duration)
+        r = drive(scene, traj, a.duration, late=a.late)
         rows.append([name, scene.model.mesh.n_tets, f"{r['steps_per_s']:.0f}", f"{r['volume_error']:.2%}",
                      f"{r['tracking_m'] * 1000:.1f}", f"{r['bone_distance_m']:.3f}", r["resets"], r["withheld"],
                      r["finite"]])
@@ -137,7 +147,8 @@ def main(argv=None) -> None:
                                      f"({scene.model.mesh.n_tets} tets)")
             print(f"picture: {a.png}")
     print(f"the walk ({a.bvh.name}, {a.duration:g} s simulated, method {config['method']}, warping "
-          f"{config['warping']}, step {config['physics.step']:g} s):")
+          f"{config['warping']}, step {config['physics.step']:g} s"
+          + (f", inputs up to {a.late:g} s late" if a.late > 0 else "") + "):")
     print(table(["body", "tets", "steps/s", "worst |V/V0-1|", "worst level-0 tracking [mm]",
                  "worst skin to bone [m]", "resets", "withheld", "finite"], rows))
 
