@@ -254,7 +254,7 @@ def _final(sim, ns: str, args: argparse.Namespace) -> None:
         vm = scene.vertex_von_mises()
         default = Path(args.bags) / (f"final_state_{ns.replace('/', '_')}.png" if ns else "final_state.png")
         png = Path(args.png) if args.png and not ns else (Path(bag) / "final_state.png" if bag else default)
-        render_surface_png(png, verts, tris, vm[scene.surface_vertices],
+        render_surface_png(png, verts, tris, vm[scene.surface_vertices], vmax=config["output.stress_max"] or None,
                            title=f"{config['body.kind']} after {scene.sim_time - scene.start_time:.2f} s "
                                  f"({config['method']}, warping {config['warping']})")
     print(f"\n[demo] summary{' of ' + ns if ns else ''}")
