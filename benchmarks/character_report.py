@@ -1,7 +1,7 @@
 """The character walk, headless: surface -> ready scene time, and the walk beside the voxel jelly man.
 
     python -m benchmarks.character_report [--tets 2000 5000 20000] [--duration 3] [--png FILE]
-        [--scene config/character_walk.yaml] [--bvh ../shared/data/mocap/cmu_06_01_walk.bvh] [--skip-walk]
+        [--scene config/character_walk.yaml] [--bvh ../shared/data/mocap/cmu_06_01_walk.bvh] [--skip-walk] [--late S]
 
 Part 1, per tet count: the time from the surface file to a ready Scene (tetrahedralize, fit, check,
 bind, assemble, load kernels), cold (an empty cache folder) and cached (the same folder again), with the
@@ -9,7 +9,8 @@ tet count, its error from the request, the minimum dihedral angle and radius rat
 Part 2, at the scene's body.target_tets: the scene driven by the BVH's trajectory (the skeleton the
 player latches on robot_description, bvh_urdf) for --duration seconds of simulated time, and the voxel
 jelly man on the same skeleton at the same tet count: steps/s (wall, JIT excluded), the worst relative
-volume error, the innermost level's worst tracking error, whether a divergence reset was needed.
+volume error, the innermost level's worst tracking error, the worst distance of a surface vertex to its bone,
+the divergence resets and the sampled states the node's output checks would withhold.
 Timings depend on the machine and its load: re-measure on a quiet one.
 """
 from __future__ import annotations
@@ -46,27 +47,40 @@ def innermost_tracking_error(scene: Scene) -> float:
     return float(np.linalg.norm(scene.positions()[idx] - target, axis=1).max())
 
 
-def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0) -> dict:
-    """Play ``traj`` into the scene at ``rate_hz`` for ``duration`` s of input time; measure as it goes."""
+def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0, late: float = 0.0, seed: int = 0) -> dict:
+    """Play ``traj`` into the scene at ``rate_hz`` for ``duration`` s of input time; measure as it goes.
+
+    ``late`` = 0: physics on the input clock (as physics.clock input). ``late`` > 0: physics on a wall clock that
+    runs ahead of each sample by a random 0..``late`` s (seeded), as in a node whose executor is starved of CPU:
+    the skeleton is held past the newest sample, then jumps on when the late samples come in."""
     from clusterfem_ros.fem.stability import DivergenceError
     names = traj.names
-    worst_volume, worst_track, resets = 0.0, 0.0, 0
+    rng = np.random.default_rng(seed)
+    worst_volume, worst_track, worst_bone, resets, withheld = 0.0, 0.0, 0.0, 0, 0
     wall0, steps0 = scene.step_wall_s, scene.steps_done
     for k in range(int(duration * rate_hz) + 1):
         t = k / rate_hz
         q, v = traj.sample(t, loop=True)
         scene.push_joint_state(t, names, q, v)
         try:
-            scene.follow_inputs()
+            if late <= 0 or scene.sim_time is None:
+                scene.follow_inputs()
+            else:
+                scene.advance_to(t + late * rng.random(), max_steps=250)
         except DivergenceError:
             resets += 1
             scene.reset()
         if scene.sim_time is not None and k % 12 == 0:
+            if scene.output_problem() is not None:      # what the node would withhold from its topics and bag
+                withheld += 1
+                continue
             worst_volume = max(worst_volume, abs(scene.volume_error()))
             worst_track = max(worst_track, innermost_tracking_error(scene))
+            worst_bone = max(worst_bone, float(scene.bone_distance()[0].max()))
     steps = scene.steps_done - steps0
     return {"steps": steps, "steps_per_s": steps / max(scene.step_wall_s - wall0, 1e-12),
-            "volume_error": worst_volume, "tracking_m": worst_track, "resets": resets,
+            "volume_error": worst_volume, "tracking_m": worst_track, "bone_distance_m": worst_bone, "resets": resets,
+            "withheld": withheld,
             "finite": bool(np.isfinite(scene.positions()).all())}
 
 
@@ -104,6 +118,8 @@ def main(argv=None) -> None:
     ap.add_argument("--duration", type=float, default=3.0, help="simulated seconds of the walk (default 3)")
     ap.add_argument("--png", type=Path, default=None, help="picture of the character at the end of the walk")
     ap.add_argument("--skip-walk", action="store_true")
+    ap.add_argument("--late", type=float, default=0.0, help="inputs reach the physics up to this late [s] (a node "
+                    "starved of CPU), physics on a wall clock; default 0: on the input clock")
     a = ap.parse_args(argv)
     config = load_scene_file(a.scene)
     urdf, traj = bvh_skeleton(a.bvh)
@@ -119,9 +135,10 @@ def main(argv=None) -> None:
                     ("voxel jelly man", config.with_values({"body.kind": "jelly_man", "binding.relative_levels": False,
                                                             "binding.level_radii": [0.035, 0.06]}))):
         scene = Scene.build(c, urdf_xml=urdf)
-        r = drive(scene, traj, a.duration)
+        r = drive(scene, traj, a.duration, late=a.late)
         rows.append([name, scene.model.mesh.n_tets, f"{r['steps_per_s']:.0f}", f"{r['volume_error']:.2%}",
-                     f"{r['tracking_m'] * 1000:.1f}", r["resets"], r["finite"]])
+                     f"{r['tracking_m'] * 1000:.1f}", f"{r['bone_distance_m']:.3f}", r["resets"], r["withheld"],
+                     r["finite"]])
         if a.png is not None and name.startswith("character"):
             from clusterfem_ros.render import render_surface_png
             verts, tris = scene.surface()
@@ -130,9 +147,10 @@ def main(argv=None) -> None:
                                      f"({scene.model.mesh.n_tets} tets)")
             print(f"picture: {a.png}")
     print(f"the walk ({a.bvh.name}, {a.duration:g} s simulated, method {config['method']}, warping "
-          f"{config['warping']}, step {config['physics.step']:g} s):")
-    print(table(["body", "tets", "steps/s", "worst |V/V0-1|", "worst level-0 tracking [mm]", "resets", "finite"],
-                rows))
+          f"{config['warping']}, step {config['physics.step']:g} s"
+          + (f", inputs up to {a.late:g} s late" if a.late > 0 else "") + "):")
+    print(table(["body", "tets", "steps/s", "worst |V/V0-1|", "worst level-0 tracking [mm]",
+                 "worst skin to bone [m]", "resets", "withheld", "finite"], rows))
 
 
 if __name__ == "__main__":

@@ -1,11 +1,13 @@
 """Every fetched clip played for its whole length on the default scene: does the body survive real motion?
 
-    python -m benchmarks.clip_soak [--clips NAME ...] [--set key=value ...] [--node]
+    python -m benchmarks.clip_soak [--clips NAME ...] [--scene FILE] [--set key=value ...] [--node]
 
 Per clip (tests/data/mocap_clips.yaml; files found by bench/clips.py) the BVH is played at 120 Hz into a
-Scene built on the clip's own skeleton (the jelly body, skeleton.source robot_description, the default
-scene otherwise; ``--set`` changes parameters, e.g. ``--set warping=false``), stepping up to each sample's
-stamp as the node does on the input clock. Columns:
+Scene built on the clip's own skeleton (skeleton.source robot_description; the default scene's jelly body, or
+``--scene FILE``'s character surface fitted to the clip's skeleton, as ``scripts/run --scene FILE --bvh CLIP``
+plays it; ``--set`` changes parameters, e.g. ``--set warping=false``), stepping up to each sample's stamp as
+the node does on the input clock. A clip whose skeleton the scene refuses (a character bound in the pose of a
+capture with other joint names) is listed with the refusal. Columns:
 
 - resets: DivergenceError raised by advance_to (the state failed Scene.state_problem), each followed by a reset;
 - withheld: ticks whose state Scene.output_problem refused (would not be published);
@@ -68,13 +70,15 @@ def joint_speeds(path: Path) -> tuple[float, float]:
     return out[0], out[1]
 
 
-def headless_soak(path: Path, overrides: dict | None = None, seconds: float | None = None) -> SoakResult:
-    """Play the clip at ``path`` into a Scene for its whole length (or ``seconds``); see the module docstring."""
+def headless_soak(path: Path, overrides: dict | None = None, seconds: float | None = None,
+                  scene_file: Path | None = None) -> SoakResult:
+    """Play the clip at ``path`` into a Scene (of ``scene_file``, default: the default scene) for its whole length
+    (or ``seconds``); see the module docstring."""
     from clusterfem_ros.motion import load_motion
     from clusterfem_ros.scene import Scene
     motion = load_motion("bvh", path)
     tr = motion.trajectory
-    scene = Scene.build(clip_config(overrides), urdf_xml=motion.urdf)
+    scene = Scene.build(clip_config(overrides, scene_file), urdf_xml=motion.urdf)
     length = tr.duration if seconds is None else min(seconds, tr.duration)
     res = SoakResult(path.stem, length)
     res.joint_speed, res.raw_joint_speed = joint_speeds(path)
@@ -112,6 +116,7 @@ def _overrides(pairs: list[str]) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--clips", nargs="*", default=None, help="manifest names to run (default: every clip present)")
+    ap.add_argument("--scene", type=Path, default=None, help="scene file (default: the default scene's jelly body)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="scene parameters to change")
     ap.add_argument("--seconds", type=float, default=None, help="play at most this long of each clip")
     ap.add_argument("--node", action="store_true", help="also play each clip through the node")
@@ -126,7 +131,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[clip_soak] skipped: {missing_message(clip)}", flush=True)
             continue
         t0 = time.perf_counter()
-        r = headless_soak(path, overrides, args.seconds)
+        try:
+            r = headless_soak(path, overrides, args.seconds, args.scene)
+        except ValueError as exc:            # FitError, UrdfError, ConfigError: the scene refuses this skeleton
+            print(f"[clip_soak] {clip.name}: refused at start: {exc}", flush=True)
+            rows.append([clip.name, "-", "refused", "", "", "", "", "", ""])
+            continue
         print(f"[clip_soak] {clip.name}: {r.resets} resets, {time.perf_counter() - t0:.0f} s"
               + (f"; first: {r.first_problem}" if r.first_problem else ""), flush=True)
         rows.append([r.clip, f"{r.seconds:.1f}", r.resets, r.withheld, f"{r.worst_volume * 100:.1f} %",
@@ -134,10 +144,10 @@ def main(argv: list[str] | None = None) -> int:
                      f"{r.joint_speed:.0f} / {r.raw_joint_speed:.0f}"])
         if args.node:
             from .node_soak import node_soak
-            n = node_soak(path, overrides, args.seconds)
+            n = node_soak(path, overrides, args.seconds, scene_file=args.scene)
             node_rows.append([n.clip, f"{n.seconds:.1f}", n.resets, n.withheld, n.markers, n.markers_far,
                               f"{n.worst_distance:.3f}", n.rejected, f"{n.dropped_s:.2f}"])
-    print(f"\nheadless, default scene on each clip's skeleton{' with ' + ', '.join(args.set) if args.set else ''} "
+    print(f"\nheadless, {args.scene or 'default scene'} on each clip's skeleton{' with ' + ', '.join(args.set) if args.set else ''} "
           "(step time measured under the machine's current load)")
     print(table(["clip", "s", "resets", "withheld", "worst volume", "worst bone distance [m]",
                  "step [ms]", "inputs rejected", "joint speed played / raw [rad/s]"], rows))

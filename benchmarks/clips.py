@@ -60,7 +60,10 @@ def missing_message(clip: Clip) -> str:
             f"{clip.repository} (entry '{clip.name}' of {MANIFEST.relative_to(REPO)})")
 
 
-def clip_config(overrides: dict | None = None) -> SceneConfig:
-    """The default scene on a BVH's own skeleton (what ``scripts/run --bvh`` runs)."""
-    return SceneConfig().with_values({"skeleton.source": "robot_description", "body.kind": "jelly_man",
-                                      **(overrides or {})})
+def clip_config(overrides: dict | None = None, scene: Path | None = None) -> SceneConfig:
+    """The default scene (or the scene file ``scene``) on a BVH's own skeleton, what ``scripts/run --bvh`` runs:
+    the jelly man built on it, or the scene's character fitted to it."""
+    from clusterfem_ros.config import load_scene_file
+    from clusterfem_ros.motion import on_capture_skeleton
+    base = SceneConfig() if scene is None else load_scene_file(scene)
+    return on_capture_skeleton(base).with_values(overrides or {})

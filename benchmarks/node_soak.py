@@ -44,8 +44,9 @@ def _marker_distance(raw: bytes, states: list[tuple[int, np.ndarray]], skeleton,
 
 
 def node_soak(path: Path, overrides: dict | None = None, seconds: float | None = None,
-              timeout_factor: float = 6.0) -> NodeSoakResult:
-    """Play the clip at ``path`` once (loop off) through the node; see the module docstring."""
+              timeout_factor: float = 6.0, scene_file: Path | None = None) -> NodeSoakResult:
+    """Play the clip at ``path`` once (loop off) through the node (on the default scene, or ``scene_file``'s body
+    fitted to the clip's skeleton); see the module docstring."""
     from rclpy.parameter import Parameter
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import JointState
@@ -58,7 +59,7 @@ def node_soak(path: Path, overrides: dict | None = None, seconds: float | None =
     motion = load_motion("bvh", path)
     length = motion.trajectory.duration if seconds is None else min(seconds, motion.trajectory.duration)
     config = clip_config({"physics.clock": "input", "output.marker_rate_hz": 30.0, "output.stress_rate_hz": 0.0,
-                          "output.diagnostics_rate_hz": 0.0, **(overrides or {})})
+                          "output.diagnostics_rate_hz": 0.0, **(overrides or {})}, scene_file)
     res = NodeSoakResult(path.stem, length)
     with RosWorld() as world:
         sim = world.add(ClusterFemNode(context=world.context, parameter_overrides=[

@@ -80,6 +80,14 @@ def load_player_section(path: str | Path) -> dict | None:
     return dict(params)
 
 
+def on_capture_skeleton(config):
+    """The scene ``config`` made to play a BVH on the capture's own skeleton (skeleton.source robot_description): a
+    character's surface (body.kind surface) is fitted to that skeleton in the scene's bind pose; any other body
+    becomes the jelly man built around it."""
+    kind = "surface" if config["body.kind"] == "surface" else "jelly_man"
+    return config.with_values({"skeleton.source": "robot_description", "body.kind": kind})
+
+
 def skeleton_source_for(source: str) -> str:
     """The node's skeleton.source that fits a player source: the built-in humanoid for the walk and key frames,
     the URDF the player latches on robot_description for a BVH (its own skeleton)."""

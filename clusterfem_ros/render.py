@@ -19,10 +19,27 @@ from pathlib import Path
 import numpy as np
 
 
+PNG_VIEWS = ((10, -90, "side (x-z)"), (10, 0, "front (y-z)"))     # (elevation, azimuth [deg], title): azimuth
+                                                                   # -90 looks along +y, 0 along -x
+AMBIENT = 0.35              # the share of a triangle's colour kept when it faces away from the light
+
+
+def facing_shade(vertices: np.ndarray, triangles: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """Brightness (t,) in [AMBIENT, 1] of every triangle lit along ``light`` (a direction towards the light):
+    ``AMBIENT + (1 - AMBIENT) |n . light|``, the unit normal n taken either way round, so a surface reads as a
+    shape rather than a flat silhouette."""
+    v = np.asarray(vertices, dtype=float)[np.asarray(triangles)]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return AMBIENT + (1.0 - AMBIENT) * np.abs(n @ _unit(np.asarray(light, dtype=float)))
+
+
 def render_surface_png(path: str | Path, vertices: np.ndarray, triangles: np.ndarray, scalars: np.ndarray,
                        title: str = "", label: str = "von Mises stress [Pa]", vmax: float | None = None,
                        cmap: str = "turbo") -> Path:
-    """Write a two-view picture (front, side) of the surface; colours are per-triangle means of ``scalars``."""
+    """Write a two-view picture (side, front) of the surface; colours are per-triangle means of ``scalars``
+    (the colour bar ends at their 99th percentile unless ``vmax`` is given), shaded by each triangle's facing to
+    a light above the viewer; each view's box has the body's own proportions, so a standing figure fills it."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -34,16 +51,20 @@ def render_surface_png(path: str | Path, vertices: np.ndarray, triangles: np.nda
     vmax = float(vmax if vmax else max(np.percentile(s, 99), 1e-12))
     norm = matplotlib.colors.Normalize(0.0, vmax)
     colours = matplotlib.colormaps[cmap](norm(s))
-    fig = plt.figure(figsize=(10, 6), dpi=110)
+    fig = plt.figure(figsize=(10, 5.5), dpi=110)
     centre = 0.5 * (v.min(0) + v.max(0))
-    half = 0.5 * np.ptp(v, axis=0).max()
-    for k, (elev, azim, name) in enumerate(((10, -90, "side (x-z)"), (10, 0, "front (y-z)"))):
+    extent = np.maximum(np.ptp(v, axis=0), 0.05 * np.ptp(v, axis=0).max()) * 1.05
+    for k, (elev, azim, name) in enumerate(PNG_VIEWS):
         ax = fig.add_subplot(1, 2, k + 1, projection="3d")
-        ax.add_collection3d(Poly3DCollection(v[tri], facecolors=colours, edgecolors="none", linewidths=0))
+        a, e = np.radians(azim), np.radians(elev + 30.0)          # towards the viewer, from above
+        lit = colours.copy()
+        lit[:, :3] *= facing_shade(v, tri, np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)]))[:, None]
+        ax.add_collection3d(Poly3DCollection(v[tri], facecolors=lit, edgecolors="none", linewidths=0))
         for i, axis in enumerate("xyz"):
-            getattr(ax, f"set_{axis}lim")(centre[i] - half, centre[i] + half)
-        ax.set_box_aspect((1, 1, 1))
+            getattr(ax, f"set_{axis}lim")(centre[i] - 0.5 * extent[i], centre[i] + 0.5 * extent[i])
+        ax.set_box_aspect(tuple(extent), zoom=1.15)
         ax.view_init(elev=elev, azim=azim)
+        getattr(ax, f"set_{'y' if azim == -90 else 'x'}ticklabels")([])     # the depth axis: ticks only
         ax.set_title(name)
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")

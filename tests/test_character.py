@@ -91,6 +91,16 @@ def test_the_second_build_reads_the_cache(surface, cache, tmp_path):
     assert _key(other, "", TARGET, 0.2) != _key(surface, "", TARGET, 0.2) != _key(surface, "", 2 * TARGET, 0.2)
 
 
+def test_the_first_build_shows_progress_and_the_second_says_it_read_the_cache(surface, tmp_path):
+    first, again = [], []
+    r = surface_to_tets(surface, 400, cache=tmp_path, progress=first.append)
+    assert any(f"tetrahedralizing {surface.name} (~400 tets; cached after this first time in {tmp_path})" in m
+               for m in first), first
+    assert any(m.startswith(f"{r.mesh.n_tets} tets in ") and "min dihedral" in m for m in first), first
+    surface_to_tets(surface, 400, cache=tmp_path, progress=again.append)
+    assert again == [f"tets of {surface.name} read from the cache {r.cache_file} ({r.mesh.n_tets} tets)"]
+
+
 def test_surface_body_walks_one_second_deterministically(surface, cache, monkeypatch):
     runs = []
     for _ in range(2):

@@ -75,3 +75,25 @@ def test_player_sections_are_checked_and_a_bvh_on_the_built_in_skeleton_is_refus
     scene.write_text(yaml.safe_dump(doc))
     code, out = _run(["--scene", str(scene)], cwd=tmp_path, timeout=60)
     assert code != 0 and "set skeleton.source to 'robot_description'" in out, out
+
+
+def test_a_bvh_on_a_character_scene_keeps_the_character_and_a_skeleton_it_refuses_stops_the_run(tmp_path, walk):
+    from pathlib import Path
+
+    from clusterfem_ros.config import load_scene_file
+    from clusterfem_ros.motion import on_capture_skeleton
+    trimesh = pytest.importorskip("trimesh")
+    character = load_scene_file(Path(__file__).resolve().parents[1] / "config" / "character_walk.yaml")
+    assert on_capture_skeleton(character)["body.kind"] == "surface"
+    assert on_capture_skeleton(SceneConfig())["body.kind"] == "jelly_man"
+    assert on_capture_skeleton(SceneConfig())["skeleton.source"] == "robot_description"
+    # a 20 cm ball as the character: the walk's skeleton (1.7 m) sticks out of it; the run stops with the node's reason
+    trimesh.creation.icosphere(subdivisions=2, radius=0.1).export(tmp_path / "ball.stl")
+    scene = tmp_path / "ball.yaml"
+    scene.write_text(scene_file_text(SceneConfig().with_values({
+        "body.kind": "surface", "body.surface_file": str(tmp_path / "ball.stl"), "body.target_tets": 300,
+        "skeleton.source": "robot_description", "skeleton.fit": "manual", "skeleton.fit_up": "Z",
+        "skeleton.fit_forward": "X"})))
+    code, out = _run(["--bvh", "walk.bvh", "--scene", str(scene)], cwd=tmp_path, timeout=120)
+    assert code != 0, out
+    assert "cannot build the scene from robot_description" in out and "times the size of its skeleton" in out, out

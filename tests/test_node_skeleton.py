@@ -178,6 +178,22 @@ def test_bvh_player_latches_its_urdf_and_the_node_builds_a_jelly_body_on_it(worl
     assert sim.scene.inputs.rejected.get("unknown_joint", 0) == 0
 
 
+def test_a_recording_on_a_latched_skeleton_carries_it_and_the_renderer_poses_it(world, tmp_path):
+    if not CMU_WALK.exists():
+        pytest.skip(f"{CMU_WALK} is not there (../shared/data/mocap)")
+    from clusterfem_ros.bag_frames import read_bag_frames
+    from clusterfem_ros.motion import load_motion
+    _player(world, source="bvh", file=str(CMU_WALK))
+    sim = _sim(world, **{"skeleton.source": "robot_description", "body.bone_radius": 0.04, "recording.enabled": True,
+                         "recording.dir": str(tmp_path)})
+    world.wait_for(lambda: sim.counts.get("clusterfem/surface", 0) >= 3, 60, "markers on the BVH's skeleton")
+    world.executor.shutdown(timeout_sec=5.0)
+    assert sim.counts["robot_description"] == 1
+    sim.close()
+    frames = read_bag_frames(sim.recording_path)
+    assert frames.urdf == load_motion("bvh", CMU_WALK).urdf          # the latched text, byte for byte
+
+
 def test_keyframe_player_drives_the_builtin_humanoid(world):
     from clusterfem_ros.skeleton.keyframes import example_path
     sim = _sim(world)

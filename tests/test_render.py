@@ -146,3 +146,13 @@ def test_a_bag_without_a_skeleton_is_drawn_without_one(tmp_path):
                         progress=lines.append)
     assert any("skeleton is not drawn" in line and "URDF" in line for line in lines), lines
     assert iio.imread(mp4, index=None).shape == (2, 96, 128, 3)
+
+
+def test_a_triangle_is_brightest_facing_the_light_either_way_round_and_ambient_edge_on():
+    from clusterfem_ros.render import AMBIENT, facing_shade
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])           # normal +z
+    tris = np.array([[0, 1, 2], [0, 2, 1]])                       # and the same triangle turned over
+    assert facing_shade(v, tris, np.array([0.0, 0, 2])) == pytest.approx([1.0, 1.0], abs=1e-15)
+    assert facing_shade(v, tris, np.array([1.0, 0, 0])) == pytest.approx([AMBIENT, AMBIENT], abs=1e-15)
+    lit = facing_shade(v, tris[:1], np.array([1.0, 0, 1]))[0]     # 45 deg: cos = 1/sqrt(2)
+    assert lit == pytest.approx(AMBIENT + (1 - AMBIENT) / np.sqrt(2), rel=1e-14)

@@ -83,8 +83,9 @@ def bind_configuration(skeleton, pose: str = "neutral", joints: Sequence[str] = 
         missing = [n for n in skeleton.joint_names if n not in traj.names]
         if missing:
             raise FitError(f"skeleton.bind_bvh {str(bvh_file)!r} is a capture of another skeleton: it has no joint "
-                           f"{', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}; give the BVH the player "
-                           "plays, or skeleton.bind_pose 'neutral'")
+                           f"{', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}; play a capture with its "
+                           "joint names, or bind on a capture of the played skeleton (skeleton.bind_bvh, with "
+                           "bind_joints / bind_angles for that skeleton), or skeleton.bind_pose 'neutral'")
         q0 = traj.positions[0]
         q = np.array([q0[traj.names.index(n)] for n in skeleton.joint_names])
     elif pose != "neutral":

@@ -40,6 +40,7 @@ from .params import declare_scene_parameters
 from .spinning import run_node
 
 SURFACE_TOPIC, STRESS_TOPIC, DIAG_TOPIC, JOINTS_TOPIC = "clusterfem/surface", "clusterfem/stress", "/diagnostics", "joint_states"
+URDF_TOPIC = "robot_description"        # latched by the player when skeleton.source is robot_description
 ERROR_HOLD_S = 10.0         # /diagnostics stays at ERROR this long after a failed physics step
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -58,6 +59,7 @@ class ClusterFemNode(Node):
         self.counts: dict[str, int] = {}      # messages per topic published (outputs) or taken in (inputs)
         self.received = 0                     # joint states received; taken in + refused + before the scene
         self.before_scene = 0                 # joint states received before the scene was built (ignored)
+        self.build_error: str | None = None   # why the last robot_description gave no scene (the demo reports it)
         self._warned: dict[str, float] = {}   # input problem kind -> when it was last logged
         self._stats = {"t_wall": time.perf_counter(), "steps": 0}
         self._rtf = 0.0
@@ -70,7 +72,7 @@ class ClusterFemNode(Node):
         self.create_subscription(JointState, JOINTS_TOPIC, self._on_joint_state, qos_profile_sensor_data, raw=True)
         if c["skeleton.source"] == "robot_description":
             self.get_logger().info("waiting for the URDF on 'robot_description' (transient local)")
-            self.create_subscription(String, "robot_description", self._on_robot_description, LATCHED)
+            self.create_subscription(String, URDF_TOPIC, self._on_robot_description, LATCHED)
         else:
             self._build(None)
         self._output_timers = {}
@@ -98,7 +100,10 @@ class ClusterFemNode(Node):
             try:
                 self._build(msg.data)
             except Exception as exc:  # a bad URDF must not kill the node: say what and wait for another
-                self.get_logger().error(f"cannot build the scene from robot_description: {exc}")
+                self.build_error = f"cannot build the scene from robot_description: {exc}"
+                self.get_logger().error(self.build_error)
+                return
+            self._record(URDF_TOPIC, serialize_message(msg))    # the bag carries its skeleton (the renderer poses it)
 
     def _open_recording(self) -> None:
         from ..recording.rosbag2_mcap import Rosbag2McapWriter, default_bag_path
@@ -106,11 +111,14 @@ class ClusterFemNode(Node):
         path = default_bag_path(c["recording.prefix"], root=c["recording.dir"])
         self.recorder = Rosbag2McapWriter(path, max_queue_bytes=int(c["recording.max_queue_mb"] * 1e6))
         # bags name topics fully qualified, as rosbag2 does (namespace and remapping applied)
-        self._bag_topics = {t: self.resolve_topic_name(t) for t in (JOINTS_TOPIC, SURFACE_TOPIC, STRESS_TOPIC, DIAG_TOPIC)}
-        for topic, msg_type, qos in ((JOINTS_TOPIC, "sensor_msgs/msg/JointState", "sensor_data"),
-                                     (SURFACE_TOPIC, "visualization_msgs/msg/Marker", "reliable"),
-                                     (STRESS_TOPIC, "sensor_msgs/msg/PointCloud2", "reliable"),
-                                     (DIAG_TOPIC, "diagnostic_msgs/msg/DiagnosticArray", "reliable")):
+        topics = [(JOINTS_TOPIC, "sensor_msgs/msg/JointState", "sensor_data"),
+                  (SURFACE_TOPIC, "visualization_msgs/msg/Marker", "reliable"),
+                  (STRESS_TOPIC, "sensor_msgs/msg/PointCloud2", "reliable"),
+                  (DIAG_TOPIC, "diagnostic_msgs/msg/DiagnosticArray", "reliable")]
+        if c["skeleton.source"] == "robot_description":      # the skeleton the scene was built on, once
+            topics.append((URDF_TOPIC, "std_msgs/msg/String", "transient_local"))
+        self._bag_topics = {t: self.resolve_topic_name(t) for t, _, _ in topics}
+        for topic, msg_type, qos in topics:
             self.recorder.add_topic(self._bag_topics[topic], msg_type, qos=qos)
         self.recording_path = path
         from ..config import scene_file_text

@@ -2,7 +2,8 @@
 
     scripts/run [--duration 8] [--scene config/default_scene.yaml] [--no-record] [--png bags/jelly_man.png]
                 [--no-video]
-    scripts/run --bvh FILE [--scene ...]     # any BVH, on a jelly body built on the BVH's own skeleton
+    scripts/run --bvh FILE [--scene ...]     # any BVH, on a jelly body built on the BVH's own skeleton, or on the
+                                             # scene's character (body.kind surface) fitted to that skeleton
     scripts/run --bodies 2 [--process-per-body] [--scene a.yaml --scene b.yaml]
 
 The mocap player runs as its own process, the simulation in this one on a single-threaded executor
@@ -42,6 +43,8 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
     kernels) took 1-3 s on a fresh clone, which would otherwise eat into --duration with a body at rest."""
     t0 = time.perf_counter()
     while sim.diagnostics()["inputs_accepted"] == 0:
+        if sim.scene is None and sim.build_error is not None:     # the player's skeleton does not fit the scene
+            raise SystemExit(f"[demo] {sim.build_error}")
         if player.poll() is not None:
             raise SystemExit(f"[demo] the mocap player exited with code {player.returncode} before sending a "
                              "joint state: run `python -m clusterfem_ros.nodes.player_node` to see why")
@@ -66,13 +69,13 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
 def _player_plan(args, scene_file: Path, config):
     """(player parameters, scene config) for the run: --bvh, else the scene file's player section, else the
     built-in walk; a BVH's skeleton comes on robot_description, so the scene is made to take it from there."""
-    from ..motion import load_player_section, skeleton_source_for
+    from ..motion import load_player_section, on_capture_skeleton, skeleton_source_for
     if args.bvh:
         bvh = Path(args.bvh)
         if not bvh.is_file():
             raise SystemExit(f"[demo] --bvh {args.bvh}: no such file")
         player = {"source": "bvh", "file": str(bvh.resolve())}
-        config = config.with_values({"skeleton.source": "robot_description", "body.kind": "jelly_man"})
+        config = on_capture_skeleton(config)
     else:
         player = load_player_section(scene_file) or {"source": "builtin_walk"}
     source = player.get("source", "builtin_walk")
@@ -89,8 +92,9 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--scene", default=None, action="append",
                     help="scene parameter file (default: config/default_scene.yaml); once for every body, or once "
                          "per body with --bodies")
-    ap.add_argument("--bvh", default=None, metavar="FILE", help="play this BVH file on a jelly body built on its "
-                    "own skeleton (skeleton.source robot_description)")
+    ap.add_argument("--bvh", default=None, metavar="FILE", help="play this BVH file (instead of the scene's player "
+                    "section) on a jelly body built on its own skeleton, or on the scene's surface body fitted to it "
+                    "(skeleton.source robot_description)")
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP bag")
     ap.add_argument("--bags", default="bags", help="folder for the recording (default bags/)")
     ap.add_argument("--png", default=None, help="picture of the final state (default: <bag folder>/final_state.png)")
@@ -250,7 +254,7 @@ def _final(sim, ns: str, args: argparse.Namespace) -> None:
         vm = scene.vertex_von_mises()
         default = Path(args.bags) / (f"final_state_{ns.replace('/', '_')}.png" if ns else "final_state.png")
         png = Path(args.png) if args.png and not ns else (Path(bag) / "final_state.png" if bag else default)
-        render_surface_png(png, verts, tris, vm[scene.surface_vertices],
+        render_surface_png(png, verts, tris, vm[scene.surface_vertices], vmax=config["output.stress_max"] or None,
                            title=f"{config['body.kind']} after {scene.sim_time - scene.start_time:.2f} s "
                                  f"({config['method']}, warping {config['warping']})")
     print(f"\n[demo] summary{' of ' + ns if ns else ''}")
@@ -258,6 +262,9 @@ def _final(sim, ns: str, args: argparse.Namespace) -> None:
     mean_ms = scene.step_wall_s / max(scene.steps_done, 1) * 1e3
     print(f"  physics steps   {d['steps']} of {scene.h * 1e3:g} ms; mean step {mean_ms:.3f} ms over the run; "
           f"real-time factor {d['real_time_factor']:.2f}")
+    if d.get("dropped_time_s", 0.0) > 0:
+        print(f"  behind          {d['dropped_time_s']:.1f} s of simulated time dropped: physics fell more than "
+              f"physics.max_catchup_steps behind its inputs and the body was put back on the skeleton")
     print(f"  stability       sub-steps {d['substeps']}, margin {d['stability_margin']:.2f}")
     print(f"  volume error    {d['volume_error'] * 100:+.3f} %;  energy {d['energy_J']:.4g} J")
     print(f"  inputs          {d['inputs_accepted']} joint states used, {d['inputs_rejected']} rejected, "
