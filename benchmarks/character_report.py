@@ -51,8 +51,8 @@ def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0, late: flo
     """Play ``traj`` into the scene at ``rate_hz`` for ``duration`` s of input time; measure as it goes.
 
     ``late`` = 0: physics on the input clock (as physics.clock input). ``late`` > 0: physics on a wall clock that
-    runs ahead of each sample by a random 0..``late`` s (seeded), as in a node whose executor is starved of CPU:
-    the skeleton is held past the newest sample, then jumps on when the late samples come in."""
+    runs ahead of each sample by a random 0..``late`` s (seeded), as in a node whose executor is starved of CPU,
+    stepping up to Scene.wall_target as the node does (it waits up to physics.input_wait for late samples)."""
     from clusterfem_ros.fem.stability import DivergenceError
     names = traj.names
     rng = np.random.default_rng(seed)
@@ -66,7 +66,7 @@ def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0, late: flo
             if late <= 0 or scene.sim_time is None:
                 scene.follow_inputs()
             else:
-                scene.advance_to(t + late * rng.random(), max_steps=250)
+                scene.advance_to(scene.wall_target(t + late * rng.random()), max_steps=250)
         except DivergenceError:
             resets += 1
             scene.reset()

@@ -310,6 +310,16 @@ class Scene:
         """Simulated time [s] on the input clock (None before the start)."""
         return None if self._t0 is None else self._t0 + self._k * self.h
 
+    def wall_target(self, now: float) -> float:
+        """physics.clock = wall: the time to step up to at clock time ``now``. Beyond the newest joint state the
+        skeleton is held, and a late sample would then move it on in one jump that yanks the flesh (a node short
+        of CPU receives its inputs in bursts); so physics waits at the newest sample while that is at most
+        ``physics.input_wait`` behind the clock, and steps on past it (holding the pose) only beyond."""
+        wait = self.config.physics.input_wait
+        if self.driver is None or wait <= 0.0 or not self.stream.ready:
+            return now
+        return min(now, max(self.stream.newest, now - wait))
+
     def steps_due(self, t: float) -> int:
         """Whole steps from sim_time up to t (a step due within 1 us counts: stamps near 1e9 s carry
         ~0.2 us of round-off)."""

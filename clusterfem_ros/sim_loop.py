@@ -287,7 +287,7 @@ class SimLoop:
         while not self._stop.is_set():
             while self._queue:
                 self._push_next()
-            target = self.now()
+            target = scene.wall_target(self.now())
             if scene.sim_time is not None and scene.steps_due(target) <= 0:
                 if self._accepted > self._seen:
                     due_in = scene.sim_time + scene.h - target

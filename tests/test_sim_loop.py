@@ -106,7 +106,11 @@ def test_nothing_is_handed_over_before_a_joint_state_places_the_body():
         assert loop.snapshot is None                      # the body stands at the neutral pose, not on the clip
         stamp, names, q, v = next(_samples(0.1))
         loop.take_input(lambda: scene.take_joint_state(T0, names, q, v, received=T0))
-        clock["now"] = T0 + 1.5 * scene.h                 # one step due: it puts the body on the sample's pose
+        clock["now"] = T0 + 1.5 * scene.h                 # physics waits at the newest sample (physics.input_wait)
+        time.sleep(0.1)
+        assert loop.snapshot is None and scene.sim_time == T0
+        t1 = T0 + 1.5 * scene.h                           # one step due: it puts the body on the samples' pose
+        loop.take_input(lambda: scene.take_joint_state(t1, names, q, v, received=t1))
         _wait_for(lambda: loop.snapshot is not None, 10, "the placed body's snapshot")
     finally:
         assert loop.stop()
@@ -200,7 +204,8 @@ def test_stage_shares_are_seconds_per_wall_second():
 
 
 def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_waiting_for_the_batch():
-    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    # physics steps past the one sample at once (no waiting for later ones: physics.input_wait 0)
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN, physics__input_wait=0.0))
     clock = {"now": T0}
     loop, log = _loop(scene, now=lambda: clock["now"])
     handed = []
@@ -230,3 +235,22 @@ def test_the_physics_thread_imports_no_ros():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "", f"ROS modules imported by sim_loop: {out.stdout.strip()}"
+
+
+def test_the_wall_clock_waits_for_late_joint_states_instead_of_jumping_over_them():
+    """A node short of CPU receives its joint states in bursts: physics steps up to the newest sample while it
+    is at most physics.input_wait behind the clock, so the late ones are interpolated, not jumped over; past the
+    wait it steps on, holding the pose."""
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    wait = scene.config.physics.input_wait
+    assert wait > 0
+    samples = _samples(0.5)
+    for _ in range(3):
+        stamp, names, q, v = next(samples)
+        scene.take_joint_state(stamp, names, q, v, received=stamp)
+    newest = scene.stream.newest
+    assert scene.wall_target(newest + 0.5 * wait) == newest                  # late inputs are waited for
+    assert scene.wall_target(newest + 2.0 * wait) == pytest.approx(newest + wait)   # then physics goes on
+    assert scene.wall_target(newest - 0.01) == newest - 0.01                    # never ahead of the clock
+    idle = Scene.build(SceneConfig().with_values(**SMALL_MAN, physics__input_wait=0.0))
+    assert idle.wall_target(123.0) == 123.0                                      # 0: the clock alone
