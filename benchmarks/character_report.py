@@ -52,7 +52,8 @@ def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0, late: flo
 
     ``late`` = 0: physics on the input clock (as physics.clock input). ``late`` > 0: physics on a wall clock that
     runs ahead of each sample by a random 0..``late`` s (seeded), as in a node whose executor is starved of CPU,
-    stepping up to Scene.wall_target as the node does (it waits up to physics.input_wait for late samples)."""
+    stepping up to Scene.wall_target as the node does (the scene's physics.input_wait: how long it waits for late
+    samples)."""
     from clusterfem_ros.fem.stability import DivergenceError
     names = traj.names
     rng = np.random.default_rng(seed)

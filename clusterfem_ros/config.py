@@ -70,7 +70,7 @@ PARAMS: tuple[Param, ...] = (
     Param("physics.max_substeps", 64, "explicit methods refuse a step needing more sub-steps than this; implicit with warping sub-steps up to it where rotations turn fast", 1, 100000),
     Param("physics.clock", "wall", "'wall': physics follows the ROS clock; 'input': it follows the newest joint-state "
           "stamp (deterministic replay of a recording)", choices=("wall", "input")),
-    Param("physics.input_wait", 0.25, "wall clock: physics may lag the clock this long [s] waiting for late joint states instead of stepping past the newest one and jumping when they come (0: never waits)", 0.0, 10.0),
+    Param("physics.input_wait", 0.0, "wall clock: physics may lag the clock this long [s] waiting for late joint states instead of stepping past the newest one and jumping when they come (0: never waits, physics keeps the clock)", 0.0, 10.0),
     Param("physics.max_catchup_steps", 250, "physics may run behind its inputs by this many steps (slow motion); beyond, the gap is dropped and the body re-placed on the skeleton", 1, 100000),
     Param("physics.gravity", -9.81, "gravity along world z [m/s^2]", -100.0, 100.0),
     Param("skeleton.source", "builtin", "skeleton URDF: built-in humanoid, a file, the robot_description topic, or none", choices=SKELETONS),

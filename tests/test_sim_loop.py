@@ -96,7 +96,7 @@ def test_a_snapshot_is_never_written_after_it_is_handed_over():
 
 
 def test_nothing_is_handed_over_before_a_joint_state_places_the_body():
-    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN, physics__input_wait=0.25))
     clock = {"now": T0}
     loop, log = _loop(scene, now=lambda: clock["now"])
     loop.start()
@@ -204,8 +204,7 @@ def test_stage_shares_are_seconds_per_wall_second():
 
 
 def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_waiting_for_the_batch():
-    # physics steps past the one sample at once (no waiting for later ones: physics.input_wait 0)
-    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN, physics__input_wait=0.0))
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
     clock = {"now": T0}
     loop, log = _loop(scene, now=lambda: clock["now"])
     handed = []
@@ -241,9 +240,8 @@ def test_the_wall_clock_waits_for_late_joint_states_instead_of_jumping_over_them
     """A node short of CPU receives its joint states in bursts: physics steps up to the newest sample while it
     is at most physics.input_wait behind the clock, so the late ones are interpolated, not jumped over; past the
     wait it steps on, holding the pose."""
-    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN, physics__input_wait=0.25))
     wait = scene.config.physics.input_wait
-    assert wait > 0
     samples = _samples(0.5)
     for _ in range(3):
         stamp, names, q, v = next(samples)
@@ -252,5 +250,5 @@ def test_the_wall_clock_waits_for_late_joint_states_instead_of_jumping_over_them
     assert scene.wall_target(newest + 0.5 * wait) == newest                  # late inputs are waited for
     assert scene.wall_target(newest + 2.0 * wait) == pytest.approx(newest + wait)   # then physics goes on
     assert scene.wall_target(newest - 0.01) == newest - 0.01                    # never ahead of the clock
-    idle = Scene.build(SceneConfig().with_values(**SMALL_MAN, physics__input_wait=0.0))
-    assert idle.wall_target(123.0) == 123.0                                      # 0: the clock alone
+    idle = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    assert idle.config.physics.input_wait == 0.0 and idle.wall_target(123.0) == 123.0   # the default: the clock
