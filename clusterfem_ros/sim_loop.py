@@ -26,6 +26,7 @@ the thread stops (``stopped``), the node keeps running and reports it, and ``sto
 from __future__ import annotations
 
 import threading
+import sys
 import time
 import traceback
 from collections import deque
@@ -38,6 +39,7 @@ from .fem.stability import DivergenceError, StabilityError
 from .fem.stress import compute_stress
 
 MAX_CRASHES_IN_A_ROW = 5
+GIL_SWITCH_INTERVAL = 2e-4     # s: see SimLoop.start
 INPUT_QUEUE = 1024          # samples waiting for the physics thread (~8 s of a 120 Hz stream)
 STAGES = ("inputs", "skeleton", "physics", "snapshot", "stress", "markers", "cloud", "diagnostics", "recording")
 THREAD_STAGES = ("inputs", "skeleton", "physics", "snapshot")     # the physics thread's own work
@@ -198,6 +200,10 @@ class SimLoop:
 
     # -- control ---------------------------------------------------------------------------------
     def start(self) -> None:
+        # Physics threads hand the GIL back and forth around their nogil kernels; at Python's default switch
+        # interval (5 ms) a thread back from its kernel waits up to that long for the GIL while another runs
+        # Python, so two bodies in one process ran at a real-time factor of 0.38 each (realtime_benchmark).
+        sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL))
         self._thread.start()
 
     def stop(self, timeout: float = 10.0) -> bool:
