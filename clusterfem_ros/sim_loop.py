@@ -167,6 +167,8 @@ class LatencyMeter:
 class SimLoop:
     """The physics thread of one scene; see the module docstring."""
 
+    _started = 0                # loops started in this process (see start)
+
     def __init__(self, scene, now: Callable[[], float], timer_hz: float, max_catchup_steps: int,
                  log: Callable[[str, str], None], name: str = "physics"):
         clock = scene.config.physics.clock
@@ -200,10 +202,13 @@ class SimLoop:
 
     # -- control ---------------------------------------------------------------------------------
     def start(self) -> None:
-        # Physics threads hand the GIL back and forth around their nogil kernels; at Python's default switch
-        # interval (5 ms) a thread back from its kernel waits up to that long for the GIL while another runs
-        # Python, so two bodies in one process ran at a real-time factor of 0.38 each (realtime_benchmark).
-        sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL))
+        # Physics threads of several bodies in one process hand the GIL back and forth around their nogil
+        # kernels; at Python's default switch interval (5 ms) a thread back from its kernel waits up to that long
+        # while another runs Python: two bodies in one process ran at a real-time factor of 0.38 each, 0.57 at
+        # 0.2 ms (realtime_benchmark --bodies 2). One body keeps the default, under which it kept real time.
+        SimLoop._started += 1
+        if SimLoop._started > 1:
+            sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL))
         self._thread.start()
 
     def stop(self, timeout: float = 10.0) -> bool:
