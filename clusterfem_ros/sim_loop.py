@@ -25,8 +25,8 @@ the thread stops (``stopped``), the node keeps running and reports it, and ``sto
 """
 from __future__ import annotations
 
-import threading
 import sys
+import threading
 import time
 import traceback
 from collections import deque
@@ -204,8 +204,8 @@ class SimLoop:
     def start(self) -> None:
         # Physics threads of several bodies in one process hand the GIL back and forth around their nogil
         # kernels; at Python's default switch interval (5 ms) a thread back from its kernel waits up to that long
-        # while another runs Python: two bodies in one process ran at a real-time factor of 0.38 each, 0.57 at
-        # 0.2 ms (realtime_benchmark --bodies 2). One body keeps the default, under which it kept real time.
+        # while another runs Python: two bodies in one process ran at a real-time factor of 0.38 each, 0.57-0.68
+        # at 0.2 ms (realtime_benchmark --bodies 2). One body keeps the default, under which it kept real time.
         SimLoop._started += 1
         if SimLoop._started > 1:
             sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL))
