@@ -67,6 +67,7 @@ PARAMS: tuple[Param, ...] = (
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
     Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this before the outputs get a snapshot", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
+    Param("physics.plan_stretch", True, "explicit with warping: plan the sub-steps for the body's most stretched element (fem/stretch.py; keeps an undamped torn vertex bounded) instead of the linear stiffness alone"),
     Param("physics.max_substeps", 64, "explicit methods refuse a step needing more sub-steps than this; implicit with warping sub-steps up to it where rotations turn fast", 1, 100000),
     Param("physics.clock", "wall", "'wall': physics follows the ROS clock; 'input': it follows the newest joint-state "
           "stamp (deterministic replay of a recording)", choices=("wall", "input")),
@@ -226,6 +227,7 @@ class PhysicsSection:
     step: float                     # h [s]
     timer_hz: float
     safety: float
+    plan_stretch: bool              # explicit warped steps planned for the stretch (fem/stretch.py)
     max_substeps: int
     clock: str                      # 'wall' or 'input'
     input_wait: float               # wall clock: the longest lag behind the clock waiting for late inputs [s]

@@ -58,6 +58,8 @@ def integrator_choice(config: SceneConfig) -> tuple[str, dict]:
     if config["warping"] and method != "modal":
         options["warp"] = True
         options["warping_model"] = config["warping_model"]
+        if method in ("clustered", "standard_explicit"):
+            options["plan_stretch"] = config.physics.plan_stretch
         if method.startswith("implicit"):
             options["max_substeps"] = config.physics.max_substeps
     return method, options
