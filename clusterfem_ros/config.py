@@ -10,6 +10,7 @@ import difflib
 import re
 import sys
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -288,27 +289,29 @@ class SceneConfig:
         cls = SECTIONS[name]
         return cls(**{f.name: self.values[f"{name}.{f.name}"] for f in fields(cls)})
 
-    @property
+    # Each typed section is built once per config (a config is never changed, with_values makes a new one):
+    # the physics thread and the joint-state callback read them per step and per message.
+    @cached_property
     def material(self) -> MaterialSection:
         return self.section("material")
 
-    @property
+    @cached_property
     def physics(self) -> PhysicsSection:
         return self.section("physics")
 
-    @property
+    @cached_property
     def budget(self) -> BudgetSection:
         return self.section("budget")
 
-    @property
+    @cached_property
     def binding(self) -> BindingSection:
         return self.section("binding")
 
-    @property
+    @cached_property
     def anchors(self) -> AnchorsSection:
         return self.section("anchors")
 
-    @property
+    @cached_property
     def input(self) -> InputSection:
         return self.section("input")
 
