@@ -125,6 +125,11 @@ PARAMS: tuple[Param, ...] = (
     Param("input.max_joint_speed", 300.0, "a joint state implying a joint faster than this since the last accepted one, "
           "or reporting a velocity above it, is rejected (joint_speed) [rad/s revolute, m/s prismatic]; rejected "
           "for longer than input.max_age, the stream restarts from the newest sample", 0.1, 1.0e6),
+    # 0.1 m: above a sample's worth of motion of a fast limb (10 m/s over 1/120 s), below the jumps that tore
+    # the jelly man after inputs stalled for 20-250 ms (tests/test_late_inputs.py)
+    Param("input.max_late_jump", 0.1, "wall clock: a joint state arriving after physics stepped past the newest one "
+          "(holding its pose) that moves a bone end further than this at the current time re-places the body on the "
+          "new pose instead of yanking its flesh (counted as late_jumps) [m]", 0.0, 100.0),
     Param("input.max_root_distance", 1000.0, "a joint state placing the root (the prismatic joints) further than "
           "this from the world origin is rejected (root_range) [m]", 0.1, 1.0e7),
     Param("input.max_names", 1000, "a joint state with more names than this is rejected (too_many_names) before "
@@ -269,6 +274,7 @@ class InputSection:
     max_future: float
     teleport_distance: float
     max_joint_speed: float
+    max_late_jump: float
     max_root_distance: float
     max_names: int
 

@@ -23,6 +23,9 @@ SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 # loops are its own and it calls only serial code. Keeping threaded builds out of the cache instead would
 # compile the warped step at every start of the node (8-10 s, against 0.2 s to load it).
 PARALLEL = dict(SERIAL, parallel=True)
+# Kernels of a few microseconds called from the physics thread between its steps keep the GIL: a thread that
+# lets it go may wait a whole switch interval (5 ms) to get it back from the executor thread, for no gain.
+HOLDS_GIL = dict(SERIAL, nogil=False)
 
 # Below this many vertices the bare force kernels (clustered_force, warped_force, vertex_rotations) run
 # serial. On an idle 2-core machine the threaded builds can pay already at the jelly man's 1803 vertices

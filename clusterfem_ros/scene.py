@@ -24,6 +24,7 @@ from .fem.integrators import make_integrator
 from .fem.model import Attachments, Control, State, build_model
 from .fem.stability import DivergenceError
 from .fem.tet_mesh import TetMesh, boundary_triangles, total_volume
+from .body.bone_distance import segment_distances
 from .scene_build import integrator_choice, material_of, say as _say, scene_parts
 
 
@@ -77,6 +78,8 @@ class Scene:
         self.surface_triangles = remap[self.triangles]
         self.rest_volume = float(mesh.volumes().sum())
         self._corners = None            # the tets transposed (4, m), for the volume checks
+        self._distance_limit = None     # (k,) how far each surface vertex may be from its bone (bone_distance)
+        self.check_wall_s = 0.0         # wall seconds in state_problem's checks (the node's "checks" stage)
         self.skeleton = skeleton
         self.urdf_xml = urdf_xml
         self.driver = None
@@ -91,6 +94,8 @@ class Scene:
         self.skeleton_wall_s = 0.0      # the part of it spent on the constraints (skeleton pose, targets)
         self.dropped_s = 0.0             # simulated time skipped because physics could not keep up
         self._replace = False
+        self.late_jumps = 0             # samples that landed behind physics and moved the skeleton: body re-placed
+        self._late_from = None          # bone ends at sim_time before the first such sample since the last step
         self._stress_cache = None
         self._placed = False            # the body stands on a pose from a joint sample (or needs none)
         self._checked: tuple | None = None     # (steps_done, id(state), problem) of the last output check
@@ -224,6 +229,9 @@ class Scene:
         self.inputs.reached_stream = result.accepted      # the stream's state may change: a replay needs it
         problems = list(result.problems)
         first = result.accepted and not self.stream.ready
+        behind = result.accepted and self._holding()
+        if behind and self._late_from is None:            # the pose the last step left the body on
+            self._late_from = self._bone_ends(self.sim_time)
         if result.accepted:
             problems += self.stream.push(stamp, result.q, result.v, now=now)
         if first and self.stream.ready:
@@ -236,7 +244,24 @@ class Scene:
                 self._replace = True
         if result.accepted and not any(k in self.stream.FATAL for k, _ in problems):
             self.inputs.accepted += 1
+            if behind and not self._replace:                # late samples since that step, together
+                jump = np.linalg.norm(self._bone_ends(self.sim_time) - self._late_from, axis=-1).max()
+                if jump > self.config.input.max_late_jump:
+                    self._replace = True
+                    self.late_jumps += 1
         return problems
+
+    def _holding(self) -> bool:
+        """Physics has stepped past the newest sample (by more than half a step), on the pose held there: a new
+        sample changes the skeleton at sim_time in one jump, the larger the longer it held (wall clock, inputs
+        late or stalled)."""
+        return (self.driver is not None and self.sim_time is not None and self.stream.ready
+                and self.stream.newest < self.sim_time - 0.5 * self.h)
+
+    def _bone_ends(self, t: float) -> np.ndarray:
+        """(nb, 2, 3) [m]: both ends of every bone's segment at time t, as the joint stream gives the pose."""
+        poses = self._poses(t)
+        return np.einsum("bij,bej->bei", poses.rotation, self.binding.axis_local) + poses.translation[:, None]
 
     def take_joint_state(self, stamp: float, names, positions, velocities, received: float,
                          on_judged: Callable[[list], None] | None = None,
@@ -294,6 +319,7 @@ class Scene:
             self.start(0.0)
         if self._replace:
             self._place_on_skeleton()
+        self._late_from = None
         t0 = time.perf_counter()
         control = self._control(self.sim_time, self.state)
         t1 = time.perf_counter()
@@ -420,17 +446,13 @@ class Scene:
         if self.driver is None:
             return np.zeros(k), np.full(k, np.inf)
         b = self.binding
-        bone = b.bone[self.surface_vertices]
+        if self._distance_limit is None:
+            self._distance_limit = np.maximum(self.config["output.max_bone_distance"],
+                                              REST_DISTANCE_FACTOR * b.distance[self.surface_vertices])
         poses = self._poses(self.sim_time)
-        R, p = poses.rotation[bone], poses.translation[bone]
-        a = np.einsum("kij,kj->ki", R, b.axis_local[bone, 0]) + p
-        d = np.einsum("kij,kj->ki", R, b.axis_local[bone, 1]) + p - a
-        x = self.positions()[self.surface_vertices] - a
-        L2 = np.einsum("ki,ki->k", d, d)
-        s = np.clip(np.einsum("ki,ki->k", x, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
-        dist = np.linalg.norm(x - s[:, None] * d, axis=1)
-        limit = np.maximum(self.config["output.max_bone_distance"], REST_DISTANCE_FACTOR * b.distance[self.surface_vertices])
-        return dist, limit
+        dist = segment_distances(self.model.rest, self.state.u, self.surface_vertices, b.bone, poses.rotation,
+                                 poses.translation, b.axis_local)
+        return dist, self._distance_limit
 
     def state_problem(self, volume: bool = True) -> str | None:
         """What makes the current state unfit to show, or None: a non-finite value, the volume off by more than
@@ -440,6 +462,7 @@ class Scene:
         key = (self.steps_done, id(self.state), self._k)
         if self._checked is not None and self._checked[0] == key:
             return self._checked[1]
+        t0 = time.perf_counter()
         problem = None
         if not (np.isfinite(self.state.u).all() and np.isfinite(self.state.v).all()):
             problem = "the state is not finite"
@@ -457,6 +480,7 @@ class Scene:
                                f"{name!r} (limit {limit[i]:.3g} m, output.max_bone_distance)")
         if volume or problem is not None:
             self._checked = (key, problem)
+        self.check_wall_s += time.perf_counter() - t0
         return problem
 
     def output_problem(self) -> str | None:

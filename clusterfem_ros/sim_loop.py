@@ -41,8 +41,9 @@ from .fem.stress import compute_stress
 MAX_CRASHES_IN_A_ROW = 5
 GIL_SWITCH_INTERVAL = 2e-4     # s: see SimLoop.start
 INPUT_QUEUE = 1024          # samples waiting for the physics thread (~8 s of a 120 Hz stream)
-STAGES = ("inputs", "skeleton", "physics", "snapshot", "stress", "markers", "cloud", "diagnostics", "recording")
-THREAD_STAGES = ("inputs", "skeleton", "physics", "snapshot")     # the physics thread's own work
+STAGES = ("inputs", "skeleton", "physics", "checks", "snapshot", "stress", "markers", "cloud", "diagnostics",
+          "recording")
+THREAD_STAGES = ("inputs", "skeleton", "physics", "checks", "snapshot")     # the physics thread's own work
 
 
 def output_problem(scene) -> str | None:
@@ -197,7 +198,10 @@ class SimLoop:
         self._pending = False                            # an input arrived since the thread last looked
         self._stop = threading.Event()
         self._in_a_row = 0
-        self._headroom = (0, 0.0)                        # (steps, busy seconds) at the previous headroom() call
+        self._headroom = (0, 0.0, 0.0)                   # (steps, CPU s, busy s) at the previous headroom() call
+        self._busy = 0.0                                 # the thread's wall seconds outside _wait
+        self._cpu = 0.0                                  # the thread's CPU seconds
+        self._waited = (0.0, 0.0)                        # of an iteration of _run, (wall, CPU) seconds in _wait
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
 
     # -- control ---------------------------------------------------------------------------------
@@ -257,6 +261,7 @@ class SimLoop:
     # -- the thread ------------------------------------------------------------------------------
     def _run(self) -> None:
         while not self._stop.is_set():
+            t0, cpu0, self._waited = time.perf_counter(), time.thread_time(), (0.0, 0.0)
             try:
                 if self.clock == "input":
                     self._follow_inputs()
@@ -268,13 +273,18 @@ class SimLoop:
                 self._reset()
             except Exception as exc:  # noqa: BLE001 (any failure of a step: report it, reset, go on or stop)
                 self._crashed(exc)
+            self._busy += time.perf_counter() - t0 - self._waited[0]
+            self._cpu += time.thread_time() - cpu0 - self._waited[1]
 
     def _wait(self, timeout: float | None = None) -> None:
         """Until an input arrives, ``timeout`` or 1 / timer_hz passes, or stop."""
+        t0, cpu0 = time.perf_counter(), time.thread_time()
         with self._wake:
             if not self._queue and not self._pending and not self._stop.is_set():
                 self._wake.wait(self.period if timeout is None else min(timeout, self.period))
             self._pending = False
+        wall, cpu = self._waited
+        self._waited = (wall + time.perf_counter() - t0, cpu + time.thread_time() - cpu0)
 
     def _follow_inputs(self) -> None:
         """Clock "input": each sample taken with the steps up to its stamp (Scene.take_joint_state), as
@@ -318,10 +328,13 @@ class SimLoop:
             self._wait(due_in)
 
     def _timed(self, advance: Callable[[], object]) -> int:
-        """Run ``advance`` (steps of the scene); its time goes to the skeleton and physics stages."""
+        """Run ``advance`` (steps of the scene); its time goes to the skeleton, physics and checks stages."""
         s = self.scene
-        steps0, wall0, skel0 = s.steps_done, s.step_wall_s, s.skeleton_wall_s
-        advance()
+        steps0, wall0, skel0, check0 = s.steps_done, s.step_wall_s, s.skeleton_wall_s, s.check_wall_s
+        try:
+            advance()
+        finally:                                    # a check that found a divergence took its time too
+            self.stages.add("checks", s.check_wall_s - check0)
         n = s.steps_done - steps0
         if n:
             skel = s.skeleton_wall_s - skel0
@@ -333,7 +346,9 @@ class SimLoop:
     def _take_snapshot(self, used: int) -> None:
         t = time.perf_counter()
         s = self.scene
+        check0 = getattr(s, "check_wall_s", 0.0)
         problem = output_problem(s)
+        checks = getattr(s, "check_wall_s", 0.0) - check0
         if problem is None:
             u, v = s.state.u.copy(), s.state.v.copy()
             u.flags.writeable = v.flags.writeable = False      # handed over: nobody writes it again
@@ -341,7 +356,8 @@ class SimLoop:
             self.latency.handed_over(used, time.perf_counter())
         if problem is not None and s.sim_time is not None:
             self.unpublishable += 1
-        self.stages.add("snapshot", time.perf_counter() - t)
+        self.stages.add("checks", checks)
+        self.stages.add("snapshot", time.perf_counter() - t - checks)
 
     def _reset(self) -> None:
         self.scene.reset()
@@ -367,15 +383,24 @@ class SimLoop:
 
     # -- measurements ----------------------------------------------------------------------------
     def busy_s(self) -> float:
-        """Seconds the physics thread has worked (inputs, skeleton, physics, snapshots), waits excluded."""
-        return sum(self.stages.totals[k] for k in THREAD_STAGES)
+        """Seconds the physics thread has worked: its wall time outside its waits for inputs and the clock (the
+        THREAD_STAGES, and the loop's own bookkeeping between them), including the time it waited for the GIL
+        or for a core."""
+        return self._busy
 
-    def headroom(self) -> float:
-        """Simulated seconds per wall second the physics thread would sustain alone, over the steps since the
-        previous call: simulated time / the thread's busy time (``busy_s``). 0 before any step."""
-        steps, busy = self.scene.steps_done, self.busy_s()
-        d_steps, d_busy = steps - self._headroom[0], busy - self._headroom[1]
-        if d_steps <= 0 or d_busy <= 0:
-            return 0.0
-        self._headroom = (steps, busy)
-        return d_steps * self.scene.h / d_busy
+    def cpu_s(self) -> float:
+        """CPU seconds the physics thread has used (what its work costs when nothing else runs)."""
+        return self._cpu
+
+    def headroom(self) -> dict[str, float]:
+        """Over the steps since the previous call, simulated seconds per second of the physics thread's work:
+        ``alone`` per CPU second (``cpu_s``: what the thread would sustain with a core and the GIL to itself),
+        ``in_node`` per busy wall second (``busy_s``: with the waits for the GIL, held by the executor thread's
+        Python between the numba kernels, and for a core). Zeros before any step."""
+        steps, cpu, busy = self.scene.steps_done, self._cpu, self._busy
+        d_steps, d_cpu, d_busy = steps - self._headroom[0], cpu - self._headroom[1], busy - self._headroom[2]
+        if d_steps <= 0 or d_cpu <= 0 or d_busy <= 0:
+            return {"alone": 0.0, "in_node": 0.0}
+        self._headroom = (steps, cpu, busy)
+        sim = d_steps * self.scene.h
+        return {"alone": sim / d_cpu, "in_node": sim / d_busy}

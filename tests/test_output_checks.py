@@ -90,3 +90,46 @@ def test_after_dropped_time_the_body_is_withheld_until_replaced_not_reset(scene)
     assert "waiting to be put on" in scene.output_problem()
     scene.advance_to(80.502)
     assert scene.placed and scene.output_problem() is None
+
+
+def _naive_segment_distances(x, bone, R, p, axis_local):
+    """The distance to the posed bone segment written out per vertex (the kernel's twin)."""
+    out = []
+    for i, b in enumerate(bone):
+        a = R[b] @ axis_local[b, 0] + p[b]
+        d = R[b] @ axis_local[b, 1] + p[b] - a
+        s = 0.0 if d @ d == 0 else min(max((x[i] - a) @ d / (d @ d), 0.0), 1.0)
+        out.append(np.linalg.norm(x[i] - a - s * d))
+    return np.array(out)
+
+
+def test_the_bone_distance_kernel_equals_its_naive_twin_to_round_off():
+    """Random poses, points on both sides of both ends and beside the segment, and one zero-length bone."""
+    from clusterfem_ros.body.bone_distance import segment_distances
+    rng = np.random.default_rng(3)
+    nb, n = 5, 400
+    q, _ = np.linalg.qr(rng.standard_normal((nb, 3, 3)))
+    R = q * np.sign(np.linalg.det(q))[:, None, None]               # proper rotations
+    p = rng.standard_normal((nb, 3))
+    axis_local = rng.standard_normal((nb, 2, 3)) * 0.3
+    axis_local[2, 1] = axis_local[2, 0]                            # a bone whose segment is a point
+    rest = rng.standard_normal((n, 3))
+    u = 0.1 * rng.standard_normal((n, 3))
+    bone = rng.integers(0, nb, n)
+    vertices = np.sort(rng.choice(n, 150, replace=False))
+    got = segment_distances(rest, u, vertices, bone, R, p, axis_local)
+    want = _naive_segment_distances((rest + u)[vertices], bone[vertices], R, p, axis_local)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
+    assert (bone[vertices] == 2).any()                             # the point bone was exercised
+
+
+def test_the_scene_bone_distance_equals_the_naive_twin_on_a_posed_body(scene):
+    _push(scene, 80.0, k=37)
+    scene.advance_to(80.0)
+    scene.advance_to(80.05)
+    dist, _ = scene.bone_distance()
+    poses = scene._poses(scene.sim_time)
+    b, sv = scene.binding, scene.surface_vertices
+    want = _naive_segment_distances(scene.positions()[sv], b.bone[sv], poses.rotation, poses.translation,
+                                    b.axis_local)
+    np.testing.assert_allclose(dist, want, rtol=1e-12, atol=1e-14)

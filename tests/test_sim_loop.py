@@ -130,9 +130,15 @@ def test_wall_clock_follows_the_clock_and_counts_the_stages():
     assert scene.sim_time <= t_end + 1e-9                          # never ahead of the clock
     assert loop.stages.totals["physics"] > 0 and loop.stages.totals["skeleton"] > 0
     assert loop.stages.totals["physics"] + loop.stages.totals["skeleton"] == pytest.approx(scene.step_wall_s)
-    busy = sum(loop.stages.totals[k] for k in ("inputs", "skeleton", "physics", "snapshot"))
-    assert loop.stages.totals["snapshot"] > 0 and busy > scene.step_wall_s
-    assert loop.headroom() == pytest.approx(scene.steps_done * scene.h / busy)
+    staged = sum(loop.stages.totals[k] for k in ("inputs", "skeleton", "physics", "checks", "snapshot"))
+    assert loop.stages.totals["snapshot"] > 0 and loop.stages.totals["checks"] > 0 and staged > scene.step_wall_s
+    busy = loop.busy_s()                       # the thread's time outside its waits: its stages and their glue
+    assert staged <= busy < t_end
+    cpu = loop.cpu_s()                         # no other thread wants the GIL here: CPU time is most of it
+    assert 0 < cpu <= busy * 1.01
+    room = loop.headroom()
+    assert room["in_node"] == pytest.approx(scene.steps_done * scene.h / busy)
+    assert room["alone"] == pytest.approx(scene.steps_done * scene.h / cpu) and room["alone"] >= room["in_node"] * 0.95
     assert log == []
 
 

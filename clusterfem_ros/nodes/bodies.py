@@ -60,7 +60,7 @@ class RunWindow:
     def start(self) -> None:
         s, loop = self.sim.scene, self.sim.physics
         self.t0, self.cpu0 = time.perf_counter(), time.process_time()
-        self.steps0, self.wall0, self.busy0 = s.steps_done, s.step_wall_s, loop.busy_s()
+        self.steps0, self.wall0, self.busy0, self.thread_cpu0 = s.steps_done, s.step_wall_s, loop.busy_s(), loop.cpu_s()
         self.stages0 = dict(loop.stages.totals)
         self.inputs0 = s.inputs.accepted
         loop.latency.restart()
@@ -71,18 +71,20 @@ class RunWindow:
         steps = s.steps_done - self.steps0
         wall = s.step_wall_s - self.wall0
         busy = loop.busy_s() - self.busy0
+        cpu = loop.cpu_s() - self.thread_cpu0
         m = s.model
         return {"namespace": self.sim.get_namespace(), "tets": int(m.mesh.n_tets), "vertices": int(m.n_vertices),
                 "h": s.h, "seconds": elapsed, "steps": steps, "real_time_factor": steps * s.h / elapsed,
                 "mean_step_ms": wall / max(steps, 1) * 1e3,
-                "headroom": steps * s.h / busy if busy > 0 else 0.0,
+                "headroom": steps * s.h / cpu if cpu > 0 else 0.0,
+                "headroom_in_node": steps * s.h / busy if busy > 0 else 0.0,
                 "tet_steps_per_s": m.mesh.n_tets * steps / elapsed,
                 **loop.latency.percentiles(), "latencies": loop.latency.count,
                 "shares": {k: (v - self.stages0[k]) / elapsed for k, v in loop.stages.totals.items()},
                 "process_cpu": (time.process_time() - self.cpu0) / elapsed,
                 "inputs_used": s.inputs.accepted - self.inputs0, "inputs_rejected": s.inputs.total_rejected,
                 "resets": self.sim.divergences, "physics_failures": loop.crashes,
-                "dropped_s": s.dropped_s}
+                "dropped_s": s.dropped_s, "late_jumps": s.late_jumps}
 
 
 def rss_growth(samples: list[tuple[float, float]], warm_up_s: float) -> dict:

@@ -327,7 +327,8 @@ class ClusterFemNode(Node):
             self._rtf = (s.steps_done - self._stats["steps"]) * s.h / (now - self._stats["t_wall"])
             self._stats = {"t_wall": now, "steps": s.steps_done}
             if loop is not None:                                    # the same window for headroom and shares
-                self._window = {"physics_headroom": loop.headroom(),
+                room = loop.headroom()
+                self._window = {"physics_headroom": room["alone"], "physics_headroom_in_node": room["in_node"],
                                 **{f"share_{k}": v for k, v in loop.stages.shares().items()}}
         last = s.last if s else None
         values = {"steps": s.steps_done if s else 0,
@@ -339,6 +340,7 @@ class ClusterFemNode(Node):
                   "volume_error": self._volume_error(snap),
                   "inputs_accepted": s.inputs.accepted if s else 0,
                   "inputs_rejected": s.inputs.total_rejected if s else 0,
+                  "late_jumps": s.late_jumps if s else 0,
                   "resets_after_divergence": self.divergences,
                   "outputs_withheld": self.withheld,
                   "dropped_time_s": s.dropped_s if s else 0.0}
