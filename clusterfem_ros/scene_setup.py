@@ -21,7 +21,7 @@ from .config import SceneConfig
 from .fem.integrators import make_integrator
 from .fem.model import Attachments, Control, FemModel, State, build_model
 from .fem.stress import compute_stress
-from .fem.tet_mesh import boundary_triangles
+from .fem.tet_mesh import TetMesh, boundary_triangles
 from .numba_cache import is_cached
 from .scene_build import SceneParts, integrator_choice, material_of, say
 from .skeleton.joint_map import JointMap
@@ -63,10 +63,6 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     say(progress, f"setting up method '{method}'"
                   f"{' with ' + config.warping_model + ' warping' if options.get('warp') else ''}")
     integrator = make_integrator(method, model, **options)
-    triangles = boundary_triangles(mesh)
-    surface_vertices = np.unique(triangles)
-    remap = np.full(mesh.n_vertices, -1, dtype=np.int64)
-    remap[surface_vertices] = np.arange(surface_vertices.size)
     anchors = anchor(config, model.rest, skeleton, progress)
     anchored = binding = driver = joints = stream = None
     if skeleton is not None:
@@ -77,9 +73,22 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     elif anchors:                   # world points: their targets, once
         index, x, v, a, kp, kd = point_targets(anchors, model.rest)
         anchored = Attachments(index, x - model.rest[index], v, a, kp, kd)
-    return RunningParts(config, model, integrator, skeleton, parts.urdf_xml, parts.surface, parts.bind_all,
-                        anchors, anchored, binding, driver, joints, stream, triangles, surface_vertices,
-                        remap[triangles], float(mesh.volumes().sum()))
+    triangles, surface_vertices, surface_triangles = boundary_surface(mesh)
+    return RunningParts(config=config, model=model, integrator=integrator, skeleton=skeleton,
+                        urdf_xml=parts.urdf_xml, surface_body=parts.surface, bind_all=parts.bind_all,
+                        anchors=anchors, anchored=anchored, binding=binding, driver=driver, joints=joints,
+                        stream=stream, triangles=triangles, surface_vertices=surface_vertices,
+                        surface_triangles=surface_triangles, rest_volume=float(mesh.volumes().sum()))
+
+
+def boundary_surface(mesh: TetMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(boundary triangles (t, 3) into the mesh's vertices, the boundary's vertices (k,) sorted, the same
+    triangles into those k vertices): the surface the outputs show."""
+    triangles = boundary_triangles(mesh)
+    surface_vertices = np.unique(triangles)
+    remap = np.full(mesh.n_vertices, -1, dtype=np.int64)
+    remap[surface_vertices] = np.arange(surface_vertices.size)
+    return triangles, surface_vertices, remap[triangles]
 
 
 def anchor(config: SceneConfig, rest: np.ndarray, skeleton: Skeleton | None,
