@@ -211,8 +211,9 @@ def check_value(name: str, value: Any) -> Any:
 
 
 # Typed sections of the configuration: the parameters named <section>.<field>, as read by the code that uses
-# them (SceneConfig.material, .physics, ...). Their fields have no defaults: the one set of defaults, ranges and
-# descriptions is PARAMS (tests/test_config_sections.py checks that every parameter of a section is a field).
+# them (SceneConfig.material, .physics, ...); the parameters outside any section (method, warping, warping_model)
+# are attributes of SceneConfig. Their fields have no defaults: the one set of defaults, ranges and descriptions
+# is PARAMS (tests/test_config_sections.py checks that every parameter is a field or an attribute).
 
 @dataclass(frozen=True)
 class BodySection:

@@ -2,8 +2,8 @@
 mesh and fixed vertices, the material and the integrator's options. No ROS.
 
 Building a scene goes: ``scene_parts`` (here) chooses and reads the parts, scene_setup.set_up wires them into
-the parts that run (model, integrator, anchors, the body's binding to the skeleton, the joint inputs) and warms
-them up, scene.Scene runs them (inputs, clock, steps, checks, outputs). ``scene_parts`` reads the files a config
+the parts that run (model, integrator, anchors, the body's binding to the skeleton, the joint inputs) and
+scene_setup.warm_up loads their compiled kernels; scene.Scene runs them (inputs, clock, steps, checks, outputs). ``scene_parts`` reads the files a config
 names (a URDF, a mesh, the error budget's measured points) and nothing else.
 """
 from __future__ import annotations
