@@ -19,6 +19,7 @@ from .body.driver import SkeletonDriver
 from .body.surface_body import SurfaceBody, unbound_islands
 from .config import SceneConfig
 from .fem.integrators import make_integrator
+from .fem.integrators.base import Integrator
 from .fem.model import Attachments, Control, FemModel, State, build_model
 from .fem.stress import compute_stress
 from .fem.tet_mesh import TetMesh, boundary_triangles
@@ -36,7 +37,7 @@ class RunningParts:
     """What scene.Scene runs (set_up). Without a skeleton, binding, driver, joints and stream are None."""
     config: SceneConfig             # with the error budget's choice applied
     model: FemModel
-    integrator: object              # a fem.integrators method: step(state, control, h)
+    integrator: Integrator          # the method: step(state, control, h)
     skeleton: Skeleton | None
     urdf_xml: str | None            # the URDF the skeleton was built from (prepared: up axis, root, leaf shapes)
     surface_body: SurfaceBody | None    # of a surface body: bind pose, depth under the skin
