@@ -130,7 +130,7 @@ def main(argv=None) -> None:
                      "cached [s]"], ready_times(config, urdf, a.tets)))
     if a.skip_walk:
         return
-    n = config["body.target_tets"]
+    n = config.body.target_tets
     rows = []
     for name, c in (("character (surface)", config),
                     ("voxel jelly man", config.with_values({"body.kind": "jelly_man", "binding.relative_levels": False,

@@ -86,7 +86,7 @@ def node_soak(path: Path, overrides: dict | None = None, seconds: float | None =
         skeleton = Skeleton.from_urdf_string(motion.urdf)
         names = list(motion.trajectory.names)
         columns = np.array([names.index(n) for n in skeleton.joint_names])
-        limit = config["output.max_bone_distance"]
+        limit = config.output.max_bone_distance
         for raw in markers:
             d = _marker_distance(raw, states, skeleton, columns) if states else np.inf
             res.worst_distance = max(res.worst_distance, d)

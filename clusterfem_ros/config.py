@@ -216,8 +216,22 @@ def check_value(name: str, value: Any) -> Any:
 
 
 # Typed sections of the configuration: the parameters named <section>.<field>, as read by the code that uses
-# them (SceneConfig.material, .physics, ...). Their fields have no defaults: the one set of defaults, ranges and
-# descriptions is PARAMS (tests/test_config_sections.py checks that every parameter of a section is a field).
+# them (SceneConfig.material, .physics, ...); the parameters outside any section (method, warping, warping_model)
+# are attributes of SceneConfig. Their fields have no defaults: the one set of defaults, ranges and descriptions
+# is PARAMS (tests/test_config_sections.py checks that every parameter is a field or an attribute).
+
+@dataclass(frozen=True)
+class BodySection:
+    kind: str                       # one of BODIES
+    mesh_file: str
+    target_tets: int
+    surface_file: str
+    surface_group: str
+    surface_unit: float             # metres per unit of surface_file
+    bone_radius: float              # [m]
+    scale: float
+    fix_bottom: bool
+
 
 @dataclass(frozen=True)
 class MaterialSection:
@@ -242,9 +256,31 @@ class PhysicsSection:
 
 
 @dataclass(frozen=True)
+class ModalSection:
+    k: int                          # modes of method 'modal'
+
+
+@dataclass(frozen=True)
 class BudgetSection:
     max_error_mm: float             # 0: off
     measured_points: str            # '': the shipped points
+
+
+@dataclass(frozen=True)
+class SkeletonSection:
+    source: str                     # one of SKELETONS
+    urdf_file: str
+    up_axis: str
+    root_joint: str
+    bind_pose: str                  # 'neutral' or 'first_frame'
+    bind_bvh: str
+    bind_joints: list
+    bind_angles: list
+    fit: str
+    fit_up: str
+    fit_forward: str
+    fit_offset: list                # x, y, z [m]
+    fit_tolerance: float
 
 
 @dataclass(frozen=True)
@@ -279,8 +315,29 @@ class InputSection:
     max_names: int
 
 
-SECTIONS = {"material": MaterialSection, "physics": PhysicsSection, "budget": BudgetSection,
-            "binding": BindingSection, "anchors": AnchorsSection, "input": InputSection}
+@dataclass(frozen=True)
+class OutputSection:
+    frame_id: str
+    max_bone_distance: float        # [m]
+    marker_rate_hz: float           # 0: off
+    stress_rate_hz: float
+    diagnostics_rate_hz: float
+    colormap: str
+    stress_max: float               # [Pa], 0: E / 20
+
+
+@dataclass(frozen=True)
+class RecordingSection:
+    enabled: bool
+    dir: str
+    prefix: str
+    max_queue_mb: float
+
+
+SECTIONS = {"body": BodySection, "material": MaterialSection, "modal": ModalSection, "physics": PhysicsSection,
+            "budget": BudgetSection, "skeleton": SkeletonSection, "binding": BindingSection,
+            "anchors": AnchorsSection, "input": InputSection, "output": OutputSection,
+            "recording": RecordingSection}
 
 
 @dataclass(frozen=True)
@@ -295,11 +352,34 @@ class SceneConfig:
         cls = SECTIONS[name]
         return cls(**{f.name: self.values[f"{name}.{f.name}"] for f in fields(cls)})
 
+    # The parameters outside any section, already typed by check_value.
+    @property
+    def method(self) -> str:
+        """The integrator, one of METHODS."""
+        return self.values["method"]
+
+    @property
+    def warping(self) -> bool:
+        return self.values["warping"]
+
+    @property
+    def warping_model(self) -> str:
+        """One of WARPING_MODELS."""
+        return self.values["warping_model"]
+
     # Each typed section is built once per config (a config is never changed, with_values makes a new one):
     # the physics thread and the joint-state callback read them per step and per message.
     @cached_property
+    def body(self) -> BodySection:
+        return self.section("body")
+
+    @cached_property
     def material(self) -> MaterialSection:
         return self.section("material")
+
+    @cached_property
+    def modal(self) -> ModalSection:
+        return self.section("modal")
 
     @cached_property
     def physics(self) -> PhysicsSection:
@@ -308,6 +388,10 @@ class SceneConfig:
     @cached_property
     def budget(self) -> BudgetSection:
         return self.section("budget")
+
+    @cached_property
+    def skeleton(self) -> SkeletonSection:
+        return self.section("skeleton")
 
     @cached_property
     def binding(self) -> BindingSection:
@@ -320,6 +404,14 @@ class SceneConfig:
     @cached_property
     def input(self) -> InputSection:
         return self.section("input")
+
+    @cached_property
+    def output(self) -> OutputSection:
+        return self.section("output")
+
+    @cached_property
+    def recording(self) -> RecordingSection:
+        return self.section("recording")
 
     def with_values(self, values: dict[str, Any] | None = None, **overrides: Any) -> "SceneConfig":
         """A copy with parameters replaced, from a {name: value} mapping and/or keywords that use '__'

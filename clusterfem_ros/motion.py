@@ -84,7 +84,7 @@ def on_capture_skeleton(config):
     """The scene ``config`` made to play a BVH on the capture's own skeleton (skeleton.source robot_description): a
     character's surface (body.kind surface) is fitted to that skeleton in the scene's bind pose; any other body
     becomes the jelly man built around it."""
-    kind = "surface" if config["body.kind"] == "surface" else "jelly_man"
+    kind = "surface" if config.body.kind == "surface" else "jelly_man"
     return config.with_values({"skeleton.source": "robot_description", "body.kind": kind})
 
 

@@ -2,13 +2,14 @@
 
 ``Scene`` is what the node wires to topics and what headless runs drive directly:
 
-    scene = Scene.build(config)                      # parts chosen by scene_build.py, wired here
+    scene = Scene.build(config)                      # parts chosen (scene_build) and set up (scene_setup)
     scene.take_joint_state(stamp, names, q, v, received=t)   # an input, with the input-clock policy
     scene.advance_to(t)                              # physics.clock = wall: fixed steps up to time t
     scene.surface(), scene.vertex_von_mises()        # outputs, computed only when asked for
 
-What to build (error budget, skeleton, mesh, material, integrator options) is chosen in scene_build.py; this
-module wires the parts and runs them. Time is in seconds on the input clock (joint-state stamps). Physics never
+What to build (error budget, skeleton, mesh, material, integrator options) is chosen in scene_build.py, and the
+parts are set up (model, integrator, anchors, binding, joint inputs) and warmed up in scene_setup.py; this module
+only runs them. Time is in seconds on the input clock (joint-state stamps). Physics never
 extrapolates inputs: it runs on the last joint sample held when the stream stops.
 """
 from __future__ import annotations
@@ -20,12 +21,13 @@ from typing import Callable
 import numpy as np
 
 from .config import SceneConfig
-from .fem.integrators import make_integrator
-from .fem.model import Attachments, Control, State, build_model
+from .fem.model import Control, State
 from .fem.stability import DivergenceError
-from .fem.tet_mesh import TetMesh, boundary_triangles, total_volume
 from .body.bone_distance import segment_distances
-from .scene_build import integrator_choice, material_of, say as _say, scene_parts
+from .fem.stress import compute_stress
+from .fem.tet_mesh import total_volume
+from .scene_build import scene_parts
+from .scene_setup import RunningParts, set_up, warm_up
 
 
 MAX_VOLUME_ERROR = 0.5      # |V/V0 - 1| beyond this is a diverged state, not a deformation
@@ -56,34 +58,32 @@ class InputCounters:
 
 
 class Scene:
-    def __init__(self, config: SceneConfig, mesh: TetMesh, fixed: np.ndarray, skeleton=None,
-                 urdf_xml: str | None = None, progress: Callable[[str], None] | None = None, surface=None,
-                 bind_all: bool = False):
-        self.config = config
-        self.surface_body = surface     # body.surface_body.SurfaceBody of a surface body: bind pose, depth
-        self.bind_all = bool(bind_all)    # the outermost level reaches every vertex (a capsule body: no free flesh)
-        self.h = float(config.physics.step)
-        _say(progress, f"assembling {mesh.n_tets} tets / {mesh.n_vertices} vertices")
-        self.model = build_model(mesh, material_of(config), fixed=fixed,
-                                 gravity=(0.0, 0.0, float(config.physics.gravity)))
-        method, options = integrator_choice(config)
-        _say(progress, f"setting up method '{method}'"
-                       f"{' with ' + config['warping_model'] + ' warping' if options.get('warp') else ''}")
-        self.integrator = make_integrator(method, self.model, **options)
+    """The running scene: inputs, clock, steps, divergence and reset, output checks, outputs. ``Scene.build``
+    makes one from a config; the constructor takes parts already set up (scene_setup.set_up) and builds nothing."""
+
+    def __init__(self, parts: RunningParts):
+        self.config = parts.config
+        self.h = float(parts.config.physics.step)
+        self.model = parts.model
+        self.integrator = parts.integrator
+        self.skeleton = parts.skeleton
+        self.urdf_xml = parts.urdf_xml
+        self.surface_body = parts.surface_body    # body.surface_body.SurfaceBody of a surface body: bind pose, depth
+        self.bind_all = parts.bind_all    # the outermost level reaches every vertex (a capsule body: no free flesh)
+        self.anchors = parts.anchors
+        self._anchored = parts.anchored   # the anchors' attachments when no skeleton drives the body
+        self.binding = parts.binding
+        self.driver = parts.driver
+        self.joints = parts.joints
+        self.stream = parts.stream
+        self.triangles = parts.triangles
+        self.surface_vertices = parts.surface_vertices
+        self.surface_triangles = parts.surface_triangles
+        self.rest_volume = parts.rest_volume
         self.state = State.rest(self.model)
-        self.triangles = boundary_triangles(mesh)
-        self.surface_vertices = np.unique(self.triangles)
-        remap = np.full(mesh.n_vertices, -1, dtype=np.int64)
-        remap[self.surface_vertices] = np.arange(self.surface_vertices.size)
-        self.surface_triangles = remap[self.triangles]
-        self.rest_volume = float(mesh.volumes().sum())
         self._corners = None            # the tets transposed (4, m), for the volume checks
         self._distance_limit = None     # (k,) how far each surface vertex may be from its bone (bone_distance)
         self.check_wall_s = 0.0         # wall seconds in state_problem's checks (the node's "checks" stage)
-        self.skeleton = skeleton
-        self.urdf_xml = urdf_xml
-        self.driver = None
-        self.joints = None
         self.inputs = InputCounters()
         self._t0: float | None = None      # time of step 0 of the current run (stamps are ~1e9 s: time is
         self._k = 0                        # kept as t0 + k h, never accumulated, so it does not drift)
@@ -101,120 +101,17 @@ class Scene:
         self._checked: tuple | None = None     # (steps_done, id(state), problem) of the last output check
         self._next_volume_check = 0
         self.last = StepReport()
-        self.anchors = self._anchor(progress)
-        self._anchored = None           # the anchors' attachments when no skeleton drives the body
-        if skeleton is not None:
-            self._bind(progress)
-        elif self.anchors:                 # world points: their targets, once
-            from .body.constraints import point_targets
-            index, x, v, a, kp, kd = point_targets(self.anchors, self.model.rest)
-            self._anchored = Attachments(index, x - self.model.rest[index], v, a, kp, kd)
-        self._warm_up(progress)
 
-    def _anchor(self, progress) -> list:
-        """The constraints of the scene's anchors: point, or line where anchors.sliding says so (none unless
-        anchors.points lists some)."""
-        c = self.config
-        if not c.anchors.points:
-            return []
-        from .body.anchors import anchor_constraints
-        anchors = anchor_constraints(self.model.rest, c.anchors.points, c.anchors.radius, c.anchors.kp,
-                                     c.anchors.kd, c.anchors.bones,
-                                     self.skeleton.bone_names if self.skeleton is not None else None,
-                                     c.anchors.sliding)
-        slide = sum(1 for s in c.anchors.sliding if s)
-        _say(progress, f"anchoring {len(anchors)} vertices at {len(c.anchors.points) // 3} points"
-                       + (f" ({slide} sliding along their bones)" if slide else ""))
-        return anchors
-
-    def _warm_up(self, progress, steps: int = 40) -> None:
-        """Load the compiled kernels (and let the integrator settle on serial or threaded) on a throw-away
-        state, so the first real steps are not a second-long stall that drops inputs."""
-        from .numba_cache import is_cached
-        if any(is_cached(k) is False for k in getattr(self.integrator, "kernels", ())):
-            _say(progress, "compiling the step's kernels into numba's cache (the first start of this code on this "
-                           "machine: 15-30 s on 2 cores, once; later starts load them in about a second)")
-        else:
-            _say(progress, "loading compiled kernels")
-        state = State.rest(self.model)
-        control = self._control(0.0, state)     # what the steps will get: the anchored build is another one
-        for _ in range(steps):
-            self.integrator.step(state, control, self.h)
-        if self.driver is not None:
-            self.driver.reset()
-        from .fem.stress import compute_stress
-        compute_stress(self.model, state.u, corotated=bool(self.config["warping"]))
-
-    # -- construction --------------------------------------------------------------------------
     @classmethod
     def build(cls, config: SceneConfig, urdf_xml: str | None = None,
               progress: Callable[[str], None] | None = None) -> "Scene":
-        """Build everything the config asks for (and nothing else): what to build is chosen by
-        scene_build.scene_parts (error budget, skeleton, body mesh), the wiring is this constructor's."""
-        parts = scene_parts(config, urdf_xml, progress)
-        return cls(parts.config, parts.mesh, parts.fixed, skeleton=parts.skeleton, urdf_xml=parts.urdf_xml,
-                   progress=progress, surface=parts.surface, bind_all=parts.bind_all)
-
-    def _bind(self, progress) -> None:
-        from .body.binding import bind_to_skeleton
-        from .body.constraints import LevelGains, LineConstraint, PointConstraint
-        from .body.driver import SkeletonDriver
-        from .skeleton.joint_map import JointMap
-        from .skeleton.joint_stream import JointStreamInterpolator
-        c = self.config
-        sk = self.skeleton
-        q0 = sk.neutral() if self.surface_body is None else self.surface_body.bind_q
-        poses = sk.forward(q0, np.zeros(sk.nv))
-        starts, ends = sk.bone_segments(q0)
-        _say(progress, f"binding {self.model.n_vertices} vertices to {len(sk.bone_names)} bones")
-        depth = self.surface_body.depth if c.binding.relative_levels else None
-        mask = None
-        if c.binding.skip_bones:
-            unknown = [b for b in c.binding.skip_bones if b not in sk.bone_names]
-            if unknown:
-                raise ValueError(f"binding.skip_bones names {unknown}, which are not bones of this skeleton; its bones "
-                                 f"are {', '.join(sk.bone_names)}")
-            mask = np.array([b not in c.binding.skip_bones for b in sk.bone_names])
-        radii = list(c.binding.level_radii)
-        if self.bind_all:
-            from .body.binding import segment_distance
-            reach = float(segment_distance(self.model.rest, starts, ends).min(axis=1).max()) * (1 + 1e-9)
-            if reach > radii[-1]:
-                _say(progress, f"the outermost binding level reaches {reach:.3f} m instead of {radii[-1]:g} m: every "
-                               "vertex of the capsule body is bound (no one-tet flaps left free)")
-                radii[-1] = reach
-        self.binding = bind_to_skeleton(self.model.rest, starts, ends, radii, mask,
-                                        rest_rotation=poses.rotation, rest_translation=poses.translation,
-                                        bone_names=sk.bone_names, warn=False, surface_depth=depth)
-        if self.surface_body is not None:
-            self._refuse_islands()
-        gains = LevelGains(kp=tuple(c.binding.kp), kd=tuple(c.binding.kd))
-        self.driver = SkeletonDriver(self.binding, self.model.rest, gains, kinematic=c.binding.kinematic_core,
-                                     bone_names=sk.bone_names, sliding_levels=c.binding.sliding_levels,
-                                     points=[a for a in self.anchors if isinstance(a, PointConstraint)],
-                                     lines=[a for a in self.anchors if isinstance(a, LineConstraint)])
-        self.joints = JointMap(sk.joint_names, q0, max_names=c.input.max_names)
-        self.stream = JointStreamInterpolator(sk.joint_names, revolute=sk.revolute_mask(),
-                                              max_age=c.input.max_age, max_future=c.input.max_future,
-                                              teleport_distance=c.input.teleport_distance,
-                                              prismatic=~sk.revolute_mask(),
-                                              max_root_distance=c.input.max_root_distance,
-                                              max_joint_speed=c.input.max_joint_speed)
-
-    def _refuse_islands(self) -> None:
-        """A piece of a surface body that no bone reaches (no vertex in the innermost level: relative levels
-        bind the skin of any piece at its outer level) and no anchor holds would be dragged, not carried:
-        refuse it."""
-        from .body.surface_body import unbound_islands
-        driven = self.binding.level == 0
-        driven[[a.vertex for a in self.anchors]] = True
-        islands = unbound_islands(self.model.mesh.tets, self.model.n_vertices, driven)
-        if islands:
-            size, index = islands[0]
-            centre = self.model.rest[index].mean(axis=0)
-            raise ValueError(f"{len(islands)} piece(s) of the surface body are reached by no bone and no anchor; the "
-                             f"first has {size} vertices around ({', '.join(f'{x:.3f}' for x in centre)}) m: raise "
-                             "binding.level_radii, or hold it with anchors.points / anchors.bones")
+        """Build everything the config asks for (and nothing else): scene_build.scene_parts chooses the parts
+        (error budget, skeleton, body mesh), scene_setup.set_up wires them, scene_setup.warm_up loads the compiled
+        kernels with the constraints the first steps will get."""
+        parts = set_up(scene_parts(config, urdf_xml, progress), progress)
+        scene = cls(parts)
+        warm_up(parts, lambda state: scene._control(0.0, state), scene.h, progress)
+        return scene
 
     # -- inputs ----------------------------------------------------------------------------------
     def push_joint_state(self, stamp: float, names, positions, velocities=None,
@@ -398,7 +295,7 @@ class Scene:
                                "to stretch that far")
                 else:
                     way_out = "lower physics.step or the binding gains" + (
-                        "" if self.config["warping"] else ", or turn warping on")
+                        "" if self.config.warping else ", or turn warping on")
                 raise DivergenceError(f"{problem} at t = {self.sim_time - self.start_time:.3f} s after the start: the "
                                       f"state has diverged; {way_out}")
         return rep
@@ -447,7 +344,7 @@ class Scene:
             return np.zeros(k), np.full(k, np.inf)
         b = self.binding
         if self._distance_limit is None:
-            self._distance_limit = np.maximum(self.config["output.max_bone_distance"],
+            self._distance_limit = np.maximum(self.config.output.max_bone_distance,
                                               REST_DISTANCE_FACTOR * b.distance[self.surface_vertices])
         poses = self._poses(self.sim_time)
         dist = segment_distances(self.model.rest, self.state.u, self.surface_vertices, b.bone, poses.rotation,
@@ -503,10 +400,9 @@ class Scene:
 
     def stress(self):
         """The element and vertex stress of the current state (computed on the first call after a step)."""
-        from .fem.stress import compute_stress
         key = (self.steps_done, id(self.state))
         if self._stress_cache is None or self._stress_cache[0] != key:
-            self._stress_cache = (key, compute_stress(self.model, self.state.u, corotated=bool(self.config["warping"])))
+            self._stress_cache = (key, compute_stress(self.model, self.state.u, corotated=self.config.warping))
         return self._stress_cache[1]
 
     def vertex_von_mises(self) -> np.ndarray:

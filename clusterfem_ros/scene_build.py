@@ -1,24 +1,30 @@
 """What a scene is built from, chosen from its config: the error budget's method, the skeleton, the body's
 mesh and fixed vertices, the material and the integrator's options. No ROS.
 
-Building is chosen here; scene.Scene wires the parts (model, integrator, binding) and runs them (inputs, clock,
-steps, checks, outputs). ``scene_parts`` reads the files a config names (a URDF, a mesh, the error budget's
-measured points) and nothing else.
+Building a scene goes: ``scene_parts`` (here) chooses and reads the parts, scene_setup.set_up wires them into
+the parts that run (model, integrator, anchors, the body's binding to the skeleton, the joint inputs) and
+scene_setup.warm_up loads their compiled kernels; scene.Scene runs them (inputs, clock, steps, checks, outputs). ``scene_parts`` reads the files a config
+names (a URDF, a mesh, the error budget's measured points) and nothing else.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from .body.fit import find_data_file
+from .body.surface_body import SurfaceBody, build_surface_body
 from .config import SceneConfig
 from .fem.material import Material
 from .fem.mesh_io import read_mesh
 from .fem.tet_mesh import TetMesh
 from .fem.voxel_mesh import paper_mesh
-from .method_choice import SHIPPED_POINTS
+from .method_choice import SHIPPED_POINTS, choose_from_file
+from .skeleton.humanoid import HumanoidSpec, default_humanoid
+from .skeleton.jelly_body import jelly_man_mesh
+from .skeleton.kinematics import Skeleton, UrdfError
+from .skeleton.link_shapes import prepare_urdf
 
 MEASURED_POINTS = SHIPPED_POINTS
 URDF_MANIFEST = "config/urdf_data.md"     # where skeleton.urdf_file data that is not in the repository comes from
@@ -32,13 +38,13 @@ def say(progress: Callable[[str], None] | None, text: str) -> None:
 
 @dataclass
 class SceneParts:
-    """What Scene's constructor takes, chosen from a config (scene_parts)."""
+    """What a scene is built from, chosen from a config (scene_parts); scene_setup.set_up wires it."""
     config: SceneConfig             # with the error budget's choice applied
     mesh: TetMesh
     fixed: np.ndarray               # (n,) bool: vertices held at rest
-    skeleton: object | None         # skeleton.kinematics.Skeleton, or None (skeleton.source = none)
+    skeleton: Skeleton | None       # None: skeleton.source = none
     urdf_xml: str | None
-    surface: object | None = None   # body.surface_body.SurfaceBody of a surface body
+    surface: SurfaceBody | None = None   # of a surface body: its bind pose and depth under the skin
     bind_all: bool = False          # the outermost binding level reaches every vertex (a capsule body)
 
 
@@ -49,15 +55,15 @@ def material_of(c: SceneConfig) -> Material:
 
 def integrator_choice(config: SceneConfig) -> tuple[str, dict]:
     """(method, options) for fem.integrators.make_integrator, from the config's method, physics and warping."""
-    method = config["method"]
+    method = config.method
     options: dict = {}
     if method in ("clustered", "standard_explicit"):
         options.update(safety=config.physics.safety, max_substeps=config.physics.max_substeps)
     if method == "modal":
-        options["k"] = config["modal.k"]
-    if config["warping"] and method != "modal":
+        options["k"] = config.modal.k
+    if config.warping and method != "modal":
         options["warp"] = True
-        options["warping_model"] = config["warping_model"]
+        options["warping_model"] = config.warping_model
         if method in ("clustered", "standard_explicit"):
             options["plan_stretch"] = config.physics.plan_stretch
         if method.startswith("implicit"):
@@ -68,9 +74,8 @@ def integrator_choice(config: SceneConfig) -> tuple[str, dict]:
 def apply_error_budget(config: SceneConfig, progress: Callable[[str], None] | None = None) -> SceneConfig:
     """The config with method, step, warping (and modal.k) replaced by the cheapest measured point that
     meets budget.max_error_mm; ChoiceError names the best achievable error when none does."""
-    from .method_choice import choose_from_file
     path = config.budget.measured_points or str(MEASURED_POINTS)
-    choice = choose_from_file(path, scene=config["body.kind"], budget_mm=config.budget.max_error_mm)
+    choice = choose_from_file(path, scene=config.body.kind, budget_mm=config.budget.max_error_mm)
     say(progress, f"error budget {config.budget.max_error_mm:g} mm: {choice.point.describe()}, "
                   f"measured max error {choice.point.errors['max_mm']:.3g} mm ({path})")
     return config.with_values(choice.overrides)
@@ -80,24 +85,21 @@ def load_skeleton(config: SceneConfig, urdf_xml: str | None, progress: Callable[
     """(skeleton or None, the URDF text it was built from, the leaf shapes of the URDF's links) for
     skeleton.source: none, builtin, urdf_file, or robot_description (``urdf_xml``: the text received on that
     topic). The URDF is prepared first (skeleton/link_shapes.prepare_urdf: up axis, free root, leaf shapes)."""
-    source = config["skeleton.source"]
+    sk = config.skeleton
+    source = sk.source
     if source == "none":
         return None, urdf_xml, {}
-    from .skeleton.kinematics import Skeleton, UrdfError
     urdf_path = None
     if source == "builtin":
-        from .skeleton.humanoid import default_humanoid
         urdf_xml = default_humanoid().urdf
     elif source == "urdf_file":
-        from .body.fit import find_data_file
-        urdf_path = find_data_file(config["skeleton.urdf_file"], URDF_MANIFEST, "skeleton.urdf_file")
+        urdf_path = find_data_file(sk.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")
         urdf_xml = urdf_path.read_text()
     elif urdf_xml is None:
         raise ValueError("skeleton.source is 'robot_description': pass the URDF text received on that "
                          "topic (the node waits for it)")
-    from .skeleton.link_shapes import prepare_urdf
-    prepared = prepare_urdf(urdf_xml, config["skeleton.up_axis"], config["skeleton.root_joint"],
-                            leaf_shapes=config["body.kind"] == "jelly_man", urdf_file=urdf_path)
+    prepared = prepare_urdf(urdf_xml, sk.up_axis, sk.root_joint, leaf_shapes=config.body.kind == "jelly_man",
+                            urdf_file=urdf_path)
     for note in prepared.notes:
         say(progress, note)
     try:
@@ -105,7 +107,7 @@ def load_skeleton(config: SceneConfig, urdf_xml: str | None, progress: Callable[
     except UrdfError as exc:               # name the file the user can fix
         if source != "urdf_file":
             raise
-        raise UrdfError(f"skeleton.urdf_file {config['skeleton.urdf_file']!r}: {exc}") from exc
+        raise UrdfError(f"skeleton.urdf_file {sk.urdf_file!r}: {exc}") from exc
 
 
 def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
@@ -114,33 +116,31 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
     if config.budget.max_error_mm > 0:
         config = apply_error_budget(config, progress)
     skeleton, urdf_xml, leaf_shapes = load_skeleton(config, urdf_xml, progress)
-    source = config["skeleton.source"]
-    kind = config["body.kind"]
+    source = config.skeleton.source
+    body = config.body
+    kind = body.kind
     fixed = None
     if kind == "jelly_man":
-        from .skeleton.humanoid import HumanoidSpec, default_humanoid
-        from .skeleton.jelly_body import jelly_man_mesh
         if skeleton is None:
             raise ValueError("body.kind 'jelly_man' is built around a skeleton, but skeleton.source is 'none': "
                              "choose a skeleton source or a paper shape / mesh body")
         if source == "builtin":
             spec = default_humanoid()
         else:
-            r = float(config["body.bone_radius"])
+            r = float(body.bone_radius)
             spec = HumanoidSpec(urdf_xml, {name: 0.0 if name in leaf_shapes else r for name in skeleton.bone_names},
                                 leaf_shapes=leaf_shapes)
-        say(progress, f"voxelizing the jelly man (~{config['body.target_tets']} tets)")
-        mesh = jelly_man_mesh(spec, target_tets=config["body.target_tets"])
+        say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
+        mesh = jelly_man_mesh(spec, target_tets=body.target_tets)
     elif kind == "mesh":
-        mesh = read_mesh(config["body.mesh_file"])
+        mesh = read_mesh(body.mesh_file)
     elif kind == "surface":
-        from .body.surface_body import build_surface_body
         surface = build_surface_body(config, skeleton, progress)
         return SceneParts(config, surface.mesh, np.zeros(surface.mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
                           surface=surface)
     else:
-        mesh = paper_mesh(kind, config["body.scale"])
-    if skeleton is None and kind != "mesh" and config["body.fix_bottom"]:
+        mesh = paper_mesh(kind, body.scale)
+    if skeleton is None and kind != "mesh" and body.fix_bottom:
         z = mesh.vertices[:, 2]
         fixed = z <= z.min() + 0.2 * np.ptp(z)
     if fixed is None:

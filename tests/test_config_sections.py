@@ -30,3 +30,16 @@ def test_a_section_reads_the_values_of_its_config(name):
         assert getattr(section, f.name) == config[f"{name}.{f.name}"], f.name
     if numbers:
         assert getattr(section, numbers[0].split(".", 1)[1]) != changed[numbers[0]]
+
+
+def test_every_parameter_is_a_typed_attribute_of_the_config_a_section_field_or_a_top_level_one():
+    """The package reads its config through typed attributes: every parameter is a field of its section
+    (config.<section>.<field>) or, outside any section, an attribute of its own (config.method), with the value
+    the flat table holds, changed values too."""
+    config = SceneConfig().with_values(method="modal", warping=False, warping_model="vertex", modal__k=12)
+    for p in PARAMS:
+        section, _, name = p.name.rpartition(".")
+        where = getattr(config, section) if section else config
+        assert section in SECTIONS or not section, p.name
+        assert getattr(where, name) == config[p.name], p.name
+    assert (config.method, config.warping, config.warping_model, config.modal.k) == ("modal", False, "vertex", 12)

@@ -30,25 +30,25 @@ class SurfaceBody:
 
 
 def build_surface_body(config, skeleton, progress: Callable[[str], None] | None = None) -> SurfaceBody:
-    """The surface body the scene's body.* and skeleton.* parameters describe, on ``skeleton``."""
+    """The surface body the scene's body.* and skeleton.* parameters describe (``config``: a config.SceneConfig,
+    read through its typed sections), on ``skeleton``."""
     say = progress or (lambda _: None)
-    c = config
-    path = find_data_file(c["body.surface_file"], MANIFEST)
-    q = bind_configuration(skeleton, c["skeleton.bind_pose"], c["skeleton.bind_joints"], c["skeleton.bind_angles"],
-                           c["skeleton.bind_bvh"])
+    b, s = config.body, config.skeleton
+    path = find_data_file(b.surface_file, MANIFEST)
+    q = bind_configuration(skeleton, s.bind_pose, s.bind_joints, s.bind_angles, s.bind_bvh)
     starts, ends = skeleton.bone_segments(q)
-    tets = surface_to_tets(path, c["body.target_tets"], group=c["body.surface_group"], progress=progress)
+    tets = surface_to_tets(path, b.target_tets, group=b.surface_group, progress=progress)
     triangles = boundary_triangles(tets.mesh)
-    say(f"fitting {path.name} on the skeleton ({c['skeleton.fit']})")
-    fit = fit_mesh(tets.mesh.vertices, starts, ends, c["skeleton.fit"], c["body.surface_unit"], c["skeleton.fit_up"],
-                   c["skeleton.fit_forward"], c["skeleton.fit_offset"], triangles=triangles)
+    say(f"fitting {path.name} on the skeleton ({s.fit})")
+    fit = fit_mesh(tets.mesh.vertices, starts, ends, s.fit, b.surface_unit, s.fit_up, s.fit_forward, s.fit_offset,
+                   triangles=triangles)
     say(f"fitted {path.name} on the skeleton: {fit.describe()}")
     mesh = TetMesh(fit.apply(tets.mesh.vertices), tets.mesh.tets).validate()    # R proper, scale > 0: tets keep sign
-    outside = bones_outside(mesh.vertices, triangles, starts, ends, skeleton.bone_names, c["skeleton.fit_tolerance"])
+    outside = bones_outside(mesh.vertices, triangles, starts, ends, skeleton.bone_names, s.fit_tolerance)
     if outside:
         listed = ", ".join(f"{name} ({d * 100:.1f} cm outside)" for name, d in outside)
         raise FitError(f"{len(outside)} of {len(starts)} bones leave the body of {path.name} by more than "
-                       f"skeleton.fit_tolerance = {c['skeleton.fit_tolerance']:g} m: {listed}. The bind pose "
+                       f"skeleton.fit_tolerance = {s.fit_tolerance:g} m: {listed}. The bind pose "
                        "(skeleton.bind_pose / bind_joints / bind_angles) or the fit (skeleton.fit, fit_up, "
                        "fit_forward, body.surface_unit) does not match the mesh")
     depth = surface_depth(mesh.vertices, mesh.vertices, triangles)

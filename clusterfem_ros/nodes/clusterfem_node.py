@@ -67,10 +67,10 @@ class ClusterFemNode(Node):
         self._marker_pub = self.create_publisher(Marker, SURFACE_TOPIC, 1)
         self._stress_pub = self.create_publisher(PointCloud2, STRESS_TOPIC, 1)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAG_TOPIC, 10)
-        if c["recording.enabled"]:
+        if c.recording.enabled:
             self._open_recording()
         self.create_subscription(JointState, JOINTS_TOPIC, self._on_joint_state, qos_profile_sensor_data, raw=True)
-        if c["skeleton.source"] == "robot_description":
+        if c.skeleton.source == "robot_description":
             self.get_logger().info("waiting for the URDF on 'robot_description' (transient local)")
             self.create_subscription(String, URDF_TOPIC, self._on_robot_description, LATCHED)
         else:
@@ -85,7 +85,7 @@ class ClusterFemNode(Node):
         self.scene = Scene.build(self.config, urdf_xml=urdf_xml, progress=lambda s: log.info(s))
         m = self.scene.model
         log.info(f"scene ready in {time.perf_counter() - t0:.1f} s: {m.mesh.n_tets} tets, {m.n_vertices} vertices, "
-                 f"method {self.config['method']}, warping {self.config['warping']}, h = {self.scene.h:g} s")
+                 f"method {self.config.method}, warping {self.config.warping}, h = {self.scene.h:g} s")
         c = self.config
         self.physics = SimLoop(self.scene, self._now, c.physics.timer_hz,
                                c.physics.max_catchup_steps, self._log, name=f"physics {self.get_fully_qualified_name()}")
@@ -108,14 +108,14 @@ class ClusterFemNode(Node):
     def _open_recording(self) -> None:
         from ..recording.rosbag2_mcap import Rosbag2McapWriter, default_bag_path
         c = self.config
-        path = default_bag_path(c["recording.prefix"], root=c["recording.dir"])
-        self.recorder = Rosbag2McapWriter(path, max_queue_bytes=int(c["recording.max_queue_mb"] * 1e6))
+        path = default_bag_path(c.recording.prefix, root=c.recording.dir)
+        self.recorder = Rosbag2McapWriter(path, max_queue_bytes=int(c.recording.max_queue_mb * 1e6))
         # bags name topics fully qualified, as rosbag2 does (namespace and remapping applied)
         topics = [(JOINTS_TOPIC, "sensor_msgs/msg/JointState", "sensor_data"),
                   (SURFACE_TOPIC, "visualization_msgs/msg/Marker", "reliable"),
                   (STRESS_TOPIC, "sensor_msgs/msg/PointCloud2", "reliable"),
                   (DIAG_TOPIC, "diagnostic_msgs/msg/DiagnosticArray", "reliable")]
-        if c["skeleton.source"] == "robot_description":      # the skeleton the scene was built on, once
+        if c.skeleton.source == "robot_description":      # the skeleton the scene was built on, once
             topics.append((URDF_TOPIC, "std_msgs/msg/String", "transient_local"))
         self._bag_topics = {t: self.resolve_topic_name(t) for t, _, _ in topics}
         for topic, msg_type, qos in topics:
@@ -130,10 +130,11 @@ class ClusterFemNode(Node):
         for t in self._output_timers.values():
             self.destroy_timer(t)
         self._output_timers = {}
-        for key, fn in (("output.marker_rate_hz", self._publish_surface), ("output.stress_rate_hz", self._publish_stress),
-                        ("output.diagnostics_rate_hz", self._publish_diagnostics)):
-            if self.config[key] > 0:
-                self._output_timers[key] = self.create_timer(1.0 / self.config[key], fn)
+        out = self.config.output
+        for rate, fn in ((out.marker_rate_hz, self._publish_surface), (out.stress_rate_hz, self._publish_stress),
+                         (out.diagnostics_rate_hz, self._publish_diagnostics)):
+            if rate > 0:
+                self._output_timers[fn.__name__] = self.create_timer(1.0 / rate, fn)
 
     def _on_live_change(self, changes: dict) -> None:
         self.config = self.config.with_values(changes)
@@ -271,10 +272,10 @@ class ClusterFemNode(Node):
         return int(round(snap.sim_time * 1e9))
 
     def _stress_max(self) -> float:
-        return self.config["output.stress_max"] or self.config.material.young_modulus / 20.0
+        return self.config.output.stress_max or self.config.material.young_modulus / 20.0
 
     def _stress(self, snap: Snapshot):
-        return snap.stress(self.scene.model, bool(self.config["warping"]), self.physics.stages)
+        return snap.stress(self.scene.model, self.config.warping, self.physics.stages)
 
     def _publish_surface(self) -> None:
         snap = self._snapshot_for(self._marker_pub)
@@ -285,8 +286,8 @@ class ClusterFemNode(Node):
             vm = self._stress(snap).vertex_von_mises[scene.surface_vertices]
             t0 = time.perf_counter()
             verts = scene.model.rest[scene.surface_vertices] + snap.u[scene.surface_vertices]
-            rgba = map_scalars(vm, self.config["output.colormap"], 0.0, self._stress_max())
-            data = surface_marker_cdr(verts, scene.surface_triangles, rgba, self.config["output.frame_id"],
+            rgba = map_scalars(vm, self.config.output.colormap, 0.0, self._stress_max())
+            data = surface_marker_cdr(verts, scene.surface_triangles, rgba, self.config.output.frame_id,
                                       self._sim_stamp(snap), "clusterfem", 0)
         except ValueError as exc:
             self.get_logger().error(f"surface not published: {exc}", throttle_duration_sec=2.0)
@@ -305,7 +306,7 @@ class ClusterFemNode(Node):
         try:
             vm = self._stress(snap).vertex_von_mises
             t0 = time.perf_counter()
-            data = stress_cloud_cdr(self.scene.model.rest + snap.u, vm, self.config["output.frame_id"],
+            data = stress_cloud_cdr(self.scene.model.rest + snap.u, vm, self.config.output.frame_id,
                                     self._sim_stamp(snap))
         except ValueError as exc:
             self.get_logger().error(f"stress not published: {exc}", throttle_duration_sec=2.0)
@@ -359,7 +360,7 @@ class ClusterFemNode(Node):
         if rec is not None and rec.error is not None:
             self._recording_failed(rec.error, rec)
             rec = None
-        if self.config["recording.enabled"]:
+        if self.config.recording.enabled:
             values.update({"recording": "stopped" if self.recording_error else "on" if rec is not None else "closed",
                            "recording_dropped": rec.dropped if rec is not None else self._dropped_at_stop,
                            "recording_queue_bytes": rec.queued_bytes if rec is not None else 0,

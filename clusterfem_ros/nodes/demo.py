@@ -80,9 +80,9 @@ def _player_plan(args, scene_file: Path, config):
         player = load_player_section(scene_file) or {"source": "builtin_walk"}
     source = player.get("source", "builtin_walk")
     fits = skeleton_source_for(source)
-    if fits == "robot_description" and config["skeleton.source"] in ("builtin", "urdf_file"):
+    if fits == "robot_description" and config.skeleton.source in ("builtin", "urdf_file"):
         raise SystemExit(f"[demo] the player plays {source!r} but the scene's skeleton.source is "
-                         f"{config['skeleton.source']!r}: set skeleton.source to {fits!r} (or run with --bvh FILE)")
+                         f"{config.skeleton.source!r}: set skeleton.source to {fits!r} (or run with --bvh FILE)")
     return player, config
 
 
@@ -150,13 +150,13 @@ def main(argv: list[str] | None = None) -> int:
     plans = [_player_plan(args, f, load_scene_file(f)) for f in scenes]   # validated here, before ROS starts
     configs = [config for _, config in plans]
     for ns, f, (player_params, config) in zip(names, scenes, plans):
-        print(f"[demo] {ns or 'scene'} {f}: body {config['body.kind']}, method {config['method']}, "
-              f"warping {config['warping']}, h = {config['physics.step']:g} s; ROS_DOMAIN_ID="
+        print(f"[demo] {ns or 'scene'} {f}: body {config.body.kind}, method {config.method}, "
+              f"warping {config.warping}, h = {config.physics.step:g} s; ROS_DOMAIN_ID="
               f"{os.environ.get('ROS_DOMAIN_ID', '0')}, DDS transport {os.environ['FASTDDS_BUILTIN_TRANSPORTS']}",
               flush=True)
-        if config["skeleton.source"] != "none":
+        if config.skeleton.source != "none":
             print(f"[demo] player: {', '.join(f'{k} {v}' for k, v in player_params.items())}; skeleton from "
-                  f"{config['skeleton.source']}", flush=True)
+                  f"{config.skeleton.source}", flush=True)
     rclpy.init()
     sims, players, spin = [], [], None
     executor = SingleThreadedExecutor()
@@ -169,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
             if ns:
                 overrides.append(Parameter("recording.prefix", value="clusterfem_" + ns.replace("/", "_")))
             sims.append(ClusterFemNode(parameter_overrides=overrides, **({"namespace": ns} if ns else {})))
-            if config["skeleton.source"] != "none":
+            if config.skeleton.source != "none":
                 player_params = dict(plans[k][0])
                 offset = args.walk_offset + (k * WALK_PHASE_S if len(names) > 1 else 0.0)
                 if offset:
@@ -254,9 +254,9 @@ def _final(sim, ns: str, args: argparse.Namespace) -> None:
         vm = scene.vertex_von_mises()
         default = Path(args.bags) / (f"final_state_{ns.replace('/', '_')}.png" if ns else "final_state.png")
         png = Path(args.png) if args.png and not ns else (Path(bag) / "final_state.png" if bag else default)
-        render_surface_png(png, verts, tris, vm[scene.surface_vertices], vmax=config["output.stress_max"] or None,
-                           title=f"{config['body.kind']} after {scene.sim_time - scene.start_time:.2f} s "
-                                 f"({config['method']}, warping {config['warping']})")
+        render_surface_png(png, verts, tris, vm[scene.surface_vertices], vmax=config.output.stress_max or None,
+                           title=f"{config.body.kind} after {scene.sim_time - scene.start_time:.2f} s "
+                                 f"({config.method}, warping {config.warping})")
     print(f"\n[demo] summary{' of ' + ns if ns else ''}")
     print(f"  body            {scene.model.mesh.n_tets} tets, {scene.model.n_vertices} vertices")
     mean_ms = scene.step_wall_s / max(scene.steps_done, 1) * 1e3

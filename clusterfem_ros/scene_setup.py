@@ -1,0 +1,199 @@
+"""The parts a scene runs, wired from the parts scene_build chose. No ROS.
+
+``set_up(parts)`` does the whole set-up: the FEM model and its integrator, the surface the outputs show, the
+anchors, the body's binding to the skeleton (bind pose, levels, skipped bones, pieces no bone reaches, the
+driver) and the joint inputs (joint map, joint stream). ``warm_up`` loads the compiled kernels before the first
+real step. scene.Scene receives the result and only runs it (scene.Scene.build calls all three in order).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .body.anchors import anchor_constraints
+from .body.binding import Binding, bind_to_skeleton, segment_distance
+from .body.constraints import LevelGains, LineConstraint, PointConstraint, point_targets
+from .body.driver import SkeletonDriver
+from .body.surface_body import SurfaceBody, unbound_islands
+from .config import SceneConfig
+from .fem.integrators import make_integrator
+from .fem.integrators.base import Integrator
+from .fem.model import Attachments, Control, FemModel, State, build_model
+from .fem.stress import compute_stress
+from .fem.tet_mesh import TetMesh, boundary_triangles
+from .numba_cache import is_cached
+from .scene_build import SceneParts, integrator_choice, material_of, say
+from .skeleton.joint_map import JointMap
+from .skeleton.joint_stream import JointStreamInterpolator
+from .skeleton.kinematics import Skeleton
+
+WARM_UP_STEPS = 40      # steps on a throw-away state: the kernels load and the integrator settles on its threads
+
+
+@dataclass
+class RunningParts:
+    """What scene.Scene runs (set_up). Without a skeleton, binding, driver, joints and stream are None."""
+    config: SceneConfig             # with the error budget's choice applied
+    model: FemModel
+    integrator: Integrator          # the method: step(state, control, h)
+    skeleton: Skeleton | None
+    urdf_xml: str | None            # the URDF the skeleton was built from (prepared: up axis, root, leaf shapes)
+    surface_body: SurfaceBody | None    # of a surface body: bind pose, depth under the skin
+    bind_all: bool                  # the outermost binding level reaches every vertex (a capsule body)
+    anchors: list                   # body.constraints PointConstraint / LineConstraint of anchors.points
+    anchored: Attachments | None    # the anchors' fixed targets when no skeleton drives the body
+    binding: Binding | None
+    driver: SkeletonDriver | None   # the skeleton's constraints on the body, the anchors' among them
+    joints: JointMap | None         # joint-state names and values -> the skeleton's q, from the bind pose
+    stream: JointStreamInterpolator | None     # the accepted joint samples, sampled at the step times
+    triangles: np.ndarray           # (t, 3) the body's boundary triangles, into its vertices
+    surface_vertices: np.ndarray    # (k,) the vertices on the boundary, sorted
+    surface_triangles: np.ndarray   # (t, 3) the boundary triangles, into surface_vertices
+    rest_volume: float              # [m^3]
+
+
+def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> RunningParts:
+    """The model, integrator, anchors, binding and joint inputs of ``parts``, wired (not warmed up: warm_up)."""
+    config, mesh, skeleton = parts.config, parts.mesh, parts.skeleton
+    say(progress, f"assembling {mesh.n_tets} tets / {mesh.n_vertices} vertices")
+    model = build_model(mesh, material_of(config), fixed=parts.fixed,
+                        gravity=(0.0, 0.0, float(config.physics.gravity)))
+    method, options = integrator_choice(config)
+    say(progress, f"setting up method '{method}'"
+                  f"{' with ' + config.warping_model + ' warping' if options.get('warp') else ''}")
+    integrator = make_integrator(method, model, **options)
+    anchors = anchor(config, model.rest, skeleton, progress)
+    anchored = binding = driver = joints = stream = None
+    if skeleton is not None:
+        q0 = skeleton.neutral() if parts.surface is None else parts.surface.bind_q
+        binding = bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress)
+        driver = skeleton_driver(config, binding, model.rest, skeleton, anchors)
+        joints, stream = joint_inputs(config, skeleton, q0)
+    elif anchors:                   # world points: their targets, once
+        index, x, v, a, kp, kd = point_targets(anchors, model.rest)
+        anchored = Attachments(index, x - model.rest[index], v, a, kp, kd)
+    triangles, surface_vertices, surface_triangles = boundary_surface(mesh)
+    return RunningParts(config=config, model=model, integrator=integrator, skeleton=skeleton,
+                        urdf_xml=parts.urdf_xml, surface_body=parts.surface, bind_all=parts.bind_all,
+                        anchors=anchors, anchored=anchored, binding=binding, driver=driver, joints=joints,
+                        stream=stream, triangles=triangles, surface_vertices=surface_vertices,
+                        surface_triangles=surface_triangles, rest_volume=float(mesh.volumes().sum()))
+
+
+def boundary_surface(mesh: TetMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(boundary triangles (t, 3) into the mesh's vertices, the boundary's vertices (k,) sorted, the same
+    triangles into those k vertices): the surface the outputs show."""
+    triangles = boundary_triangles(mesh)
+    surface_vertices = np.unique(triangles)
+    remap = np.full(mesh.n_vertices, -1, dtype=np.int64)
+    remap[surface_vertices] = np.arange(surface_vertices.size)
+    return triangles, surface_vertices, remap[triangles]
+
+
+def anchor(config: SceneConfig, rest: np.ndarray, skeleton: Skeleton | None,
+           progress: Callable[[str], None] | None = None) -> list:
+    """The constraints of the scene's anchors: point, or line where anchors.sliding says so (none unless
+    anchors.points lists some)."""
+    c = config.anchors
+    if not c.points:
+        return []
+    anchors = anchor_constraints(rest, c.points, c.radius, c.kp, c.kd, c.bones,
+                                 skeleton.bone_names if skeleton is not None else None, c.sliding)
+    slide = sum(1 for s in c.sliding if s)
+    say(progress, f"anchoring {len(anchors)} vertices at {len(c.points) // 3} points"
+                  + (f" ({slide} sliding along their bones)" if slide else ""))
+    return anchors
+
+
+def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarray, anchors: list,
+         surface: SurfaceBody | None, bind_all: bool, progress: Callable[[str], None] | None = None) -> Binding:
+    """The body's vertices bound to the bones of ``skeleton`` posed at ``q0`` (its bind pose), in the levels of
+    binding.level_radii (fractions of the flesh's depth with binding.relative_levels), without the bones of
+    binding.skip_bones. ``bind_all``: the outermost level is widened to reach every vertex. A surface body's
+    pieces that no bone and no anchor reaches are refused (refuse_islands)."""
+    b = config.binding
+    poses = skeleton.forward(q0, np.zeros(skeleton.nv))
+    starts, ends = skeleton.bone_segments(q0)
+    say(progress, f"binding {model.n_vertices} vertices to {len(skeleton.bone_names)} bones")
+    depth = surface.depth if b.relative_levels else None
+    mask = None
+    if b.skip_bones:
+        unknown = [name for name in b.skip_bones if name not in skeleton.bone_names]
+        if unknown:
+            raise ValueError(f"binding.skip_bones names {unknown}, which are not bones of this skeleton; its bones "
+                             f"are {', '.join(skeleton.bone_names)}")
+        mask = np.array([name not in b.skip_bones for name in skeleton.bone_names])
+    radii = list(b.level_radii)
+    if bind_all:
+        reach = float(segment_distance(model.rest, starts, ends).min(axis=1).max()) * (1 + 1e-9)
+        if reach > radii[-1]:
+            say(progress, f"the outermost binding level reaches {reach:.3f} m instead of {radii[-1]:g} m: every "
+                          "vertex of the capsule body is bound (no one-tet flaps left free)")
+            radii[-1] = reach
+    binding = bind_to_skeleton(model.rest, starts, ends, radii, mask,
+                               rest_rotation=poses.rotation, rest_translation=poses.translation,
+                               bone_names=skeleton.bone_names, warn=False, surface_depth=depth)
+    if surface is not None:
+        refuse_islands(model, binding, anchors)
+    return binding
+
+
+def skeleton_driver(config: SceneConfig, binding: Binding, rest: np.ndarray, skeleton: Skeleton,
+                    anchors: list) -> SkeletonDriver:
+    """What turns the skeleton's poses into the body's constraints: the binding's levels with the gains of
+    binding.kp / kd (the innermost kinematic with binding.kinematic_core, the outer binding.sliding_levels sliding
+    along their bones), and the anchors, point or line."""
+    b = config.binding
+    return SkeletonDriver(binding, rest, LevelGains(kp=tuple(b.kp), kd=tuple(b.kd)), kinematic=b.kinematic_core,
+                          bone_names=skeleton.bone_names, sliding_levels=b.sliding_levels,
+                          points=[a for a in anchors if isinstance(a, PointConstraint)],
+                          lines=[a for a in anchors if isinstance(a, LineConstraint)])
+
+
+def refuse_islands(model: FemModel, binding: Binding, anchors: list) -> None:
+    """A piece of a surface body that no bone reaches (no vertex in the innermost level: relative levels
+    bind the skin of any piece at its outer level) and no anchor holds would be dragged, not carried:
+    refuse it."""
+    driven = binding.level == 0
+    driven[[a.vertex for a in anchors]] = True
+    islands = unbound_islands(model.mesh.tets, model.n_vertices, driven)
+    if islands:
+        size, index = islands[0]
+        centre = model.rest[index].mean(axis=0)
+        raise ValueError(f"{len(islands)} piece(s) of the surface body are reached by no bone and no anchor; the "
+                         f"first has {size} vertices around ({', '.join(f'{x:.3f}' for x in centre)}) m: raise "
+                         "binding.level_radii, or hold it with anchors.points / anchors.bones")
+
+
+def joint_inputs(config: SceneConfig, skeleton: Skeleton, q0: np.ndarray) -> tuple[JointMap, JointStreamInterpolator]:
+    """(joint map starting at ``q0``, joint stream): what takes the skeleton's joint states, checked as the
+    input.* parameters say."""
+    c = config.input
+    joints = JointMap(skeleton.joint_names, q0, max_names=c.max_names)
+    stream = JointStreamInterpolator(skeleton.joint_names, revolute=skeleton.revolute_mask(),
+                                     max_age=c.max_age, max_future=c.max_future,
+                                     teleport_distance=c.teleport_distance, prismatic=~skeleton.revolute_mask(),
+                                     max_root_distance=c.max_root_distance, max_joint_speed=c.max_joint_speed)
+    return joints, stream
+
+
+def warm_up(parts: RunningParts, control: Callable[[State], Control], h: float,
+            progress: Callable[[str], None] | None = None, steps: int = WARM_UP_STEPS) -> None:
+    """Load the compiled kernels (and let the integrator settle on serial or threaded) on a throw-away state,
+    so the first real steps are not a second-long stall that drops inputs. ``control(state)``: the constraints
+    the first real steps will get (the anchored build is another compiled build than the free one); the
+    driver's history is reset after."""
+    if any(is_cached(k) is False for k in getattr(parts.integrator, "kernels", ())):
+        say(progress, "compiling the step's kernels into numba's cache (the first start of this code on this "
+                      "machine: 15-30 s on 2 cores, once; later starts load them in about a second)")
+    else:
+        say(progress, "loading compiled kernels")
+    state = State.rest(parts.model)
+    first = control(state)
+    for _ in range(steps):
+        parts.integrator.step(state, first, h)
+    if parts.driver is not None:
+        parts.driver.reset()
+    compute_stress(parts.model, state.u, corotated=parts.config.warping)
