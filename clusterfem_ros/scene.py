@@ -84,6 +84,7 @@ class Scene:
         self._corners = None            # the tets transposed (4, m), for the volume checks
         self._distance_limit = None     # (k,) how far each surface vertex may be from its bone (bone_distance)
         self.check_wall_s = 0.0         # wall seconds in state_problem's checks (the node's "checks" stage)
+        self._pose_memo = None          # ((t, stream revision), bone poses) of the last _poses
         self.inputs = InputCounters()
         self._t0: float | None = None      # time of step 0 of the current run (stamps are ~1e9 s: time is
         self._k = 0                        # kept as t0 + k h, never accumulated, so it does not drift)
@@ -184,8 +185,15 @@ class Scene:
 
     # -- physics ---------------------------------------------------------------------------------
     def _poses(self, t: float):
-        q, v = self.stream.sample(t) if self.stream.ready else (self.joints.q, np.zeros(self.skeleton.nv))
-        return self.skeleton.forward(q, v)
+        """The bone poses at time t from the joint stream (the skeleton's neutral pose before its first sample).
+        The last one is kept: a step's check and the next step's control ask for the same time. Read-only."""
+        if not self.stream.ready:
+            return self.skeleton.forward(self.joints.q, np.zeros(self.skeleton.nv))
+        key = (t, self.stream.revision)
+        if self._pose_memo is None or self._pose_memo[0] != key:
+            q, v = self.stream.sample(t)
+            self._pose_memo = (key, self.skeleton.forward(q, v))
+        return self._pose_memo[1]
 
     def _control(self, t: float, state: State) -> Control:
         """The constraints for the step from t, the skeleton's and the anchors' (``state``: the body at t; sliding

@@ -94,6 +94,7 @@ class JointStreamInterpolator:
         self._v: deque[np.ndarray | None] = deque(maxlen=capacity)
         self._rejected: list[tuple[float, np.ndarray, np.ndarray | None]] = []
         self.teleports = 0
+        self.revision = 0                             # changes whenever the samples held change (sample's input)
 
     # -- state ---------------------------------------------------------------------------------------
     @property
@@ -109,6 +110,10 @@ class JointStreamInterpolator:
         return len(self._t)
 
     # -- input ---------------------------------------------------------------------------------------
+    def _clear(self) -> None:
+        self._t.clear(), self._q.clear(), self._v.clear()
+        self.revision += 1
+
     def _store(self, stamp: float, q: np.ndarray, v: np.ndarray | None, problems: list) -> None:
         if self._t:
             prev = self._q[-1]
@@ -120,13 +125,14 @@ class JointStreamInterpolator:
                 problems.append(("teleport", f"prismatic joints jumped {jump:.3g} m in {stamp - self._t[-1]:.3g} s "
                                              f"(> teleport_distance {self.teleport_distance:g} m): not "
                                              "interpolated across; older samples dropped"))
-                self._t.clear(), self._q.clear(), self._v.clear()
+                self._clear()
             self._moved_at[q != prev] = stamp
         else:
             self._moved_at[:] = stamp
         self._t.append(stamp)
         self._q.append(q)
         self._v.append(v)
+        self.revision += 1
 
     def push(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None,
              now: float | None = None) -> list[tuple[str, str]]:
@@ -171,7 +177,7 @@ class JointStreamInterpolator:
                     return [(kind, text)]
                 kept = self._rejected
                 self._rejected = []
-                self._t.clear(), self._q.clear(), self._v.clear()
+                self._clear()
                 for s, qq, vv in kept:
                     if self._range_problem(s, qq, vv) is None or self._t:   # the first must be in range
                         self._store(s, qq, vv, problems)
@@ -188,7 +194,7 @@ class JointStreamInterpolator:
                                             f"{stamp - self._speeding_since:.3g} s (>= max_age {self.max_age:g} s): "
                                             "the stream restarts from this sample; raise the limit if this motion "
                                             "is real")]
-            self._t.clear(), self._q.clear(), self._v.clear()
+            self._clear()
         self._speeding_since = None
         self._store(stamp, q, v, problems)
         return problems
