@@ -33,6 +33,7 @@ from .scene_setup import RunningParts, set_up, warm_up
 MAX_VOLUME_ERROR = 0.5      # |V/V0 - 1| beyond this is a diverged state, not a deformation
 REST_DISTANCE_FACTOR = 1.5  # a vertex may reach this multiple of its rest distance to its bone, if above the limit
 VOLUME_CHECK_STEPS = 50     # the step loop's volume check runs at least this many steps apart (outputs: always)
+BONE_CHECK_STEPS = 5        # and its surface-to-bone check this many (outputs: always)
 
 
 @dataclass
@@ -101,6 +102,7 @@ class Scene:
         self._placed = False            # the body stands on a pose from a joint sample (or needs none)
         self._checked: tuple | None = None     # (steps_done, id(state), problem) of the last output check
         self._next_volume_check = 0
+        self._next_bone_check = 0
         self.last = StepReport()
 
     @classmethod
@@ -267,9 +269,9 @@ class Scene:
         (counted in ``dropped_s``) and the body is put back on the skeleton's pose, so a slow machine never
         yanks the body across the gap.
 
-        Raises DivergenceError when the state at the end fails ``state_problem`` (not finite, a surface vertex
-        torn from its bone, or, every ``VOLUME_CHECK_STEPS`` steps, the volume off by more than
-        ``MAX_VOLUME_ERROR``); the caller resets it.
+        Raises DivergenceError when the state at the end fails ``state_problem`` (not finite; every
+        ``BONE_CHECK_STEPS`` steps a surface vertex torn from its bone; every ``VOLUME_CHECK_STEPS`` steps the volume
+        off by more than ``MAX_VOLUME_ERROR``); the caller resets it.
         """
         if self.sim_time is None:
             self.start(t)
@@ -291,11 +293,14 @@ class Scene:
                 break
         if rep.steps:
             self.last = rep
-        if rep.steps:                     # every tick that stepped, not every step; the volume (the costly part,
-            volume = self.steps_done >= self._next_volume_check          # 2-3 ms on 5k tets under load) less often
-            if volume:
+        if rep.steps:                     # every tick that stepped (on the wall clock, every step): the finite
+            volume = self.steps_done >= self._next_volume_check          # check each time, the costlier ones
+            bones = self.steps_done >= self._next_bone_check             # less often (a state shown is always
+            if volume:                                                   # checked whole: output_problem)
                 self._next_volume_check = self.steps_done + VOLUME_CHECK_STEPS
-            problem = self.state_problem(volume=volume)
+            if bones:
+                self._next_bone_check = self.steps_done + BONE_CHECK_STEPS
+            problem = self.state_problem(volume=volume, bones=bones)
             if problem is not None:
                 if "from its bone" in problem:
                     way_out = ("the flesh could not follow its bone: look for glitches in the joint stream (a joint "
@@ -359,11 +364,11 @@ class Scene:
                                  poses.translation, b.axis_local)
         return dist, self._distance_limit
 
-    def state_problem(self, volume: bool = True) -> str | None:
+    def state_problem(self, volume: bool = True, bones: bool = True) -> str | None:
         """What makes the current state unfit to show, or None: a non-finite value, the volume off by more than
         ``MAX_VOLUME_ERROR`` (``volume=False``: not looked at), a surface vertex beyond its limit from its bone
-        (``bone_distance``). A full check is cached per state: the marker and the stress cloud ask about the
-        same state."""
+        (``bone_distance``; ``bones=False``: not looked at). A full check is cached per state: the marker and the
+        stress cloud ask about the same state."""
         key = (self.steps_done, id(self.state), self._k)
         if self._checked is not None and self._checked[0] == key:
             return self._checked[1]
@@ -375,7 +380,7 @@ class Scene:
             err = self.volume_error() if volume else 0.0
             if not abs(err) <= MAX_VOLUME_ERROR:
                 problem = f"the body's volume is off by {err * 100:+.3g} %"      # the limit: MAX_VOLUME_ERROR
-            else:
+            elif bones:
                 dist, limit = self.bone_distance()
                 over = dist - limit
                 if dist.size and over.max() > 0:
@@ -383,7 +388,7 @@ class Scene:
                     name = self.skeleton.bone_names[int(self.binding.bone[self.surface_vertices[i]])]
                     problem = (f"surface vertex {int(self.surface_vertices[i])} is {dist[i]:.3g} m from its bone "
                                f"{name!r} (limit {limit[i]:.3g} m, output.max_bone_distance)")
-        if volume or problem is not None:
+        if (volume and bones) or problem is not None:
             self._checked = (key, problem)
         self.check_wall_s += time.perf_counter() - t0
         return problem
