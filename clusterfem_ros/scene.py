@@ -20,10 +20,10 @@ from typing import Callable
 
 import numpy as np
 
+from .body.bone_distance import segment_distances
 from .config import SceneConfig
 from .fem.model import Control, State
 from .fem.stability import DivergenceError
-from .body.bone_distance import segment_distances
 from .fem.stress import compute_stress
 from .fem.tet_mesh import total_volume
 from .scene_build import scene_parts
@@ -96,8 +96,9 @@ class Scene:
         self.skeleton_wall_s = 0.0      # the part of it spent on the constraints (skeleton pose, targets)
         self.dropped_s = 0.0             # simulated time skipped because physics could not keep up
         self._replace = False
-        self.late_jumps = 0             # samples that landed behind physics and moved the skeleton: body re-placed
-        self._late_from = None          # bone ends at sim_time before the first such sample since the last step
+        self.late_jumps = 0             # samples after physics held past the newest one that moved the skeleton by
+        self._late_from = None          # more than input.max_late_jump: body re-placed; _late_from: the bone ends
+                                        # at sim_time before the first such sample since the last step
         self._stress_cache = None
         self._placed = False            # the body stands on a pose from a joint sample (or needs none)
         self._checked: tuple | None = None     # (steps_done, id(state), problem) of the last output check
@@ -129,8 +130,8 @@ class Scene:
         self.inputs.reached_stream = result.accepted      # the stream's state may change: a replay needs it
         problems = list(result.problems)
         first = result.accepted and not self.stream.ready
-        behind = result.accepted and self._holding()
-        if behind and self._late_from is None:            # the pose the last step left the body on
+        held = result.accepted and self._holding()
+        if held and self._late_from is None:            # the pose the last step left the body on
             self._late_from = self._bone_ends(self.sim_time)
         if result.accepted:
             problems += self.stream.push(stamp, result.q, result.v, now=now)
@@ -144,7 +145,7 @@ class Scene:
                 self._replace = True
         if result.accepted and not any(k in self.stream.FATAL for k, _ in problems):
             self.inputs.accepted += 1
-            if behind and not self._replace:                # late samples since that step, together
+            if held and not self._replace:                # late samples since that step, together
                 jump = np.linalg.norm(self._bone_ends(self.sim_time) - self._late_from, axis=-1).max()
                 if jump > self.config.input.max_late_jump:
                     self._replace = True
