@@ -54,17 +54,16 @@ from .assembly import shape_gradients
 from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .kernel_args import checked_rows, output_rows, pick_build
 from .model import FemModel
+from .stability import StabilityError
+from .warping_models import WARPING_MODELS, unacknowledged, vertex_refusal  # noqa: F401 (WARPING_MODELS: re-export)
 from ..numba_config import SERIAL, compiled, serial_and_parallel
 from .element_rotation import LANES, chunk_rotations
 
-WARPING_MODELS = ("element", "vertex")
-
-
-def check_warping_model(name: str) -> str:
-    """The warping model's name, checked: 'element' (default) or 'vertex' (the paper's eq. 10)."""
-    if name not in WARPING_MODELS:
-        raise ValueError(f"warping_model = {name!r}: choose 'element' (per-element corotation, conservative) or "
-                         "'vertex' (the paper's per-vertex warping, for comparison)")
+def check_warping_model(name: str, warp: bool = True, allow_unbounded_warping: bool = False) -> str:
+    """The warping model's name, checked (ValueError on an unknown one); with ``warp``, 'vertex' raises
+    StabilityError at set-up unless ``allow_unbounded_warping`` (fem/warping_models.py says why)."""
+    if unacknowledged(name, warp, allow_unbounded_warping):
+        raise StabilityError(vertex_refusal())
     return name
 
 
