@@ -253,3 +253,14 @@ def test_torn_vertex_undamped_with_element_warping_stays_finite_explicit_and_bou
     assert unplanned.outcome == "diverged", (unplanned.outcome, unplanned.energy_ratio)
     implicit = st.run("implicit direct+warp", case, steps=STEPS, damping="undamped")
     assert implicit.outcome == "bounded" and implicit.energy_ratio <= st.ENERGY_SLACK, implicit
+
+
+def test_the_summary_counts_every_run_once_in_its_family():
+    runs = [st.Result("clustered", "a", "bounded"), st.Result("standard explicit", "a", "refused"),
+            st.Result("standard explicit", "a", "bounded"), st.Result("clustered", "b", "energy grew"),
+            st.Result("clustered+warp vertex", "a", "diverged"), st.Result("implicit direct+warp vertex", "a", "bounded"),
+            st.Result("modal 30", "a", "bounded")]
+    rows = {family: counts for family, *counts in st.summary(runs)}
+    assert rows == {"linear explicit": ["4", "2", "1", "1"], "vertex-warped (comparison)": ["2", "1", "1", "0"],
+                    "modal": ["1", "1", "0", "0"]}
+    assert set(st.FAMILIES) == set(st.METHODS) and set(st.COMPARISON) == {m for m in st.METHODS if "vertex" in m}
