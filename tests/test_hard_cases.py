@@ -112,7 +112,8 @@ def _twin_teleport_energy(form: str, scale: float = 1.0, steps: int = STEPS) -> 
     model = case.model(scale, "vertex tuned")
     twin = naive.BlockTwin(model.K, model.rest)
     corot = ElementCorotation(model)
-    nsub = make_integrator("clustered", model, warp=True, warping_model="vertex", allow_unbounded_warping=True).step(State.rest(model), Control(), case.h).substeps
+    integ = make_integrator("clustered", model, warp=True, warping_model="vertex", allow_unbounded_warping=True)
+    nsub = integ.step(State.rest(model), Control(), case.h).substeps
     dt = case.h / nsub
     end = np.flatnonzero(np.isclose(model.rest[:, 0], st.LENGTH))[:1]
     held = model.fixed.copy()
@@ -258,7 +259,8 @@ def test_torn_vertex_undamped_with_element_warping_stays_finite_explicit_and_bou
 def test_the_summary_counts_every_run_once_in_its_family():
     runs = [st.Result("clustered", "a", "bounded"), st.Result("standard explicit", "a", "refused"),
             st.Result("standard explicit", "a", "bounded"), st.Result("clustered", "b", "energy grew"),
-            st.Result("clustered+warp vertex", "a", "diverged"), st.Result("implicit direct+warp vertex", "a", "bounded"),
+            st.Result("clustered+warp vertex", "a", "diverged"),
+            st.Result("implicit direct+warp vertex", "a", "bounded"),
             st.Result("modal 30", "a", "bounded")]
     rows = {family: counts for family, *counts in st.summary(runs)}
     assert rows == {"linear explicit": ["4", "2", "1", "1"], "vertex-warped (comparison)": ["2", "1", "1", "0"],

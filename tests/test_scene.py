@@ -152,7 +152,8 @@ def test_a_stalled_then_bursting_joint_stream_does_not_make_the_warped_jelly_man
     so the test shows the cause."""
     assert _stalled_walk(Scene.build(SceneConfig())) == []
     light = SceneConfig().with_values(material__stiffness_damping=1e-5)
-    assert _stalled_walk(Scene.build(light.with_values(warping_model="vertex", physics__allow_unbounded_warping=True))) != []
+    vertex = light.with_values(warping_model="vertex", physics__allow_unbounded_warping=True)
+    assert _stalled_walk(Scene.build(vertex)) != []
     assert _stalled_walk(Scene.build(light)) == []
 
 

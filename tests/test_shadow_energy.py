@@ -33,7 +33,8 @@ def test_the_scalar_shadow_energy_is_conserved_and_the_synchronised_one_is_not()
     assert di < 1e-14 and ds > 0.1 * abs(s0)
 
 
-def _errors(case_name: str, warp: bool, steps: int, scale: float = 1.0, **options) -> tuple[np.ndarray, np.ndarray, set]:
+def _errors(case_name: str, warp: bool, steps: int, scale: float = 1.0,
+            **options) -> tuple[np.ndarray, np.ndarray, set]:
     """Per step, |E - budget| / (the run's largest budget) for the shadow and the synchronised energy of the
     undamped clustered step (linear or element-warped), the budget being the initial energy plus the work of
     gravity (near zero where the sagging bar swings back to rest, so a per-step ratio would only show that),
