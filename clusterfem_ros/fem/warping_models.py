@@ -2,11 +2,11 @@
 scene configuration (config.py) checks the same names and gives the same refusal.
 
 'element' (default): per-element corotation (element_warping.py), the gradient of an energy, so symplectic
-Euler keeps a shadow energy bounded and damping only removes energy. 'vertex': the paper's per-vertex warping
-(eq. 10, symmetrised; warping.py). Its force is not the gradient of any energy, and where neighbouring
-rotations differ sharply (a vertex torn away and held, an inverting sliver) it feeds energy in: on the
-stability table (benchmarks/stability_table.py) it grew without bound in runs at the scene's default damping
-too, and nothing known at set-up predicts which runs. So it is refused unless the caller acknowledges that
+Euler keeps a shadow energy bounded (while no element is inverted: benchmarks/stability_table.py) and damping
+only removes energy. 'vertex': the paper's per-vertex warping (eq. 10, symmetrised; warping.py). Its force is
+not the gradient of any energy, and where neighbouring rotations differ sharply (a vertex torn away and held,
+an inverting sliver) it feeds energy in: on the stability table it grew without bound in runs at the scene's
+default damping too, and nothing known at set-up predicts which runs. So it is refused unless the caller acknowledges that
 (``allow_unbounded_warping=True``; scene parameter ``physics.allow_unbounded_warping``), and then it runs
 as before, with one UnboundedWarpingWarning per process.
 """
@@ -27,8 +27,8 @@ def vertex_refusal() -> str:
     return ("warping_model = 'vertex' (the paper's per-vertex warping) is refused: its force is not the gradient "
             "of an energy and grew without bound on the stability table's torn-vertex and sliver cases, at the "
             "default damping too, which no set-up check predicts. Use warping_model 'element' (the default, "
-            "per-element corotation, the gradient of an energy), or acknowledge the risk to compare against the paper: "
-            f"{ACKNOWLEDGEMENT}: true (integrators: allow_unbounded_warping=True)")
+            "per-element corotation, the gradient of an energy), or acknowledge the risk to compare against the "
+            f"paper: {ACKNOWLEDGEMENT}: true (integrators: allow_unbounded_warping=True)")
 
 
 def check_warping_model(name: str) -> str:
