@@ -279,7 +279,7 @@ def stream_by_size(scales: list[float]) -> list[list[object]]:
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg")
 
 WARPINGS = {"linear": {}, "warped, element": {"warp": True, "warping_model": "element"},
-            "warped, vertex": {"warp": True, "warping_model": "vertex"}}
+            "warped, vertex": {"warp": True, "warping_model": "vertex", "allow_unbounded_warping": True}}
 
 
 def twisted_state(model) -> State:

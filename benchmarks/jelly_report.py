@@ -80,6 +80,7 @@ def run(skeleton, traj, model, binding, gains, warp: bool | str, duration: float
     opts = {"warp": bool(warp)}
     if isinstance(warp, str):
         opts["warping_model"] = warp
+        opts["allow_unbounded_warping"] = warp == "vertex"     # the paper's model, for comparison
     integ = make_integrator("clustered", model, threads=False, **opts)    # one core, as printed
     tets = model.mesh.tets
     v0 = float(signed_volumes(model.rest, tets).sum())

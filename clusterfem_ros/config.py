@@ -19,9 +19,9 @@ import yaml
 from .errors import ClusterFemError
 from .fem.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSON_RATIO, DEFAULT_STIFFNESS_DAMPING,
                            DEFAULT_YOUNG_MODULUS)
+from .fem.warping_models import ACKNOWLEDGEMENT, WARPING_MODELS, vertex_refusal
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
 
-WARPING_MODELS = ("element", "vertex")           # fem/element_warping.WARPING_MODELS (no numba here)
 
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg", "modal")
 BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh", "surface")
@@ -64,11 +64,15 @@ PARAMS: tuple[Param, ...] = (
     Param("modal.k", 30, "number of modes for method 'modal'", 1, 2000),
     Param("warping", True, "stiffness warping: removes the linear model's volume growth under rotation"),
     Param("warping_model", "element", "'element': per-element corotation, the gradient of an energy (cannot feed "
-          "energy in); 'vertex': the paper's per-vertex warping (eq. 10), for comparison", choices=WARPING_MODELS),
+          "energy in); 'vertex': the paper's per-vertex warping (eq. 10), for comparison: not bounded, refused unless "
+          "physics.allow_unbounded_warping", choices=WARPING_MODELS),
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
     Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this before the outputs get a snapshot", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
     Param("physics.plan_stretch", True, "explicit with warping: plan the sub-steps for the body's most stretched element (fem/stretch.py; keeps an undamped torn vertex bounded) instead of the linear stiffness alone"),
+    Param(ACKNOWLEDGEMENT, False, "true: accept warping_model 'vertex' (the paper's per-vertex warping) knowing "
+          "its energy can grow without bound (torn vertices, slivers; benchmarks/stability_table.py); it runs with a "
+          "warning. false: a scene with it is refused"),
     Param("physics.max_substeps", 64, "explicit methods refuse a step needing more sub-steps than this; implicit with warping sub-steps up to it where rotations turn fast", 1, 100000),
     Param("physics.clock", "wall", "'wall': physics follows the ROS clock; 'input': it follows the newest joint-state "
           "stamp (deterministic replay of a recording)", choices=("wall", "input")),
@@ -248,6 +252,7 @@ class PhysicsSection:
     timer_hz: float
     safety: float
     plan_stretch: bool              # explicit warped steps planned for the stretch (fem/stretch.py)
+    allow_unbounded_warping: bool   # warping_model 'vertex' accepted (fem/warping_models.py)
     max_substeps: int
     clock: str                      # 'wall' or 'input'
     input_wait: float               # wall clock: the longest lag behind the clock waiting for late inputs [s]
@@ -479,6 +484,8 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
     if out["skeleton.fit_up"] == out["skeleton.fit_forward"]:
         raise ConfigError(f"skeleton.fit_up and skeleton.fit_forward are both {out['skeleton.fit_up']!r}: give two "
                           "different axes")
+    if out["warping"] and out["method"] != "modal" and out["warping_model"] == "vertex" and not out[ACKNOWLEDGEMENT]:
+        raise ConfigError(vertex_refusal())
     if out["body.kind"] == "jelly_man" and out["skeleton.source"] == "none":
         raise ConfigError("body.kind = 'jelly_man' is built around a skeleton: set skeleton.source")
     return SceneConfig(out)

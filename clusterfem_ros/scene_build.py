@@ -64,6 +64,7 @@ def integrator_choice(config: SceneConfig) -> tuple[str, dict]:
     if config.warping and method != "modal":
         options["warp"] = True
         options["warping_model"] = config.warping_model
+        options["allow_unbounded_warping"] = config.physics.allow_unbounded_warping
         if method in ("clustered", "standard_explicit"):
             options["plan_stretch"] = config.physics.plan_stretch
         if method.startswith("implicit"):

@@ -20,7 +20,7 @@ def _run(method, model, steps, h, control=None, **opt):
 
 def _warping(warp) -> dict:
     """Integrator options: False (linear) or the warping model's name."""
-    return {"warp": True, "warping_model": warp} if warp else {}
+    return {"warp": True, "warping_model": warp, "allow_unbounded_warping": True} if warp else {}
 
 
 def test_clustered_equals_standard_explicit_over_a_run():

@@ -112,7 +112,8 @@ def _twin_teleport_energy(form: str, scale: float = 1.0, steps: int = STEPS) -> 
     model = case.model(scale, "vertex tuned")
     twin = naive.BlockTwin(model.K, model.rest)
     corot = ElementCorotation(model)
-    nsub = make_integrator("clustered", model, warp=True, warping_model="vertex").step(State.rest(model), Control(), case.h).substeps
+    integ = make_integrator("clustered", model, warp=True, warping_model="vertex", allow_unbounded_warping=True)
+    nsub = integ.step(State.rest(model), Control(), case.h).substeps
     dt = case.h / nsub
     end = np.flatnonzero(np.isclose(model.rest[:, 0], st.LENGTH))[:1]
     held = model.fixed.copy()
@@ -183,7 +184,7 @@ def test_symmetric_blocks_leave_only_a_small_diagonal_skew_part_in_the_torn_stat
     ours only in each vertex's own diagonal block, and much less (docs/method.md, "Stiffness warping, and why we depart from eq. 10")."""
     case = next(c for c in st.CASES if c.name == "teleport 0.5 m")
     model = case.model(1.0)
-    integ = make_integrator("clustered", model, warp=True, warping_model="vertex")
+    integ = make_integrator("clustered", model, warp=True, warping_model="vertex", allow_unbounded_warping=True)
     state = State.rest(model)
     end = np.flatnonzero(np.isclose(model.rest[:, 0], st.LENGTH))[:1]
     for k in range(10):
@@ -235,13 +236,16 @@ def test_element_warping_keeps_a_torn_vertex_bounded_at_the_default_damping_wher
     assert vertex.outcome == "refused" and "sub-steps" in vertex.message, vertex
 
 
-def test_torn_vertex_undamped_is_bounded_with_element_warping_implicit_and_explicit():
+def test_torn_vertex_undamped_with_element_warping_stays_finite_explicit_and_bounded_implicit():
     """Undamped, the corotated force stiffens under the 10x stretch (its tangent exceeds the linear K, whose
     largest eigenvalue sets the explicit step): the explicit step plans for the stretch (fem/stretch.py) and
-    stays bounded at the default safety; planned from the linear K alone it diverges."""
+    does not diverge; planned from the linear K alone it diverges. Its shadow energy still gains ~1 % at the
+    tear and drifts while elements stay inverted (benchmarks/stability_table.py's docstring: the one accepted
+    run over the tolerance), which the table must show; implicit stays bounded."""
     case = _case("teleport 0.5 m")
     explicit = st.run("clustered+warp", case, steps=STEPS, damping="undamped")
     assert explicit.substeps >= 3 * st.run("clustered", case, steps=2, damping="undamped").substeps
+    assert explicit.outcome == "energy grew" and 1.0 + 0.5 * (st.ENERGY_SLACK - 1.0) < explicit.energy_ratio < 1.05
     st.METHODS["clustered+warp, linear plan"] = ("clustered", {"warp": True, "plan_stretch": False})
     try:
         unplanned = st.run("clustered+warp, linear plan", case, steps=2 * STEPS, damping="undamped")
@@ -249,5 +253,16 @@ def test_torn_vertex_undamped_is_bounded_with_element_warping_implicit_and_expli
         del st.METHODS["clustered+warp, linear plan"]
     assert unplanned.outcome == "diverged", (unplanned.outcome, unplanned.energy_ratio)
     implicit = st.run("implicit direct+warp", case, steps=STEPS, damping="undamped")
-    for r in (explicit, implicit):
-        assert r.outcome == "bounded" and r.energy_ratio <= st.ENERGY_SLACK, (r.method, r.outcome, r.energy_ratio)
+    assert implicit.outcome == "bounded" and implicit.energy_ratio <= st.ENERGY_SLACK, implicit
+
+
+def test_the_summary_counts_every_run_once_in_its_family():
+    runs = [st.Result("clustered", "a", "bounded"), st.Result("standard explicit", "a", "refused"),
+            st.Result("standard explicit", "a", "bounded"), st.Result("clustered", "b", "energy grew"),
+            st.Result("clustered+warp vertex", "a", "diverged"),
+            st.Result("implicit direct+warp vertex", "a", "bounded"),
+            st.Result("modal 30", "a", "bounded")]
+    rows = {family: counts for family, *counts in st.summary(runs)}
+    assert rows == {"linear explicit": ["4", "2", "1", "1"], "vertex-warped (comparison)": ["2", "1", "1", "0"],
+                    "modal": ["1", "1", "0", "0"]}
+    assert set(st.FAMILIES) == set(st.METHODS) and set(st.COMPARISON) == {m for m in st.METHODS if "vertex" in m}

@@ -32,7 +32,10 @@ A bounded shadow energy needs the step below the tangent's critical step. Under 
 corotated tangent's eigenvalues are K's, but an element stretched several times its size stiffens in its
 twist modes (2 mu + (2 lambda tr(S - I) - 4 mu) / (s_i + s_j), s the singular values: 2.1x K's largest at
 s = (10, 1, 1), nu = 0.3), so the explicit step planned from K can be too long there: undamped, the bar with
-a vertex torn 0.5 m away ran bounded at safety 0.2 and grew at 0.8 (tests/test_hard_cases.py).
+a vertex torn 0.5 m away diverged at safety 0.8 with the step planned from K (tests/test_hard_cases.py).
+Inverted elements are the model's weak point: the rotation of an inverted element is not a smooth function
+of F (the iteration follows one branch through inversion), and the undamped torn bar, whose tear inverts
+tens of elements, gains a few per cent of energy (benchmarks/stability_table.py's docstring).
 
 ``element_force`` and ``element_rotations`` are the checked public entries; ``ElementFrames`` holds the
 element data and workspace; fem/corotational.py (numpy) is the twin the tests compare against.
@@ -54,17 +57,16 @@ from .assembly import shape_gradients
 from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .kernel_args import checked_rows, output_rows, pick_build
 from .model import FemModel
+from .stability import StabilityError
+from .warping_models import WARPING_MODELS, unacknowledged, vertex_refusal  # noqa: F401 (WARPING_MODELS: re-export)
 from ..numba_config import SERIAL, compiled, serial_and_parallel
 from .element_rotation import LANES, chunk_rotations
 
-WARPING_MODELS = ("element", "vertex")
-
-
-def check_warping_model(name: str) -> str:
-    """The warping model's name, checked: 'element' (default) or 'vertex' (the paper's eq. 10)."""
-    if name not in WARPING_MODELS:
-        raise ValueError(f"warping_model = {name!r}: choose 'element' (per-element corotation, conservative) or "
-                         "'vertex' (the paper's per-vertex warping, for comparison)")
+def check_warping_model(name: str, warp: bool = True, allow_unbounded_warping: bool = False) -> str:
+    """The warping model's name, checked (ValueError on an unknown one); with ``warp``, 'vertex' raises
+    StabilityError at set-up unless ``allow_unbounded_warping`` (fem/warping_models.py says why)."""
+    if unacknowledged(name, warp, allow_unbounded_warping):
+        raise StabilityError(vertex_refusal())
     return name
 
 

@@ -5,9 +5,9 @@ matrices with D and K applied separately. The like-for-like reference for the "l
 warped kernels must match to round-off. ``warping_model="element"`` (default): each sub-step the element
 rotations R_e are extracted (the compiled polar iteration, fem/element_warping.py) and the force is
 sum_e -R_e K_e (R_e^T w_e - x0_e) in numpy (fem/corotational.py). ``"vertex"`` (eq. 10 symmetrised,
-fem/warping.py): the vertex rotations R_i and the block-sparse K warped, blocks
-(R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (assembled_warp.AssembledWarp). A warped step plans its sub-steps for the
-body's stretch (fem/stretch.py), as the clustered step does."""
+fem/warping.py; needs ``allow_unbounded_warping=True``, fem/warping_models.py): the vertex rotations R_i and
+the block-sparse K warped, blocks (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (assembled_warp.AssembledWarp). A
+warped step plans its sub-steps for the body's stretch (fem/stretch.py), as the clustered step does."""
 from __future__ import annotations
 
 import numpy as np
@@ -27,10 +27,10 @@ class StandardExplicit:
 
     def __init__(self, model: FemModel, safety: float = 0.8, max_substeps: int = 10000,
                  lam_max: float | None = None, warp: bool = False, warping_model: str = "element",
-                 plan_stretch: bool = True):
+                 plan_stretch: bool = True, allow_unbounded_warping: bool = False):
         self.model = model
         self.warp = bool(warp)
-        self.warping_model = check_warping_model(warping_model)
+        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping)
         if self.warp and warping_model == "element":
             self.name = "standard_explicit_warp"
             self.frames = ElementFrames.from_model(model)

@@ -14,7 +14,8 @@ R_e (fem/element_warping.py) are held over the step:
 with f_w the element-warped force (elastic + damping). Held rotations leave out dR/dx here too, so the
 same turn check and sub-steps as below apply, measured on the element rotations.
 
-``warping_model="vertex"`` (the paper's per-vertex warping, for comparison). Linearisation about the
+``warping_model="vertex"`` (the paper's per-vertex warping, for comparison; refused at set-up unless
+``allow_unbounded_warping=True``: fem/warping_models.py). Linearisation about the
 current state, with the vertex rotations R_i (fem/warping.py) frozen over the step:
     K_w = R K R^T,  R = blockdiag(R_i)   (blocks R_i K_ij R_j^T: symmetric positive semi-definite, so CG works),
     D_w = xi M + zeta K_w,   A = M + h D_w + h^2 K_w,
@@ -63,13 +64,13 @@ WARP_MAX_NU = 0.49
 class StandardImplicit:
     def __init__(self, model: FemModel, solver: str = "direct", cg_rtol: float = 1e-10, cg_maxiter: int = 2000,
                  warp: bool = False, max_rotation: float = 0.1, max_substeps: int = 64,
-                 warping_model: str = "element"):
+                 warping_model: str = "element", allow_unbounded_warping: bool = False):
         if solver not in ("direct", "cg"):
             raise ValueError(f"implicit solver {solver!r}: choose 'direct' or 'cg'")
         self.model = model
         self.solver = solver
         self.warp = bool(warp)
-        self.warping_model = check_warping_model(warping_model)
+        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping)
         self.element = self.warp and warping_model == "element"
         self.name = f"implicit_{solver}" + (("_warp" if self.element else "_warp_vertex") if self.warp else "")
         nu = model.material.nu

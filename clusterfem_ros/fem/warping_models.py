@@ -1,0 +1,51 @@
+"""The warping models by name, and the acknowledgement the per-vertex one needs. No numba, no scipy: the
+scene configuration (config.py) checks the same names and gives the same refusal.
+
+'element' (default): per-element corotation (element_warping.py), the gradient of an energy, so symplectic
+Euler keeps a shadow energy bounded (while no element is inverted: benchmarks/stability_table.py) and damping
+only removes energy. 'vertex': the paper's per-vertex warping (eq. 10, symmetrised; warping.py). Its force is
+not the gradient of any energy, and where neighbouring rotations differ sharply (a vertex torn away and held,
+an inverting sliver) it feeds energy in: on the stability table it grew without bound in runs at the scene's
+default damping too, and nothing known at set-up predicts which runs. So it is refused unless the caller acknowledges that
+(``allow_unbounded_warping=True``; scene parameter ``physics.allow_unbounded_warping``), and then it runs
+as before, with one UnboundedWarpingWarning per process.
+"""
+from __future__ import annotations
+
+import warnings
+
+WARPING_MODELS = ("element", "vertex")
+ACKNOWLEDGEMENT = "physics.allow_unbounded_warping"   # the scene parameter; integrators: allow_unbounded_warping
+
+
+class UnboundedWarpingWarning(UserWarning):
+    """The per-vertex warping model runs, acknowledged: its energy is not bounded by the work put in."""
+
+
+def vertex_refusal() -> str:
+    """Why ``warping_model = 'vertex'`` is refused, and the two ways out."""
+    return ("warping_model = 'vertex' (the paper's per-vertex warping) is refused: its force is not the gradient "
+            "of an energy and grew without bound on the stability table's torn-vertex and sliver cases, at the "
+            "default damping too, which no set-up check predicts. Use warping_model 'element' (the default, "
+            "per-element corotation, the gradient of an energy), or acknowledge the risk to compare against the "
+            f"paper: {ACKNOWLEDGEMENT}: true (integrators: allow_unbounded_warping=True)")
+
+
+def check_warping_model(name: str) -> str:
+    """The warping model's name, checked: 'element' (default) or 'vertex' (the paper's eq. 10)."""
+    if name not in WARPING_MODELS:
+        raise ValueError(f"warping_model = {name!r}: choose 'element' (per-element corotation, conservative) or "
+                         "'vertex' (the paper's per-vertex warping, for comparison)")
+    return name
+
+
+def unacknowledged(name: str, warp: bool, allow_unbounded: bool) -> bool:
+    """True if the set-up must be refused (``vertex_refusal`` says why); a 'vertex' model that is acknowledged
+    warns: once per process under Python's default warning filter (one call site, one message)."""
+    if not (check_warping_model(name) == "vertex" and warp):
+        return False
+    if not allow_unbounded:
+        return True
+    warnings.warn("warping_model = 'vertex' runs with allow_unbounded_warping: its energy is not bounded by the "
+                  "work put in (fem/warping_models.py)", UnboundedWarpingWarning, stacklevel=1)
+    return False

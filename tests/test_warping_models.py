@@ -1,0 +1,69 @@
+"""The per-vertex warping model is refused at set-up unless acknowledged; acknowledged, it runs and warns once."""
+import warnings
+
+import numpy as np
+import pytest
+
+from clusterfem_ros import config
+from clusterfem_ros.fem.integrators import make_integrator
+from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.model import Control, State, build_model
+from clusterfem_ros.fem.stability import StabilityError
+from clusterfem_ros.fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.warping_models import ACKNOWLEDGEMENT, UnboundedWarpingWarning
+from clusterfem_ros.scene_build import integrator_choice
+
+METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg")
+
+
+@pytest.fixture(scope="module")
+def model():
+    mesh = box_mesh((0.2, 0.05, 0.05), (4, 1, 1))
+    return build_model(mesh, Material(E=1e5), fixed=np.isclose(mesh.vertices[:, 0], 0.0))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_vertex_warping_is_refused_at_set_up_with_the_reason_and_the_ways_out(model, method):
+    with pytest.raises(StabilityError) as err:
+        make_integrator(method, model, warp=True, warping_model="vertex")
+    text = str(err.value)
+    assert "warping_model = 'vertex'" in text and "not the gradient of an energy" in text
+    assert "'element'" in text and ACKNOWLEDGEMENT in text and "allow_unbounded_warping=True" in text
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_acknowledged_vertex_warping_runs_and_warns(model, method):
+    with pytest.warns(UnboundedWarpingWarning, match="not bounded"):
+        integ = make_integrator(method, model, warp=True, warping_model="vertex", allow_unbounded_warping=True)
+    assert integ.warping_model == "vertex" and "vertex" in integ.name
+    state = State.rest(model)
+    for _ in range(5):
+        integ.step(state, Control(), 1e-3)
+    assert np.isfinite(state.u).all() and state.u[:, 2].min() < 0.0       # it sags under gravity
+
+
+def test_the_warning_is_given_once_per_process_under_the_default_filter(model):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        for method in METHODS:
+            make_integrator(method, model, warp=True, warping_model="vertex", allow_unbounded_warping=True)
+    assert [w.category for w in caught] == [UnboundedWarpingWarning]
+
+
+def test_no_refusal_without_warping_or_with_the_element_model(model):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        make_integrator("clustered", model, warp=False, warping_model="vertex")     # nothing is warped
+        make_integrator("clustered", model, warp=True, warping_model="element")
+
+
+def test_the_scene_config_refuses_vertex_warping_unless_acknowledged():
+    with pytest.raises(config.ConfigError, match=f"warping_model = 'vertex'.*{ACKNOWLEDGEMENT}: true"):
+        config.from_mapping({"warping_model": "vertex"})
+    ok = config.from_mapping({"warping_model": "vertex", ACKNOWLEDGEMENT: True})
+    assert ok.physics.allow_unbounded_warping is True
+    assert integrator_choice(ok)[1]["allow_unbounded_warping"] is True
+    for other in ({"warping": False}, {"method": "modal"}):        # no per-vertex force is ever made
+        assert config.from_mapping({"warping_model": "vertex", **other})["warping_model"] == "vertex"
+    assert config.SceneConfig().physics.allow_unbounded_warping is False
+    assert integrator_choice(config.SceneConfig())[1]["allow_unbounded_warping"] is False
