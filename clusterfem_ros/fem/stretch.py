@@ -16,8 +16,8 @@ One pass over the elements (36 multiply-adds each).
 
 ``StretchPlan`` turns g into the factor the step is planned with. Symplectic Euler conserves a shadow
 energy only while its step stays the same, and each change of step moves it: on the torn bar (undamped, 3 s,
-benchmarks/stability_table.py), a factor that follows g at every step ended at 5.4x the work put in, one
-that falls back after 1 s or 2 s without need at 2.2x and 1.6x, one that never falls at 1.08x. So the factor
+benchmarks/stability_table.py), a factor that follows g at every step ended at several times the work put in,
+and the fewer times the factor fell, the less energy the run gained. So the factor
 is rounded up to a quarter octave, rises at once, and falls only after ``hold`` simulated seconds (5 s)
 without need: a body stretched by a glitch steps finer for those seconds, then returns to its usual step.
 """
