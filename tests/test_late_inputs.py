@@ -2,7 +2,6 @@
 player short of CPU sends or receives them late and in bursts): the skeleton would jump at once to where the
 new samples put it; past ``input.max_late_jump`` the body is re-placed on the new pose instead of having its
 flesh yanked (a yank tore the default scene's shins)."""
-import numpy as np
 import pytest
 
 from clusterfem_ros.config import SceneConfig
