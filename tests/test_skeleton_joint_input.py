@@ -52,6 +52,28 @@ def stream(**kw):
     return JointStreamInterpolator(NAMES, revolute=REV, **kw)
 
 
+def test_joint_map_follows_each_message_s_own_names_order_and_subset():
+    """Messages change their names' order and subset from one to the next: each merges by its own names (the
+    map keeps the last message's index arrays only while the names stay the same)."""
+    rng = np.random.default_rng(5)
+    jm = JointMap(NAMES)
+    want = np.zeros(len(NAMES))
+    for _ in range(40):
+        order = list(rng.permutation(len(NAMES))[:rng.integers(1, len(NAMES) + 1)])
+        names = [NAMES[i] for i in order] + (["stranger"] if rng.random() < 0.3 else [])
+        pos = rng.standard_normal(len(names))
+        vel = rng.standard_normal(len(names))
+        res = jm.update(names, pos, vel)
+        for k, i in enumerate(order):
+            want[i] = pos[k]
+        np.testing.assert_array_equal(res.q, want)
+        assert res.accepted and res.updated.sum() == len(order)
+        if len(order) == len(NAMES):                     # every joint named: the velocities, in skeleton order
+            np.testing.assert_array_equal(res.v[order], vel[:len(order)])
+        else:
+            assert res.v is None
+
+
 def test_interpolator_unwraps_angles_through_pi():
     s = stream()
     a0, a1 = np.deg2rad(179.0), np.deg2rad(-179.0)

@@ -57,6 +57,7 @@ class JointMap:
             raise ValueError(f"max_names = {max_names} must be >= 1")
         self.max_names = int(max_names)
         self.unknown: set[str] = set()
+        self._last_names: tuple | None = None     # (names, at, to) of the last message (_known)
 
     def update(self, names: Sequence[str], positions, velocities=None) -> JointMapResult:
         """Merge one message; see the module docstring for what is kept, repaired or rejected."""
@@ -84,8 +85,8 @@ class JointMap:
             more = f" and {len(new_unknown) - _SHOWN} more" if len(new_unknown) > _SHOWN else ""
             problems.append(("unknown_joint", f"joints {new_unknown[:_SHOWN]}{more} are not in the skeleton ({n} "
                                               "joints): ignored (reported once per name)"))
-        known = [(k, self._index[x]) for k, x in enumerate(names) if x in self._index]
-        if not known:
+        at, to = self._known(names)
+        if not at.size:
             out = reject("no_known_joint", f"joint state names none of the skeleton's joints (got {names[:_SHOWN]}): "
                          "check the publisher's joint names against the URDF (message dropped)")
             out.problems = problems + out.problems
@@ -104,22 +105,30 @@ class JointMap:
             vel = None
         updated = np.zeros(n, dtype=bool)
         q = self.q.copy()
-        for k, i in known:
-            if np.isfinite(pos[k]):
-                q[i] = pos[k]
-                updated[i] = True
-            else:
-                problems.append(("non_finite", f"joint {names[k]!r} position is {pos[k]} at index {k}: kept its "
-                                               "last value; drop the sample or send a finite value"))
+        finite = np.isfinite(pos[at])
+        q[to[finite]] = pos[at[finite]]
+        updated[to[finite]] = True
+        for k in at[~finite]:
+            problems.append(("non_finite", f"joint {names[k]!r} position is {pos[k]} at index {k}: kept its "
+                                           "last value; drop the sample or send a finite value"))
         if not updated.any():
             return JointMapResult(False, self.q.copy(), None, updated, problems, new_unknown)
         v = None
         if vel is not None and updated.all():
             v = np.zeros(n)
-            for k, i in known:
-                v[i] = vel[k]
+            v[to] = vel[at]
         self.q = q
         return JointMapResult(True, q.copy(), v, updated, problems, new_unknown)
+
+    def _known(self, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        """(positions in the message, indices in the skeleton) of the skeleton's joints a message names. A
+        publisher sends the same names in the same order every time: the last answer is kept for them."""
+        if self._last_names is None or self._last_names[0] != names:
+            pairs = [(k, self._index[x]) for k, x in enumerate(names) if x in self._index]
+            at = np.array([k for k, _ in pairs], dtype=np.int64)
+            to = np.array([i for _, i in pairs], dtype=np.int64)
+            self._last_names = (list(names), at, to)
+        return self._last_names[1], self._last_names[2]
 
     def _rejected(self, kind: str, text: str) -> JointMapResult:
         n = len(self.joint_names)
