@@ -72,7 +72,8 @@ def test_two_bodies_in_one_executor_follow_their_own_walks_and_never_mix():
             lat = sim.physics.latency.percentiles()
             assert sim.physics.latency.count > 0 and 0 < lat["latency_p50_ms"] <= lat["latency_max_ms"]
             totals = sim.physics.stages.totals
-            assert all(totals[k] > 0 for k in ("inputs", "skeleton", "physics", "snapshot", "stress", "markers"))
+            assert all(totals[k] > 0 for k in ("inputs", "skeleton", "physics", "checks", "snapshot", "stress",
+                                                "markers"))
         assert ends["bob"] - ends["alice"] > 2.0                        # 3 m on, at 1.5x: ahead all the time
         assert {"/alice/clusterfem/surface", "/bob/clusterfem/surface", "/alice/joint_states",
                 "/bob/joint_states"} <= topics
