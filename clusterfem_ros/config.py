@@ -88,7 +88,8 @@ PARAMS: tuple[Param, ...] = (
           "the URDF has no prismatic joint", choices=ROOT_JOINTS),
     Param("skeleton.bind_pose", "neutral", "pose a surface body was modelled in: the URDF's zero pose, or frame 0 of "
           "skeleton.bind_bvh (the capture the player plays)", choices=("neutral", "first_frame")),
-    Param("skeleton.bind_bvh", "", "BVH file whose frame 0 is the bind pose when skeleton.bind_pose is 'first_frame'"),
+    Param("skeleton.bind_bvh", "", "BVH file whose frame 0 is the bind pose when skeleton.bind_pose is 'first_frame': "
+          "a path, or a name under $CLUSTERFEM_DATA or ../shared/data"),
     Param("skeleton.bind_joints", [], "joints set to skeleton.bind_angles on top of skeleton.bind_pose (e.g. the arms "
           "of an A-pose mesh on a T-pose skeleton)", item=str),
     Param("skeleton.bind_angles", [], "per joint of skeleton.bind_joints, its bind angle [rad] (or position [m])"),

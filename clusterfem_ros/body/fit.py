@@ -79,7 +79,8 @@ def bind_configuration(skeleton, pose: str = "neutral", joints: Sequence[str] = 
                            "plays (its frame 0 is the pose the mesh was modelled in)")
         from ..skeleton.bvh import load_bvh
         from ..skeleton.bvh_to_urdf import bvh_trajectory
-        traj = bvh_trajectory(load_bvh(bvh_file), skip_tpose=False, despike=False)
+        traj = bvh_trajectory(load_bvh(find_data_file(str(bvh_file), what="skeleton.bind_bvh")), skip_tpose=False,
+                              despike=False)
         missing = [n for n in skeleton.joint_names if n not in traj.names]
         if missing:
             raise FitError(f"skeleton.bind_bvh {str(bvh_file)!r} is a capture of another skeleton: it has no joint "

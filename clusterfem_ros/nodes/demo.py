@@ -9,7 +9,7 @@
 The mocap player runs as its own process, the simulation in this one on a single-threaded executor
 (rclpy's multi-threaded one is slower here; shared-memory DDS only). The player plays the built-in walk,
 or what the scene file's ``mocap_player: ros__parameters:`` section says (source, file, ...: see
-nodes/player_node.py; relative paths are relative to the current directory), or the ``--bvh`` file. A
+nodes/player_node.py; its file a path or a name under $CLUSTERFEM_DATA or ../shared/data), or the ``--bvh`` file. A
 BVH brings its own skeleton: the node takes it from robot_description (``--bvh`` sets that). A scene
 without skeleton (skeleton.source = none) has nothing to play: it runs at once, without a player.
 Progress is printed every second; at the end: a summary, the bag folder, a PNG of the deformed
@@ -69,6 +69,7 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
 def _player_plan(args, scene_file: Path, config):
     """(player parameters, scene config) for the run: --bvh, else the scene file's player section, else the
     built-in walk; a BVH's skeleton comes on robot_description, so the scene is made to take it from there."""
+    from ..body.fit import FitError, find_data_file
     from ..motion import load_player_section, on_capture_skeleton, skeleton_source_for
     if args.bvh:
         bvh = Path(args.bvh)
@@ -83,6 +84,11 @@ def _player_plan(args, scene_file: Path, config):
     if fits == "robot_description" and config.skeleton.source in ("builtin", "urdf_file"):
         raise SystemExit(f"[demo] the player plays {source!r} but the scene's skeleton.source is "
                          f"{config.skeleton.source!r}: set skeleton.source to {fits!r} (or run with --bvh FILE)")
+    if not args.bvh and player.get("file"):     # a path, or a name under $CLUSTERFEM_DATA or ../shared/data
+        try:
+            player["file"] = str(find_data_file(str(player["file"]), what="the player's file"))
+        except FitError as exc:
+            raise SystemExit(f"[demo] {scene_file}: {exc}") from None
     return player, config
 
 
