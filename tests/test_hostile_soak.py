@@ -73,6 +73,8 @@ def test_a_joint_state_flood_onto_a_full_disk(small_disk, tmp_path):
         time.sleep(1.0)                                               # the last messages in flight
         rss1 = rss_mb()
         world.executor.shutdown(timeout_sec=5.0)
+        assert sim.physics.stop()                                     # nothing is pushed while we count
+        waiting, dropped = len(sim.physics._queue), sim.physics.queue_full
         inputs = sim.scene.inputs
         fatal = sum(n for k, n in inputs.rejected.items() if k in fatal_kinds())
         total_sent = sent["good"] + sent["too_many_names"] + sent["malformed"]
@@ -80,9 +82,11 @@ def test_a_joint_state_flood_onto_a_full_disk(small_disk, tmp_path):
         print(f"\nflood: {total_sent} messages in {sent['seconds']:.1f} s ({rate:.0f} Hz); node received "
               f"{sim.received} ({100 * (1 - sim.received / total_sent):.1f} % lost in DDS); accepted "
               f"{inputs.accepted}; rejected {inputs.rejected}; RSS {rss0:.0f} -> {rss1:.0f} MB (max "
-              f"{max(samples):.0f}); recording: {sim.recording_error or 'on'}")
+              f"{max(samples):.0f}); physics queue: {dropped} dropped full, {waiting} waiting at the end; "
+              f"recording: {sim.recording_error or 'on'}")
         assert rate >= 5000.0
-        assert sim.received == inputs.accepted + fatal + sim.before_scene     # every message accounted for once
+        # every message accounted for once: used, refused, before the scene, or dropped or left in the physics queue
+        assert sim.received == inputs.accepted + fatal + sim.before_scene + dropped + waiting
         assert sim.received <= total_sent and sim.scene.inputs.rejected.get("too_many_names", 0) <= \
             sent["too_many_names"] and sim.scene.inputs.rejected.get("malformed", 0) <= sent["malformed"]
         assert inputs.rejected.get("too_many_names", 0) > 0 and inputs.rejected.get("malformed", 0) > 0
