@@ -58,6 +58,33 @@ def test_a_scene_files_player_section_drives_the_player(tmp_path, walk):
     assert "file walk.bvh" in out and "rate_hz 60" in out and "source bvh" in out and _used(out) > 10, out
 
 
+def test_a_player_file_named_by_the_scene_is_found_under_the_data_folders(tmp_path, monkeypatch):
+    """A scene file names its capture as the character scene does (mocap/<clip>.bvh): found under
+    $CLUSTERFEM_DATA from any directory; a missing one stops the run naming the file and the folders."""
+    from pathlib import Path
+
+    from clusterfem_ros.config import load_scene_file
+    from clusterfem_ros.nodes.demo import _arguments, _player_plan
+    data = tmp_path / "data"
+    (data / "mocap").mkdir(parents=True)
+    (data / "mocap" / "clip.bvh").write_text("HIERARCHY\n")            # found here, read by the player
+    scene = _small_scene(tmp_path / "s.yaml", **{"skeleton.source": "robot_description"})
+    doc = yaml.safe_load(scene.read_text())
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    monkeypatch.setenv("CLUSTERFEM_DATA", str(data))
+    for name in ("mocap/clip.bvh", "mocap/missing.bvh"):
+        doc["mocap_player"] = {"ros__parameters": {"source": "bvh", "file": name}}
+        scene.write_text(yaml.safe_dump(doc))
+        plan = lambda: _player_plan(_arguments(["--scene", str(scene)]), scene, load_scene_file(scene))  # noqa: E731
+        if name == "mocap/clip.bvh":
+            assert Path(plan()[0]["file"]) == data / "mocap" / "clip.bvh"
+        else:
+            with pytest.raises(SystemExit, match=f"'mocap/missing.bvh' is neither a path nor found under {data}"):
+                plan()
+
+
 def test_player_sections_are_checked_and_a_bvh_on_the_built_in_skeleton_is_refused(tmp_path):
     f = tmp_path / "s.yaml"
     f.write_text("clusterfem: {ros__parameters: {}}\n")
