@@ -2,6 +2,7 @@
 
     load_motion("builtin_walk")                     # default humanoid walking, loops without a jump
     load_motion("bvh", "walk.bvh")                  # a capture's own skeleton and its joint angles
+                                                    # (files: a path, or a name under $CLUSTERFEM_DATA / ../shared/data)
     load_motion("keyframes", "wave.yaml")           # timed targets for the default humanoid's joints
 """
 from __future__ import annotations
@@ -42,7 +43,8 @@ def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: 
     if not str(file):
         raise ValueError(f"motion source {source!r} needs a file: set the 'file' parameter to a "
                          f"{'.bvh' if source == 'bvh' else '.yaml/.csv'} path")
-    path = Path(file)
+    from .body.fit import find_data_file
+    path = find_data_file(str(file), what=f"motion source {source!r}: file")
     if source == "bvh":
         from .skeleton.bvh import load_bvh
         from .skeleton.bvh_to_urdf import bvh_trajectory, bvh_urdf

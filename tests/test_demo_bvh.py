@@ -85,6 +85,23 @@ def test_a_player_file_named_by_the_scene_is_found_under_the_data_folders(tmp_pa
                 plan()
 
 
+def test_the_player_loads_a_capture_named_under_the_data_folders(tmp_path, monkeypatch, walk):
+    """The player node itself (mocap_player --params-file config/character_walk.yaml) finds mocap/<clip>.bvh
+    under $CLUSTERFEM_DATA from any directory, and names a missing one with the folders searched."""
+    from clusterfem_ros.motion import load_motion
+    data = tmp_path / "data"
+    (data / "mocap").mkdir(parents=True)
+    shutil.copy(walk, data / "mocap" / "w.bvh")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    monkeypatch.setenv("CLUSTERFEM_DATA", str(data))
+    motion = load_motion("bvh", "mocap/w.bvh")
+    assert "w.bvh" in motion.description and motion.trajectory.n_joints > 0 and not motion.builtin_skeleton
+    with pytest.raises(ValueError, match=f"'mocap/none.bvh' is neither a path nor found under {data}"):
+        load_motion("bvh", "mocap/none.bvh")
+
+
 def test_player_sections_are_checked_and_a_bvh_on_the_built_in_skeleton_is_refused(tmp_path):
     f = tmp_path / "s.yaml"
     f.write_text("clusterfem: {ros__parameters: {}}\n")
