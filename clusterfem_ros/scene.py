@@ -270,9 +270,9 @@ class Scene:
         (counted in ``dropped_s``) and the body is put back on the skeleton's pose, so a slow machine never
         yanks the body across the gap.
 
-        Raises DivergenceError when the state at the end fails ``state_problem`` (not finite; every
-        ``BONE_CHECK_STEPS`` steps a surface vertex torn from its bone; every ``VOLUME_CHECK_STEPS`` steps the volume
-        off by more than ``MAX_VOLUME_ERROR``); the caller resets it.
+        Raises DivergenceError when a step's state is not finite (the integrator's check) or the state at the end
+        fails ``state_problem`` (every ``BONE_CHECK_STEPS`` steps a surface vertex torn from its bone; every
+        ``VOLUME_CHECK_STEPS`` steps the volume off by more than ``MAX_VOLUME_ERROR``); the caller resets it.
         """
         if self.sim_time is None:
             self.start(t)
@@ -294,10 +294,13 @@ class Scene:
                 break
         if rep.steps:
             self.last = rep
-        if rep.steps:                     # every tick that stepped (on the wall clock, every step): the finite
-            volume = self.steps_done >= self._next_volume_check          # check each time, the costlier ones
-            bones = self.steps_done >= self._next_bone_check             # less often (a state shown is always
-            if volume:                                                   # checked whole: output_problem)
+        # The volume and bone checks run every so many steps (a state shown is always checked whole:
+        # output_problem). Finiteness needs no check here: every integrator's step raises DivergenceError on a
+        # non-finite state (StepCommon.finish).
+        volume = rep.steps and self.steps_done >= self._next_volume_check
+        bones = rep.steps and self.steps_done >= self._next_bone_check
+        if volume or bones:
+            if volume:
                 self._next_volume_check = self.steps_done + VOLUME_CHECK_STEPS
             if bones:
                 self._next_bone_check = self.steps_done + BONE_CHECK_STEPS

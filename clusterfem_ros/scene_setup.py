@@ -192,6 +192,8 @@ def warm_up(parts: RunningParts, control: Callable[[State], Control], h: float,
         say(progress, "loading compiled kernels")
     state = State.rest(parts.model)
     first = control(state)
+    for _ in range(2):              # a driver's third control on is its streaming path, another compiled kernel
+        control(state)
     for _ in range(steps):
         parts.integrator.step(state, first, h)
     if parts.driver is not None:

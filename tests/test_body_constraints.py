@@ -126,6 +126,32 @@ def test_nan_bone_pose_is_refused_naming_the_bone():
         drv.control(SK.forward(*Motion().qv(0.0)), 0)
 
 
+@pytest.mark.parametrize("kinematic", [False, True])
+def test_the_streaming_path_gives_the_general_paths_bits(kinematic):
+    """From the third step on, a backward-difference driver of bound points makes its targets in one compiled
+    pass (SkeletonDriver._streaming_targets); it must give the numpy path's numbers exactly, on uneven steps."""
+    m = Motion(T=lambda t: np.array([0.2 * t, np.sin(t), 0]), dT=lambda t: np.array([0.2, np.cos(t), 0]),
+               phi=lambda t: 0.8 * t, dphi=lambda t: 0.8, axis=(0.6, 0.0, 0.8),
+               theta=lambda t: np.array([np.sin(3 * t), 0.4 * t]), dtheta=lambda t: np.array([3 * np.cos(3 * t), 0.4]))
+    fast = SkeletonDriver(BINDING, MESH.vertices, kinematic=kinematic)
+    slow = SkeletonDriver(BINDING, MESH.vertices, kinematic=kinematic)
+    slow._streaming = False
+    assert fast._streaming
+    t = 0.3
+    for dt in (1e-3, 7e-4, 1.3e-3, 1e-3, 2e-3):
+        P = SK.forward(*m.qv(t))
+        a, b = fast.control(P, dt), slow.control(P, dt)
+        for name in ("index", "target_u", "target_v", "target_a", "kp", "kd"):
+            assert np.array_equal(getattr(a.attachments, name), getattr(b.attachments, name)), name
+        for name in ("prescribed_index", "prescribed_u", "prescribed_v"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        t += dt
+    P = SK.forward(*m.qv(t))
+    P.rotation[2, 1, 1] = np.nan                # past the third step: the streaming path still names the bone
+    with pytest.raises(ValueError, match=r"rotation of bone 2 \(index 2\) is not finite"):
+        fast.control(P, 1e-3)
+
+
 def test_central_difference_needs_the_next_poses():
     drv = SkeletonDriver(BINDING, MESH.vertices, difference="central")
     with pytest.raises(ValueError, match="next_poses"):

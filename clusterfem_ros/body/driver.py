@@ -11,22 +11,35 @@ keeps the previous twists to differentiate Phi = (omega, v):
   1/(2h): that would double the feed-forward acceleration, so we read it as a typo and use 2h (the test
   ``test_body_constraints`` checks the O(h^2) error against the exact centripetal acceleration).
 
+A streaming driver (backward differences, bound points only: the node's) makes each step's targets from the
+third on in one compiled pass (``_bone_targets``), with the numpy path's operations in its order, so the same
+bits (tests/test_body_constraints.py).
+
 Gains per level come from ``LevelGains``; ``kinematic=True`` prescribes the innermost level exactly
 (``Control.prescribed_*``) and drives the outer levels with attachments. The driver only produces
 forces and targets, so it works unchanged with or without stiffness warping.
 """
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
+import numba
 import numpy as np
 
 from ..fem.model import Attachments, Control, State
 from .binding import Binding
 from .constraints import (LevelGains, _rigid_motion, LineConstraint, PointConstraint, PoseLike, check_poses, line_set,
                           line_set_targets, point_targets, rigid_point_motion)
+from ..numba_config import SERIAL
 
 DIFFERENCES = ("backward", "central")
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a = np.array(a)
+    a.flags.writeable = False
+    return a
 
 
 def _derivative_backward(f: list[np.ndarray], gaps: list[float]) -> np.ndarray:
@@ -38,6 +51,32 @@ def _derivative_backward(f: list[np.ndarray], gaps: list[float]) -> np.ndarray:
     h1, h2 = gaps[-2], gaps[-1]
     return (f[-3] * h2 / (h1 * (h1 + h2)) - f[-2] * (h1 + h2) / (h1 * h2)
             + f[-1] * (h1 + 2.0 * h2) / (h2 * (h1 + h2)))
+
+
+@numba.njit(**SERIAL)
+def _bone_targets(R, p, twist, f0, f1, h1, h2, bone, local, rest, dtwist, x, u, v, a):
+    """One compiled pass for the streaming step's targets: Phi' by ``_derivative_backward``'s 3-point formula
+    from the history (f0, f1) and the new twist, then the bound points' rigid motion (``_rigid_motion``), then
+    u = x - rest. The same float operations in the same order as those numpy calls, so the same bits. Returns
+    False (having filled nothing) if a pose or twist value is not finite: check_poses then names the bone."""
+    for b in range(R.shape[0]):
+        for i in range(3):
+            if not (np.isfinite(p[b, i]) and np.isfinite(R[b, i, 0]) and np.isfinite(R[b, i, 1])
+                    and np.isfinite(R[b, i, 2])):
+                return False
+        for i in range(6):
+            if not np.isfinite(twist[b, i]):
+                return False
+    c0, c1, c2 = h1 * (h1 + h2), h1 * h2, h2 * (h1 + h2)
+    s1, s2 = h1 + h2, h1 + 2.0 * h2
+    for b in range(R.shape[0]):
+        for i in range(6):
+            dtwist[b, i] = (f0[b, i] * h2 / c0 - f1[b, i] * s1 / c1) + twist[b, i] * s2 / c2
+    _rigid_motion(R, p, twist, dtwist, bone, local, x, v, a)
+    for k in range(x.shape[0]):
+        for i in range(3):
+            u[k, i] = x[k, i] - rest[k, i]
+    return True
 
 
 def _derivative_central(fm: np.ndarray, f0: np.ndarray, fp: np.ndarray, hb: float, hf: float) -> np.ndarray:
@@ -117,6 +156,14 @@ class SkeletonDriver:
             np.concatenate([[c.within_bone for c in self.lines], np.ones(slide.size, bool)]))
         self._sliding = slice(len(self.lines), None)            # the sliding levels' rows of _line_set
         self._slide_axis = np.zeros((slide.size, 3))            # world axes of the sliding vertices' bones
+        # The streaming step (_streaming_targets): backward differences, bound points only. Its attachments'
+        # index and gains are the same read-only arrays every step, so an integrator may keep what it derives
+        # from them (ClusteredExplicit's sub-step plan).
+        self._streaming = difference == "backward" and not self.points and self._line_set is None
+        k0 = self._n_inner if self.kinematic else 0
+        self._att_const = tuple(_read_only(c[k0:]) for c in (self.bound, self._kp, self._kd))
+        self._x = np.empty((self.bound.size, 3))
+        self._dtwist = np.empty((binding.n_bones, 6))
 
     def reset(self) -> None:
         """Forget the twist history (after a jump in the trajectory); the next steps use lower-order differences."""
@@ -151,8 +198,11 @@ class SkeletonDriver:
         ``state`` (the body's state at t) is needed only by line constraints. Raises ValueError on
         non-finite poses, naming the bone.
         """
-        if not (np.isfinite(dt) and dt > 0):
+        if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt = {dt!r} s must be a positive finite step")
+        if (self._streaming and next_poses is None and len(self._twists) >= 2 and self._last_dt is not None
+                and self._streaming_targets(poses, float(dt))):
+            return self._control_of(self.target_u, self.target_v, self.target_a, f_ext)
         R, p, twist = self._poses(poses, "bone poses")
         next_twist = None
         if next_poses is not None:
@@ -188,6 +238,42 @@ class SkeletonDriver:
         if self.kinematic:
             control.prescribed_index = self.bound[:k0]
             control.prescribed_u = self.target_u[:k0]
+            control.prescribed_v = v[:k0]
+        return control
+
+    def _streaming_targets(self, poses: PoseLike, dt: float) -> bool:
+        """The targets of a streaming step (backward differences with two twists of history, bound points only)
+        in one compiled pass, ``_bone_targets``: the numbers of the general path in ``control``, without its
+        dozen numpy calls. False (nothing changed) for poses that are not float64 arrays of the binding's shapes
+        or not finite: ``control`` then takes the general path, which converts them or names the bad bone."""
+        nb = self.binding.n_bones
+        try:
+            R, p, twist = poses.rotation, poses.translation, poses.twist
+            if not (R.shape == (nb, 3, 3) and p.shape == (nb, 3) and twist.shape == (nb, 6)
+                    and R.dtype == p.dtype == twist.dtype == np.float64
+                    and R.flags.c_contiguous and p.flags.c_contiguous and twist.flags.c_contiguous):
+                return False
+        except AttributeError:
+            return False
+        n = self.bound.size
+        u, v, a = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+        if not _bone_targets(R, p, twist, self._twists[-2], self._twists[-1], self._gaps[-1], self._last_dt,
+                             self._bone_b, self._local_b, self._rest_b, self._dtwist, self._x, u, v, a):
+            return False
+        self._twists = [self._twists[-2], self._twists[-1], twist.copy()]     # the history twist_rate keeps
+        self._gaps = [self._gaps[-1], self._last_dt]
+        self._last_dt = dt
+        self.target_u, self.target_v, self.target_a = u, v, a
+        return True
+
+    def _control_of(self, u: np.ndarray, v: np.ndarray, a: np.ndarray, f_ext: np.ndarray | None) -> Control:
+        """The Control of a streaming step's targets (bound points; level 0 prescribed if kinematic)."""
+        k0 = self._n_inner if self.kinematic else 0
+        index, kp, kd = self._att_const
+        control = Control(f_ext=f_ext, attachments=Attachments(index, u[k0:], v[k0:], a[k0:], kp, kd))
+        if self.kinematic:
+            control.prescribed_index = self.bound[:k0]
+            control.prescribed_u = u[:k0]
             control.prescribed_v = v[:k0]
         return control
 

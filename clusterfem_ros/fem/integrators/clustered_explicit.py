@@ -289,6 +289,7 @@ class ClusteredExplicit:
         self._zeta, self._xi = float(m.zeta), float(m.xi)
         self.stretch = StretchPlan(model) if self.warp and plan_stretch else None
         self._plan_key = None
+        self._gains_seen = None
         self._plan = None
         self._info = None
 
@@ -308,12 +309,23 @@ class ClusteredExplicit:
         """The sub-step plan and its StepInfo, recomputed only when h, the attachments' largest gains or the
         stretch factor change."""
         att = control.attachments
-        key = (h, stiffer, float(att.kp.max()), float(att.kd.max())) if att.index.size else (h, stiffer)
+        key = (h, stiffer, *self._gain_maxima(att)) if att.index.size else (h, stiffer)
         if key != self._plan_key:
             self._plan = plan_substeps(h, self.critical_step(control, stiffer), self.safety, self.max_substeps)
             self._info = StepInfo(self._plan.substeps, self._plan.margin)
             self._plan_key = key
         return self._plan
+
+    def _gain_maxima(self, att) -> tuple[float, float]:
+        """(max kp, max kd) of the attachments, kept while the same read-only gain arrays come back (a skeleton
+        driver hands its constant gains over every step: SkeletonDriver._att_const)."""
+        seen = self._gains_seen
+        if seen is not None and att.kp is seen[0] and att.kd is seen[1]:
+            return seen[2]
+        maxima = (float(att.kp.max()), float(att.kd.max()))
+        if not (att.kp.flags.writeable or att.kd.flags.writeable):
+            self._gains_seen = (att.kp, att.kd, maxima)
+        return maxima
 
     def _step_args(self, state: State, control: Control, plan, inv_mass3: np.ndarray) -> tuple:
         """The compiled step's arguments up to the attachments (its attachment-free build takes just these)."""
