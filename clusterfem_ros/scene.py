@@ -115,6 +115,8 @@ class Scene:
         parts = set_up(scene_parts(config, urdf_xml, progress), progress)
         scene = cls(parts)
         warm_up(parts, lambda state: scene._control(0.0, state), scene.h, progress)
+        scene.state_problem()           # and the checks' kernels: compiled in the step loop, a first start stalled 1.3 s
+        scene._checked, scene.check_wall_s = None, 0.0
         return scene
 
     # -- inputs ----------------------------------------------------------------------------------

@@ -74,3 +74,46 @@ def test_the_surface_the_outputs_show_is_the_boundary_renumbered():
     tris, verts, local = running.triangles, running.surface_vertices, running.surface_triangles
     np.testing.assert_array_equal(verts[local], tris)
     assert np.array_equal(verts, np.unique(tris)) and local.max() == verts.size - 1
+
+
+_LOOP_LOADS_NOTHING = r"""
+import sys
+import numba
+import numpy as np
+import clusterfem_ros
+from clusterfem_ros.config import SceneConfig
+from clusterfem_ros.scene import Scene
+from clusterfem_ros.skeleton.procedural_walk import procedural_walk
+
+def dispatchers():
+    found = {}
+    for name, module in list(sys.modules.items()):
+        if name.startswith("clusterfem_ros"):
+            for attr, obj in vars(module).items():
+                if isinstance(obj, numba.core.registry.CPUDispatcher):
+                    found[f"{name}.{attr}"] = obj
+    return found
+
+scene = Scene.build(SceneConfig().with_values(body__target_tets=700, warping=True))
+before = {k: len(d.signatures) for k, d in dispatchers().items()}
+walk = procedural_walk(0.3, names=scene.skeleton.joint_names)
+for t, q in zip(walk.times, walk.positions):
+    scene.take_joint_state(50.0 + t, walk.names, q, None, received=50.0 + t)
+    scene.advance_to(50.0 + t + 1e-3 * 8)
+    assert scene.output_problem() is None
+after = {k: len(d.signatures) for k, d in dispatchers().items()}
+new = sorted(k for k in after if after[k] > before.get(k, 0))
+print("LOADED IN THE LOOP:", new)
+"""
+
+
+def test_a_built_scene_has_loaded_every_kernel_its_step_loop_calls():
+    """Scene.build loads (on a machine's first start: compiles) every compiled function the physics thread's loop
+    calls: the step's, the driver's, the kinematics' and the output checks'. One it misses is compiled in the
+    loop, and the node's first run stalls a second and drops its inputs. A fresh process, so nothing is loaded
+    before the build."""
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, "-c", _LOOP_LOADS_NOTHING], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "LOADED IN THE LOOP: []" in out.stdout, out.stdout[-2000:]

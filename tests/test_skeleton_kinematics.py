@@ -96,6 +96,8 @@ def test_errors_name_the_problem(tmp_path):
     sk = Skeleton.from_urdf_string(TWO_LINK)
     with pytest.raises(ValueError, match=r"joint 'b' position is nan at index 1"):
         sk.forward(np.array([0.0, np.nan]))
+    with pytest.raises(ValueError, match=r"joint 'a' velocity is inf at index 0"):
+        sk.forward(np.zeros(2), np.array([np.inf, 0.0]))
     with pytest.raises(ValueError, match=r"shape \(3,\), expected \(2,\)"):
         sk.forward(np.zeros(3))
     p = tmp_path / "two.urdf"

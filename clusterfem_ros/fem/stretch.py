@@ -12,7 +12,7 @@ undamped, at safety 0.8; benchmarks/stability_table.py).
 tr(S) = sum sigma_i <= sqrt(3) |F|_F, so g = max(0, sqrt(3) max_e |F_e|_F - 3) >= max_e tr(S_e) - 3, and the
 step is planned for lambda_max (1 + g): zero for a body at rest or in rigid motion, about 1.4 on the walking
 jelly man (stability margin 2.4 -> 1.5 on `scripts/run`'s summary line), where it still takes one sub-step.
-One pass over the elements (36 multiply-adds each).
+One pass over the vertices (x = X + u), one over the elements (36 multiply-adds each).
 
 ``StretchPlan`` turns g into the factor the step is planned with. Symplectic Euler conserves a shadow
 energy only while its step stays the same, and each change of step moves it: on the torn bar (undamped, 3 s,
@@ -35,14 +35,20 @@ SQRT3 = math.sqrt(3.0)
 
 
 @numba.njit(**SERIAL)
-def max_gradient_norm(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.ndarray) -> float:
-    """max over elements of |F_e|_F, F_e = sum_c (rest_c + u_c) outer g_{e,c}."""
+def max_gradient_norm(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.ndarray,
+                      x: np.ndarray) -> float:
+    """max over elements of |F_e|_F, F_e = sum_c x_c outer g_{e,c}, x = rest + u (written to ``x`` (n, 3) first:
+    each vertex once, not once per element corner, and one array to gather from instead of two)."""
+    for i in range(rest.shape[0]):
+        x[i, 0] = rest[i, 0] + u[i, 0]
+        x[i, 1] = rest[i, 1] + u[i, 1]
+        x[i, 2] = rest[i, 2] + u[i, 2]
     worst = 0.0
     for e in range(tets.shape[0]):
         f00 = f01 = f02 = f10 = f11 = f12 = f20 = f21 = f22 = 0.0
         for c in range(4):
             v = tets[e, c]
-            x0, x1, x2 = rest[v, 0] + u[v, 0], rest[v, 1] + u[v, 1], rest[v, 2] + u[v, 2]
+            x0, x1, x2 = x[v, 0], x[v, 1], x[v, 2]
             g0, g1, g2 = gradients[e, c, 0], gradients[e, c, 1], gradients[e, c, 2]
             f00 += x0 * g0
             f01 += x0 * g1
@@ -60,22 +66,26 @@ def max_gradient_norm(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray,
     return math.sqrt(worst)
 
 
-def stiffening(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.ndarray) -> float:
-    """g >= max_e tr(S_e) - 3 (>= 0): plan the explicit step for lambda_max (1 + g) (module docstring)."""
+def stiffening(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.ndarray,
+               x: np.ndarray | None = None) -> float:
+    """g >= max_e tr(S_e) - 3 (>= 0): plan the explicit step for lambda_max (1 + g) (module docstring). ``x``: an
+    (n, 3) workspace (allocated if not given)."""
     if tets.shape[0] == 0:
         return 0.0
-    return max(0.0, SQRT3 * max_gradient_norm(tets, gradients, rest, u) - 3.0)
+    x = np.empty_like(rest) if x is None else x
+    return max(0.0, SQRT3 * max_gradient_norm(tets, gradients, rest, u, x) - 3.0)
 
 
 class StretchPlan:
     """The stretch factor a warped explicit body plans its sub-steps with (module docstring). The bound is
     taken at most every ``every`` simulated seconds (5 ms: every fifth step of the node's 1 ms, every step of
-    a 10 ms one; 0.05 ms per bound on the 4815-tet jelly man)."""
+    a 10 ms one: a bound costs about a quarter of the jelly man's step)."""
 
     def __init__(self, model, hold: float = 5.0, every: float = 0.005):
         self.tets = np.ascontiguousarray(model.mesh.tets, dtype=np.int64)
         self.gradients = np.ascontiguousarray(shape_gradients(model.rest, self.tets)[0])
         self.rest = np.ascontiguousarray(model.rest, dtype=np.float64)
+        self._x = np.empty_like(self.rest)
         self.hold, self.every = float(hold), float(every)
         self.current = 1.0
         self._since = 0.0              # simulated seconds since ``current`` was last needed
@@ -88,7 +98,7 @@ class StretchPlan:
             self._since += h
             return self.current
         self._due += max(self.every, h)
-        g = stiffening(self.tets, self.gradients, self.rest, u)
+        g = stiffening(self.tets, self.gradients, self.rest, u, self._x)
         need = 2.0 ** (math.ceil(4.0 * math.log2(1.0 + g)) / 4.0) if g > 0.0 else 1.0
         if need >= self.current:
             self.current, self._since = need, 0.0

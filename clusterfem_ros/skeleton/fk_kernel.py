@@ -30,7 +30,14 @@ def _axis_rotation(a0, a1, a2, angle, out):
 @numba.njit(**SERIAL)
 def tree_forward(parent, place_R, place_p, axis, prismatic, q, qd, frame_joint, frame_R, frame_p,
                  oR, op, w, vo, R_out, p_out, tw_out):
-    """Fill R_out (nb, 3, 3), p_out (nb, 3), tw_out (nb, 6); oR, op, w, vo are (nj, ...) scratch."""
+    """Fill R_out (nb, 3, 3), p_out (nb, 3), tw_out (nb, 6); oR, op, w, vo are (nj, ...) scratch. Returns False,
+    filling nothing, if a value of q or qd is not finite."""
+    for k in range(q.shape[0]):
+        if not np.isfinite(q[k]):
+            return False
+    for k in range(qd.shape[0]):
+        if not np.isfinite(qd[k]):
+            return False
     rot = np.empty((3, 3))
     base = np.empty((3, 3))
     for i in range(parent.shape[0]):
@@ -101,3 +108,4 @@ def tree_forward(parent, place_R, place_p, axis, prismatic, q, qd, frame_joint, 
         else:
             for r in range(6):
                 tw_out[b, r] = 0.0
+    return True

@@ -235,12 +235,12 @@ class Skeleton:
         return list(self._kinds)
 
     def _check(self, q: np.ndarray, v: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """Validated contiguous float64 copies-or-views of q and v (v defaults to zeros)."""
+        """Contiguous float64 copies-or-views of q and v (v defaults to zeros), shapes checked (the kernel checks
+        that they are finite)."""
         q = np.ascontiguousarray(q, dtype=np.float64)
         v = np.zeros(self.nv) if v is None else np.ascontiguousarray(v, dtype=np.float64)
-        if q.shape == (self.nq,) and v.shape == (self.nv,) and np.isfinite(q).all() and np.isfinite(v).all():
-            return q, v
-        self._to_pin(q, v)          # raises the specific error
+        if q.shape != (self.nq,) or v.shape != (self.nv,):
+            self._to_pin(q, v)          # raises the specific error
         return q, v
 
     def _to_pin(self, q: np.ndarray, v: np.ndarray | None) -> None:
@@ -273,8 +273,9 @@ class Skeleton:
         qs, vs = self._check(q, v)
         nb = self.n_bones
         R, p, tw = np.empty((nb, 3, 3)), np.empty((nb, 3)), np.empty((nb, 6))
-        tree_forward(self._k_parent, self._k_R, self._k_p, self._k_axis, self._k_prismatic, qs, vs,
-                     self._k_fjoint, self._k_fR, self._k_fp, *self._scratch, R, p, tw)
+        if not tree_forward(self._k_parent, self._k_R, self._k_p, self._k_axis, self._k_prismatic, qs, vs,
+                            self._k_fjoint, self._k_fR, self._k_fp, *self._scratch, R, p, tw):
+            self._to_pin(qs, vs)        # a value is not finite: raises naming the joint
         return BonePoses(R, p, tw)
 
     def forward_pinocchio(self, q: np.ndarray, v: np.ndarray | None = None) -> BonePoses:
