@@ -299,8 +299,8 @@ class Scene:
         # The volume and bone checks run every so many steps (a state shown is always checked whole:
         # output_problem). Finiteness needs no check here: every integrator's step raises DivergenceError on a
         # non-finite state (StepCommon.finish).
-        volume = rep.steps and self.steps_done >= self._next_volume_check
-        bones = rep.steps and self.steps_done >= self._next_bone_check
+        volume = rep.steps > 0 and self.steps_done >= self._next_volume_check
+        bones = rep.steps > 0 and self.steps_done >= self._next_bone_check
         if volume or bones:
             if volume:
                 self._next_volume_check = self.steps_done + VOLUME_CHECK_STEPS
