@@ -71,7 +71,9 @@ def everything_on(duration: float, tmp: Path) -> dict:
             ["RSS growth after warm-up %", f"{rss['rss_growth_pct']:+.1f}", f"<= {TARGETS['rss_growth_pct']:g}"],
             ["resets / physics failures / dropped s", f"{r['resets']} / {r['physics_failures']} / {r['dropped_s']:.3f}",
              ""],
-            ["late joint states that re-placed the body", r["late_jumps"], ""]]
+            ["late joint states that re-placed the body", r["late_jumps"], ""],
+            ["joint states waiting for physics: most seen / dropped (queue full)",
+             f"{r['inputs_waiting_max']} / {r['inputs_dropped_queue_full']}", ""]]
     rows += [[f"busy share: {k}", f"{v:.3f}", ""] for k, v in r["shares"].items()]
     print(table(["measure", "value", "target"], rows))
     every = max(1, len(rss["rss_samples"]) // 12)

@@ -228,6 +228,11 @@ class SimLoop:
     def running(self) -> bool:
         return self._thread.is_alive()
 
+    @property
+    def waiting(self) -> int:
+        """Joint-state samples queued for the physics thread and not yet taken (at most INPUT_QUEUE)."""
+        return len(self._queue)
+
     # -- inputs ----------------------------------------------------------------------------------
     def take_input(self, push: Callable[[], None]) -> None:
         """Hand one joint-state sample over: ``push()`` gives it to the scene (Scene.take_joint_state), on the

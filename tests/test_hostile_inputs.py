@@ -4,6 +4,7 @@ test_hostile_node.py."""
 from __future__ import annotations
 
 import errno
+import os
 import shutil
 import threading
 
@@ -51,9 +52,9 @@ def joint_cdr(k: int, n: int = 4) -> bytes:
     return joint_state_cdr(NAMES[:n], np.full(n, 0.001 * k), stamp=1_000_000_000 + k * 1_000_000)
 
 
-def killed_bag(folder, messages: int):
+def killed_bag(folder, messages: int, compression: str = "none"):
     """A bag folder as a SIGKILL leaves it: ``messages`` flushed, no summary, no footer."""
-    w = Rosbag2McapWriter(folder.with_name(folder.name + "_live"), compression="none")
+    w = Rosbag2McapWriter(folder.with_name(folder.name + "_live"), compression=compression)
     w.add_topic(TOPIC, "sensor_msgs/msg/JointState")
     for k in range(messages):
         w.write(TOPIC, 1_000_000_000 + k, joint_cdr(k))
@@ -240,6 +241,32 @@ def test_recovery_on_a_full_disk_says_where_it_needs_space_or_uses_a_work_dir(tm
     assert main([str(folder), "--work-dir", str(tmp_path / "spare")]) == 0
     assert "500 messages kept" in capsys.readouterr().out and rosbags_count(folder) == {TOPIC: 500}
     assert list((tmp_path / "spare").iterdir()) == []
+
+
+def test_a_recovered_copy_too_large_for_the_full_disk_leaves_the_bag_as_it_was(tmp_path, monkeypatch):
+    """The bag filled its disk and the work dir is on another one: the complete copy, larger than the killed file
+    by its summary, does not fit back. The original is not deleted first and the copy stays a readable bag."""
+    (tmp_path / "disk").mkdir()
+    (tmp_path / "spare").mkdir()
+    folder = tmp_path / "disk" / "bag"
+    path = killed_bag(folder, 500, compression="zstd")
+    before = path.read_bytes()
+    real_usage, real_replace = shutil.disk_usage, os.replace
+
+    def usage(where):                                               # the bag's disk is full, the spare one is not
+        u = real_usage(where)
+        return u._replace(free=0) if str(where).startswith(str(tmp_path / "disk")) else u
+
+    def replace(src, dst):                                          # the spare folder is another file system
+        if str(src).startswith(str(tmp_path / "spare")) and str(dst).startswith(str(tmp_path / "disk")):
+            raise OSError(errno.EXDEV, "Invalid cross-device link")
+        return real_replace(src, dst)
+    monkeypatch.setattr(shutil, "disk_usage", usage)
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(RecoveryError, match=r"does not fit in place of .*bag_0\.mcap.* the bag is unchanged"):
+        recover_bag(folder, work_dir=tmp_path / "spare")
+    assert path.read_bytes() == before
+    assert rosbags_count(tmp_path / "spare" / "bag.recovering") == {TOPIC: 500}
 
 
 def test_recovery_that_runs_out_of_space_leaves_no_recovering_folder(tmp_path, monkeypatch):

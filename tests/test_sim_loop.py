@@ -9,7 +9,7 @@ import pytest
 from clusterfem_ros.config import SceneConfig
 from clusterfem_ros.motion import load_motion
 from clusterfem_ros.scene import Scene
-from clusterfem_ros.sim_loop import MAX_CRASHES_IN_A_ROW, LatencyMeter, SimLoop, StageClock
+from clusterfem_ros.sim_loop import INPUT_QUEUE, MAX_CRASHES_IN_A_ROW, LatencyMeter, SimLoop, StageClock
 
 SMALL_MAN = dict(body__target_tets=700, warping=True)
 INPUT_CLOCK = dict(SMALL_MAN, physics__clock="input")
@@ -229,6 +229,25 @@ def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_wait
     assert (1, 1) in handed                                       # the first step that saw the input, at once
     assert handed[-1] == (1, 5) and log == []
     assert loop.latency.percentiles()["latency_state_p50_ms"] > 0
+
+
+def test_the_input_queue_is_bounded_and_counts_what_it_drops():
+    """A physics thread that cannot keep up (here: not started) holds at most INPUT_QUEUE samples; the callback
+    never waits: the samples beyond are dropped, counted and reported, and the queued ones are still taken."""
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    loop, log = _loop(scene)
+    taken = []
+    for k in range(INPUT_QUEUE + 3):
+        loop.take_input(lambda k=k: taken.append(k))
+    assert (loop.waiting, loop.queue_full) == (INPUT_QUEUE, 3)
+    warnings = [text for level, text in log if level == "warning"]
+    assert len(warnings) == 3 and f"{INPUT_QUEUE} samples wait for physics (3 dropped so far)" in warnings[-1]
+    loop.start()
+    try:
+        _wait_for(lambda: loop.waiting == 0, what="the queue to drain")
+    finally:
+        assert loop.stop()
+    assert taken == list(range(INPUT_QUEUE))              # in order, none lost but the ones counted
 
 
 def test_the_physics_thread_imports_no_ros():

@@ -56,6 +56,11 @@ class RunWindow:
 
     def __init__(self, sim):
         self.sim = sim
+        self.waiting_max = 0             # joint states queued for the physics thread, the most seen by sample()
+
+    def sample(self) -> None:
+        """Look at what may grow during the run (called every second): the physics thread's input queue."""
+        self.waiting_max = max(self.waiting_max, self.sim.physics.waiting)
 
     def start(self) -> None:
         s, loop = self.sim.scene, self.sim.physics
@@ -84,7 +89,8 @@ class RunWindow:
                 "process_cpu": (time.process_time() - self.cpu0) / elapsed,
                 "inputs_used": s.inputs.accepted - self.inputs0, "inputs_rejected": s.inputs.total_rejected,
                 "resets": self.sim.divergences, "physics_failures": loop.crashes,
-                "dropped_s": s.dropped_s, "late_jumps": s.late_jumps}
+                "dropped_s": s.dropped_s, "late_jumps": s.late_jumps,
+                "inputs_waiting_max": self.waiting_max, "inputs_dropped_queue_full": loop.queue_full}
 
 
 def rss_growth(samples: list[tuple[float, float]], warm_up_s: float) -> dict:

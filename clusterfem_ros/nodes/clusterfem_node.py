@@ -353,7 +353,7 @@ class ClusterFemNode(Node):
             values.update(self._window)
             values.update({"physics_failures": loop.crashes, "physics_stopped": loop.stopped,
                            "physics_error": loop.error or "",
-                           "inputs_dropped_queue_full": loop.queue_full})
+                           "inputs_waiting": loop.waiting, "inputs_dropped_queue_full": loop.queue_full})
         values["joint_states_received"] = self.received
         values["joint_states_before_scene"] = self.before_scene
         rec = self.recorder

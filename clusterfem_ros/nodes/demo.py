@@ -200,6 +200,8 @@ def main(argv: list[str] | None = None) -> int:
         while time.perf_counter() - t0 < args.duration:
             time.sleep(1.0)
             rss.append((time.perf_counter() - t0, rss_mb()))
+            for w in windows:
+                w.sample()
             for k, sim in enumerate(sims):
                 last[k] = _progress(sim, names[k], time.perf_counter() - t0, *last[k], rss[-1][1])
         executor.shutdown(timeout_sec=5.0)

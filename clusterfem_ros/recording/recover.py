@@ -8,7 +8,9 @@ only once the new one is complete), at the cost of one copy of the bag.
 
 On a full disk that copy does not fit: the free space is checked first, and the error names the
 folder and the space needed; ``work_dir`` (``--work-dir``) writes the copy on another disk, then the
-original is replaced by it (the copy stays in ``work_dir`` if that last move fails). A failed recovery
+original is replaced by it, if the copy fits in its place: the summary the copy adds can make it larger
+than a bag that filled its disk, and then the original stays as it was and the complete copy stays in
+``work_dir`` (as it does if that last copy fails). A recovery that fails before the copy is complete
 leaves no ``*.recovering`` folder behind.
 
     python -m clusterfem_ros.recording.recover bags/clusterfem_20261122_120000 [--work-dir /tmp]
@@ -33,6 +35,7 @@ from .rosbag2_mcap import Rosbag2McapWriter
 
 _MAGIC = b"\x89MCAP0\r\n"
 _SPARE_BYTES = 1 << 20          # summary, footer, metadata.yaml and file-system slack on top of the copy
+_COPY_SLACK_BYTES = 64 << 10    # file-system blocks and metadata.yaml when the copy goes back onto a full disk
 
 
 class RecoveryError(ClusterFemError, RuntimeError):
@@ -114,7 +117,16 @@ def recover_bag(folder: Union[str, Path], work_dir: Union[str, Path, None] = Non
     except OSError as exc:
         if exc.errno != errno.EXDEV:
             raise
-        path.unlink()                     # another disk: make room, then copy (the copy in tmp stays until done)
+        # another disk: the copy replaces the original only if it fits in the original's place (the summary it
+        # adds can make it larger than a bag that filled its disk); else both stay as they are
+        size, room = new_path.stat().st_size, path.stat().st_size + shutil.disk_usage(path.parent).free
+        if size + _COPY_SLACK_BYTES > room:
+            raise RecoveryError(f"the recovered bag {new_path} ({size / 1e6:.2f} MB) does not fit in place of {path} "
+                                f"(room for {room / 1e6:.2f} MB with it removed): free "
+                                f"{(size + _COPY_SLACK_BYTES - room) / 1e6:.2f} MB on that disk and copy it over {path} "
+                                f"with {tmp / 'metadata.yaml'}, or use the complete bag folder {tmp} as it is; the bag "
+                                "is unchanged")
+        path.unlink()                     # make room, then copy (the copy in tmp stays until done)
         try:
             shutil.copyfile(new_path, path)
         except OSError as copy_exc:
