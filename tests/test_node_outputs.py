@@ -60,6 +60,20 @@ def test_marker_stress_and_diagnostics_arrive_and_are_finite(world):
     assert values["steps"] > 0
 
 
+def test_the_colour_table_is_made_before_the_first_marker_and_on_a_colour_map_change(world, monkeypatch):
+    """Made on the first marker, the table's matplotlib import held the executor 0.2 s: joint states then came
+    late, in a burst, and re-placed the body at the start of every run. The node makes it when it sets up its
+    outputs, before any timer fires, and again when output.colormap changes."""
+    from msg_adapters import colormap
+    made = []
+    real = colormap.colormap_lut
+    monkeypatch.setattr(colormap, "colormap_lut", lambda name: made.append(name) or real(name))
+    node = _node(world)
+    assert made == ["turbo"]                                # before the world spun once
+    assert node.set_parameters([Parameter("output.colormap", value="viridis")])[0].successful
+    assert made[-1] == "viridis"
+
+
 def test_nothing_is_computed_without_a_consumer(world, monkeypatch):
     from clusterfem_ros import sim_loop
     calls = []

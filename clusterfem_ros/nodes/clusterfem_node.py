@@ -28,6 +28,7 @@ from sensor_msgs.msg import JointState, PointCloud2
 from std_msgs.msg import String
 from visualization_msgs.msg import Marker
 
+from msg_adapters import colormap
 from msg_adapters.colormap import map_scalars
 from msg_adapters.diagnostics import diagnostic_array
 from msg_adapters.joint_state import joint_state_cdr_extent, joint_state_fields, joint_state_name_count
@@ -131,6 +132,10 @@ class ClusterFemNode(Node):
             self.destroy_timer(t)
         self._output_timers = {}
         out = self.config.output
+        if out.marker_rate_hz > 0:
+            # the colour table now: made on the first marker, its matplotlib import held the executor 0.2 s and
+            # the joint states came late, in a burst (the body re-placed at the start of every run)
+            colormap.colormap_lut(out.colormap)
         for rate, fn in ((out.marker_rate_hz, self._publish_surface), (out.stress_rate_hz, self._publish_stress),
                          (out.diagnostics_rate_hz, self._publish_diagnostics)):
             if rate > 0:
@@ -138,7 +143,7 @@ class ClusterFemNode(Node):
 
     def _on_live_change(self, changes: dict) -> None:
         self.config = self.config.with_values(changes)
-        if any(k.endswith("rate_hz") for k in changes):
+        if any(k.endswith("rate_hz") or k == "output.colormap" for k in changes):
             self._make_output_timers()
 
     def stop_physics(self) -> None:
