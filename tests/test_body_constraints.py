@@ -138,13 +138,17 @@ def test_the_streaming_path_gives_the_general_paths_bits(kinematic):
     slow._streaming = False
     assert fast._streaming
     t = 0.3
-    for dt in (1e-3, 7e-4, 1.3e-3, 1e-3, 2e-3):
+    for k, dt in enumerate((1e-3, 7e-4, 1.3e-3, 1e-3, 2e-3)):
         P = SK.forward(*m.qv(t))
         a, b = fast.control(P, dt), slow.control(P, dt)
         for name in ("index", "target_u", "target_v", "target_a", "kp", "kd"):
             assert np.array_equal(getattr(a.attachments, name), getattr(b.attachments, name)), name
         for name in ("prescribed_index", "prescribed_u", "prescribed_v"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        att = a.attachments
+        if k >= 2:                                          # the streaming path: its gains' maxima come along
+            assert att.gain_max == (att.kp.max(), att.kd.max())
+        assert att.kp.flags.writeable and att.index.flags.writeable     # the same numba types on both paths
         t += dt
     P = SK.forward(*m.qv(t))
     P.rotation[2, 1, 1] = np.nan                # past the third step: the streaming path still names the bone

@@ -85,13 +85,14 @@ from clusterfem_ros.config import SceneConfig
 from clusterfem_ros.scene import Scene
 from clusterfem_ros.skeleton.procedural_walk import procedural_walk
 
-def dispatchers():
+def dispatchers():  # every compiled function of the package, also those a module keeps in tuples (a step's builds)
     found = {}
     for name, module in list(sys.modules.items()):
         if name.startswith("clusterfem_ros"):
             for attr, obj in vars(module).items():
-                if isinstance(obj, numba.core.registry.CPUDispatcher):
-                    found[f"{name}.{attr}"] = obj
+                for k, o in enumerate(obj if isinstance(obj, tuple) else (obj,)):
+                    if isinstance(o, numba.core.registry.CPUDispatcher):
+                        found[f"{name}.{attr}[{k}]"] = o
     return found
 
 scene = Scene.build(SceneConfig().with_values(body__target_tets=700, warping=True))

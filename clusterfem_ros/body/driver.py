@@ -36,12 +36,6 @@ from ..numba_config import SERIAL
 DIFFERENCES = ("backward", "central")
 
 
-def _read_only(a: np.ndarray) -> np.ndarray:
-    a = np.array(a)
-    a.flags.writeable = False
-    return a
-
-
 def _derivative_backward(f: list[np.ndarray], gaps: list[float]) -> np.ndarray:
     """d/dt at the last of the samples f (oldest first), spaced by gaps; order len(f) - 1 (at most 2)."""
     if len(f) == 1:
@@ -157,11 +151,14 @@ class SkeletonDriver:
         self._sliding = slice(len(self.lines), None)            # the sliding levels' rows of _line_set
         self._slide_axis = np.zeros((slide.size, 3))            # world axes of the sliding vertices' bones
         # The streaming step (_streaming_targets): backward differences, bound points only. Its attachments'
-        # index and gains are the same read-only arrays every step, so an integrator may keep what it derives
-        # from them (ClusteredExplicit's sub-step plan).
+        # index and gains are the same arrays every step, with their maxima (Attachments.gain_max: the integrator
+        # plans its sub-steps from them). Writable like the general path's: a read-only array is another type to
+        # numba, and the step would be compiled again for it.
         self._streaming = difference == "backward" and not self.points and self._line_set is None
         k0 = self._n_inner if self.kinematic else 0
-        self._att_const = tuple(_read_only(c[k0:]) for c in (self.bound, self._kp, self._kd))
+        self._att_const = tuple(np.ascontiguousarray(c[k0:]) for c in (self.bound, self._kp, self._kd))
+        kp, kd = self._att_const[1:]
+        self._gain_max = (float(kp.max()), float(kd.max())) if kp.size else None
         self._x = np.empty((self.bound.size, 3))
         self._dtwist = np.empty((binding.n_bones, 6))
 
@@ -270,7 +267,7 @@ class SkeletonDriver:
         """The Control of a streaming step's targets (bound points; level 0 prescribed if kinematic)."""
         k0 = self._n_inner if self.kinematic else 0
         index, kp, kd = self._att_const
-        control = Control(f_ext=f_ext, attachments=Attachments(index, u[k0:], v[k0:], a[k0:], kp, kd))
+        control = Control(f_ext=f_ext, attachments=Attachments(index, u[k0:], v[k0:], a[k0:], kp, kd, self._gain_max))
         if self.kinematic:
             control.prescribed_index = self.bound[:k0]
             control.prescribed_u = u[:k0]

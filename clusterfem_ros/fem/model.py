@@ -109,6 +109,8 @@ class Attachments:
     target_a: np.ndarray                # (k, 3)
     kp: np.ndarray                      # (k,)
     kd: np.ndarray                      # (k,)
+    gain_max: tuple[float, float] | None = None    # (max kp, max kd) when the maker knows them (a skeleton
+                                                   # driver's constant gains): not scanned again every step
 
     @classmethod
     def none(cls) -> "Attachments":
@@ -118,7 +120,7 @@ class Attachments:
     def at(self, tau: float) -> "Attachments":
         """The targets tau into the step: u* + tau v* + tau^2 a* / 2, v* + tau a*."""
         return Attachments(self.index, self.target_u + tau * self.target_v + 0.5 * tau * tau * self.target_a,
-                           self.target_v + tau * self.target_a, self.target_a, self.kp, self.kd)
+                           self.target_v + tau * self.target_a, self.target_a, self.kp, self.kd, self.gain_max)
 
 
 @dataclass

@@ -289,7 +289,6 @@ class ClusteredExplicit:
         self._zeta, self._xi = float(m.zeta), float(m.xi)
         self.stretch = StretchPlan(model) if self.warp and plan_stretch else None
         self._plan_key = None
-        self._gains_seen = None
         self._plan = None
         self._info = None
 
@@ -316,16 +315,12 @@ class ClusteredExplicit:
             self._plan_key = key
         return self._plan
 
-    def _gain_maxima(self, att) -> tuple[float, float]:
-        """(max kp, max kd) of the attachments, kept while the same read-only gain arrays come back (a skeleton
-        driver hands its constant gains over every step: SkeletonDriver._att_const)."""
-        seen = self._gains_seen
-        if seen is not None and att.kp is seen[0] and att.kd is seen[1]:
-            return seen[2]
-        maxima = (float(att.kp.max()), float(att.kd.max()))
-        if not (att.kp.flags.writeable or att.kd.flags.writeable):
-            self._gains_seen = (att.kp, att.kd, maxima)
-        return maxima
+    @staticmethod
+    def _gain_maxima(att) -> tuple[float, float]:
+        """(max kp, max kd) of the attachments: given with them by a skeleton driver (constant gains), else scanned."""
+        if att.gain_max is not None:
+            return att.gain_max
+        return float(att.kp.max()), float(att.kd.max())
 
     def _step_args(self, state: State, control: Control, plan, inv_mass3: np.ndarray) -> tuple:
         """The compiled step's arguments up to the attachments (its attachment-free build takes just these)."""
