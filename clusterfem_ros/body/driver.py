@@ -199,7 +199,7 @@ class SkeletonDriver:
             raise ValueError(f"dt = {dt!r} s must be a positive finite step")
         if (self._streaming and next_poses is None and len(self._twists) >= 2 and self._last_dt is not None
                 and self._streaming_targets(poses, float(dt))):
-            return self._control_of(self.target_u, self.target_v, self.target_a, f_ext)
+            return self._control_of(self._bound_attachments(), f_ext)
         R, p, twist = self._poses(poses, "bone poses")
         next_twist = None
         if next_poses is not None:
@@ -227,16 +227,9 @@ class SkeletonDriver:
             self._slide_axis = np.einsum("kij,kj->ki", R[self._line_set.bone[sliding]], self._line_set.axis[sliding])
         for j in range(1, len(parts)):                      # point and line targets are world positions
             parts[j] = (parts[j][0], parts[j][1] - self.rest[parts[j][0]]) + tuple(parts[j][2:])
-        if len(parts) == 1:
-            cols = [np.ascontiguousarray(c) for c in parts[0]]
-        else:
-            cols = [np.concatenate([q[i] for q in parts]) for i in range(6)]
-        control = Control(f_ext=f_ext, attachments=Attachments(*cols))
-        if self.kinematic:
-            control.prescribed_index = self.bound[:k0]
-            control.prescribed_u = self.target_u[:k0]
-            control.prescribed_v = v[:k0]
-        return control
+        if len(parts) == 1:                                 # bound points only: held at points, none sliding
+            return self._control_of(self._bound_attachments(), f_ext)
+        return self._control_of(Attachments(*[np.concatenate([q[i] for q in parts]) for i in range(6)]), f_ext)
 
     def _streaming_targets(self, poses: PoseLike, dt: float) -> bool:
         """The targets of a streaming step (backward differences with two twists of history, bound points only)
@@ -263,15 +256,21 @@ class SkeletonDriver:
         self.target_u, self.target_v, self.target_a = u, v, a
         return True
 
-    def _control_of(self, u: np.ndarray, v: np.ndarray, a: np.ndarray, f_ext: np.ndarray | None) -> Control:
-        """The Control of a streaming step's targets (bound points; level 0 prescribed if kinematic)."""
+    def _bound_attachments(self) -> Attachments:
+        """The bound points' attachments at the last targets (level 0 left out if kinematic), with the driver's
+        constant index and gains and their maxima: the same arrays every step."""
         k0 = self._n_inner if self.kinematic else 0
         index, kp, kd = self._att_const
-        control = Control(f_ext=f_ext, attachments=Attachments(index, u[k0:], v[k0:], a[k0:], kp, kd, self._gain_max))
+        return Attachments(index, self.target_u[k0:], self.target_v[k0:], self.target_a[k0:], kp, kd, self._gain_max)
+
+    def _control_of(self, attachments: Attachments, f_ext: np.ndarray | None) -> Control:
+        """The step's Control: the attachments, and with ``kinematic`` level 0 prescribed at the last targets."""
+        control = Control(f_ext=f_ext, attachments=attachments)
         if self.kinematic:
+            k0 = self._n_inner
             control.prescribed_index = self.bound[:k0]
-            control.prescribed_u = u[:k0]
-            control.prescribed_v = v[:k0]
+            control.prescribed_u = self.target_u[:k0]
+            control.prescribed_v = self.target_v[:k0]
         return control
 
     def rigid_state(self, poses: PoseLike, t: float = 0.0) -> State:

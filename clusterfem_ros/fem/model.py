@@ -117,6 +117,15 @@ class Attachments:
         z3 = np.zeros((0, 3))
         return cls(np.zeros(0, np.int64), z3, z3.copy(), z3.copy(), np.zeros(0), np.zeros(0))
 
+    def gain_maxima(self) -> tuple[float, float]:
+        """(max kp, max kd), what the explicit step is planned for: ``gain_max`` when given, else scanned; zeros
+        without attachments."""
+        if self.gain_max is not None:
+            return self.gain_max
+        if not self.index.size:
+            return 0.0, 0.0
+        return float(self.kp.max()), float(self.kd.max())
+
     def at(self, tau: float) -> "Attachments":
         """The targets tau into the step: u* + tau v* + tau^2 a* / 2, v* + tau a*."""
         return Attachments(self.index, self.target_u + tau * self.target_v + 0.5 * tau * tau * self.target_a,

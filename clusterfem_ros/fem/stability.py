@@ -55,9 +55,7 @@ def critical_step(lam_max: float, xi: float, zeta: float, kp: float = 0.0, kd: f
 
 def control_critical_step(lam_max: float, material: Material, control: Control | None = None) -> float:
     """critical_step with the stiffest attachment gains of ``control`` (none: the free body's)."""
-    kp = kd = 0.0
-    if control is not None and control.attachments.index.size:
-        kp, kd = float(control.attachments.kp.max()), float(control.attachments.kd.max())
+    kp, kd = control.attachments.gain_maxima() if control is not None else (0.0, 0.0)
     return critical_step(lam_max, material.xi, material.zeta, kp, kd)
 
 

@@ -308,19 +308,12 @@ class ClusteredExplicit:
         """The sub-step plan and its StepInfo, recomputed only when h, the attachments' largest gains or the
         stretch factor change."""
         att = control.attachments
-        key = (h, stiffer, *self._gain_maxima(att)) if att.index.size else (h, stiffer)
+        key = (h, stiffer, *att.gain_maxima()) if att.index.size else (h, stiffer)
         if key != self._plan_key:
             self._plan = plan_substeps(h, self.critical_step(control, stiffer), self.safety, self.max_substeps)
             self._info = StepInfo(self._plan.substeps, self._plan.margin)
             self._plan_key = key
         return self._plan
-
-    @staticmethod
-    def _gain_maxima(att) -> tuple[float, float]:
-        """(max kp, max kd) of the attachments: given with them by a skeleton driver (constant gains), else scanned."""
-        if att.gain_max is not None:
-            return att.gain_max
-        return float(att.kp.max()), float(att.kd.max())
 
     def _step_args(self, state: State, control: Control, plan, inv_mass3: np.ndarray) -> tuple:
         """The compiled step's arguments up to the attachments (its attachment-free build takes just these)."""
