@@ -23,8 +23,13 @@ SERIAL = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 # loops are its own and it calls only serial code. Keeping threaded builds out of the cache instead would
 # compile the warped step at every start of the node (8-10 s, against 0.2 s to load it).
 PARALLEL = dict(SERIAL, parallel=True)
-# Kernels of a few microseconds called from the physics thread between its steps keep the GIL: a thread that
-# lets it go may wait a whole switch interval (5 ms) to get it back from the executor thread, for no gain.
+# Only a step kernel lets the GIL go. The compiled functions the physics thread calls between its steps
+# (kinematics, the driver's targets, the stretch bound, the output checks: microseconds to tens of them) keep
+# it: a thread that lets it go waits its turn to get it back, behind the executor thread and, with several
+# bodies in one process, every other body's physics thread, for no gain. Four bodies in one process ran at
+# 0.35-0.37 of real time with those three releasing it and at 0.49 without (`python -m
+# benchmarks.realtime_benchmark --skip-everything-on --bodies 4 --scaling-duration 15`, 2-core Zen 3 VM).
+# tests/test_scene_setup.py fails if the step loop calls one that lets it go.
 HOLDS_GIL = dict(SERIAL, nogil=False)
 
 # Below this many vertices the bare force kernels (clustered_force, warped_force, vertex_rotations) run

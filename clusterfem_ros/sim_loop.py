@@ -6,8 +6,8 @@
     snap = loop.snapshot                                    # from the output timers: never half written
     loop.stop()                                             # joins the thread
 
-The numba kernels release the GIL, so a step runs while the executor thread builds markers, computes stress
-and records. The scene is changed by this thread only: the subscription callback queues each joint-state
+The step kernel releases the GIL, so a step runs while the executor thread builds markers, computes stress
+and records (the small compiled functions around it keep the GIL: numba_config.HOLDS_GIL). The scene is changed by this thread only: the subscription callback queues each joint-state
 sample (a bounded queue) and this thread pushes it into the scene, so no callback waits for a step and no
 lock is held across one. The outputs never read the scene's state: batches of steps end with a ``Snapshot``,
 a fresh, read-only copy of the state, put in place by one reference assignment (atomic in Python); the copy

@@ -95,26 +95,66 @@ def dispatchers():  # every compiled function of the package, also those a modul
                         found[f"{name}.{attr}[{k}]"] = o
     return found
 
+def record_calls(found, called):  # module attributes: what Python code calls by global name (not the step builds)
+    for key, d in found.items():
+        name, rest = key.rsplit(".", 1)
+        attr, k = rest.split("[")
+        module = sys.modules[name]
+        if isinstance(vars(module)[attr], tuple):
+            continue
+        def wrapper(*a, _d=d, _key=key, **kw):
+            called.add(_key)
+            return _d(*a, **kw)
+        setattr(module, attr, wrapper)
+
+def walk_on(scene, walk, part):
+    for t, q in zip(walk.times[part], walk.positions[part]):
+        scene.take_joint_state(50.0 + t, walk.names, q, None, received=50.0 + t)
+        scene.advance_to(50.0 + t + 1e-3 * 8)
+        assert scene.output_problem() is None
+
 scene = Scene.build(SceneConfig().with_values(body__target_tets=700, warping=True))
-before = {k: len(d.signatures) for k, d in dispatchers().items()}
+found = dispatchers()
+before = {k: len(d.signatures) for k, d in found.items()}
 walk = procedural_walk(0.3, names=scene.skeleton.joint_names)
-for t, q in zip(walk.times, walk.positions):
-    scene.take_joint_state(50.0 + t, walk.names, q, None, received=50.0 + t)
-    scene.advance_to(50.0 + t + 1e-3 * 8)
-    assert scene.output_problem() is None
-after = {k: len(d.signatures) for k, d in dispatchers().items()}
+half = walk.times.size // 2
+walk_on(scene, walk, slice(0, half))
+after = {k: len(d.signatures) for k, d in found.items()}
 new = sorted(k for k in after if after[k] > before.get(k, 0))
 print("LOADED IN THE LOOP:", new)
+called = set()       # the second half with the calls recorded (wrappers: nothing may compile now)
+record_calls(found, called)
+walk_on(scene, walk, slice(half, None))
+print("CALLED FROM PYTHON:", sorted(called))
+print("RELEASE THE GIL:", sorted(k for k in called if found[k].targetoptions.get("nogil")))
 """
 
 
-def test_a_built_scene_has_loaded_every_kernel_its_step_loop_calls():
-    """Scene.build loads (on a machine's first start: compiles) every compiled function the physics thread's loop
-    calls: the step's, the driver's, the kinematics' and the output checks'. One it misses is compiled in the
-    loop, and the node's first run stalls a second and drops its inputs. A fresh process, so nothing is loaded
-    before the build."""
+@pytest.fixture(scope="module")
+def step_loop_run():
+    """The script above in a fresh process (nothing loaded before the build): its output."""
     import subprocess
     import sys
     out = subprocess.run([sys.executable, "-c", _LOOP_LOADS_NOTHING], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
-    assert "LOADED IN THE LOOP: []" in out.stdout, out.stdout[-2000:]
+    return out.stdout
+
+
+def test_a_built_scene_has_loaded_every_kernel_its_step_loop_calls(step_loop_run):
+    """Scene.build loads (on a machine's first start: compiles) every compiled function the physics thread's loop
+    calls: the step's, the driver's, the kinematics' and the output checks'. One it misses is compiled in the
+    loop, and the node's first run stalls a second and drops its inputs. A fresh process, so nothing is loaded
+    before the build."""
+    assert "LOADED IN THE LOOP: []" in step_loop_run, step_loop_run[-2000:]
+
+
+def test_the_step_loop_lets_the_gil_go_only_in_the_integrator_step(step_loop_run):
+    """The compiled functions the physics thread's loop calls from Python between its steps (kinematics, the
+    driver's targets, the stretch bound, the output checks) keep the GIL: a thread that lets it go for a few
+    microseconds then waits its turn to get it back, behind the executor and every other body's physics thread
+    (numba_config.HOLDS_GIL). Only the integrator's step (its builds are held by the integrator, not called by
+    a global name, so they are not recorded here) lets it go. The loop must call some compiled functions, or
+    the recording missed them."""
+    called = step_loop_run.split("CALLED FROM PYTHON:")[1].splitlines()[0]
+    assert "tree_forward" in called and "_bone_targets" in called, step_loop_run[-2000:]
+    assert "RELEASE THE GIL: []" in step_loop_run, step_loop_run[-2000:]

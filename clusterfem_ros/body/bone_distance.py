@@ -4,8 +4,9 @@ every state handed to the outputs.
 
 The distance is to the bone's segment (start -> end, as in the binding, body/binding.py), placed by the
 pose: a = R c0 + p, b = R c1 + p, with (c0, c1) the segment's ends in the bone's local frame
-(``Binding.axis_local``). The vertex loop is a numba kernel that releases the GIL: numpy's gathers and
-einsums over the 1411 surface vertices of the jelly man took 0.2 ms, as long as the step they check.
+(``Binding.axis_local``). The vertex loop is a numba kernel (it keeps the GIL: numba_config.HOLDS_GIL):
+numpy's gathers and einsums over the 1411 surface vertices of the jelly man took 0.2 ms, as long as the step
+they check.
 """
 from __future__ import annotations
 

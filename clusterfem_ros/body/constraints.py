@@ -23,7 +23,7 @@ from typing import Protocol, Sequence
 import numba
 import numpy as np
 
-from ..numba_config import SERIAL
+from ..numba_config import HOLDS_GIL
 
 
 class PoseLike(Protocol):
@@ -57,7 +57,7 @@ def check_poses(poses: PoseLike, n_bones: int, bone_names: Sequence[str] | None 
     return out[0], out[1], out[2]
 
 
-@numba.njit(**SERIAL)
+@numba.njit(**HOLDS_GIL)
 def _rigid_motion(R, p, twist, dtwist, bone, local, x, v, a):
     """Kernel of ``rigid_point_motion``: fills x, v, a (k, 3); arrays and scalars only."""
     for k in range(bone.shape[0]):

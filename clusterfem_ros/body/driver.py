@@ -31,7 +31,7 @@ from ..fem.model import Attachments, Control, State
 from .binding import Binding
 from .constraints import (LevelGains, _rigid_motion, LineConstraint, PointConstraint, PoseLike, check_poses, line_set,
                           line_set_targets, point_targets, rigid_point_motion)
-from ..numba_config import SERIAL
+from ..numba_config import HOLDS_GIL
 
 DIFFERENCES = ("backward", "central")
 
@@ -47,7 +47,7 @@ def _derivative_backward(f: list[np.ndarray], gaps: list[float]) -> np.ndarray:
             + f[-1] * (h1 + 2.0 * h2) / (h2 * (h1 + h2)))
 
 
-@numba.njit(**SERIAL)
+@numba.njit(**HOLDS_GIL)
 def _bone_targets(R, p, twist, f0, f1, h1, h2, bone, local, rest, dtwist, x, u, v, a):
     """One compiled pass for the streaming step's targets: Phi' by ``_derivative_backward``'s 3-point formula
     from the history (f0, f1) and the new twist, then the bound points' rigid motion (``_rigid_motion``), then

@@ -29,12 +29,12 @@ import numba
 import numpy as np
 
 from .assembly import shape_gradients
-from ..numba_config import SERIAL
+from ..numba_config import HOLDS_GIL
 
 SQRT3 = math.sqrt(3.0)
 
 
-@numba.njit(**SERIAL)
+@numba.njit(**HOLDS_GIL)
 def max_gradient_norm(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.ndarray,
                       x: np.ndarray) -> float:
     """max over elements of |F_e|_F, F_e = sum_c x_c outer g_{e,c}, x = rest + u (written to ``x`` (n, 3) first:

@@ -15,10 +15,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..numba_config import SERIAL
+from ..numba_config import HOLDS_GIL
 
 
-@numba.njit(**SERIAL)
+@numba.njit(**HOLDS_GIL)
 def _axis_rotation(a0, a1, a2, angle, out):
     c, s = np.cos(angle), np.sin(angle)
     t = 1.0 - c
@@ -27,7 +27,7 @@ def _axis_rotation(a0, a1, a2, angle, out):
     out[2, 0], out[2, 1], out[2, 2] = a2 * a0 * t - a1 * s, a2 * a1 * t + a0 * s, c + a2 * a2 * t
 
 
-@numba.njit(**SERIAL)
+@numba.njit(**HOLDS_GIL)
 def tree_forward(parent, place_R, place_p, axis, prismatic, q, qd, frame_joint, frame_R, frame_p,
                  oR, op, w, vo, R_out, p_out, tw_out):
     """Fill R_out (nb, 3, 3), p_out (nb, 3), tw_out (nb, 6); oR, op, w, vo are (nj, ...) scratch. Returns False,
