@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import re
 import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -149,6 +150,29 @@ def test_writer_api_errors_and_idempotent_close(tmp_path):
     with pytest.raises(FileExistsError, match="not empty"):
         Rosbag2McapWriter(tmp_path / "b")
     _, reader = read_with_own_schemas(tmp_path / "b")  # an empty bag still opens
+
+
+def test_an_idle_writer_wakes_only_at_its_drain_interval_and_a_flush_does_not_wait_for_it(tmp_path):
+    """The I/O thread sleeps between drains (it used to poll every 2 ms, taking the GIL from the physics thread
+    500 times a second) and wakes at once for a flush: the flushed message is in the file after flush()
+    returns, and an idle second costs about 1 / DRAIN_INTERVAL_S wakes."""
+    from clusterfem_ros.recording import rosbag2_mcap
+    w = Rosbag2McapWriter(tmp_path / "b")
+    w.add_topic("/js", "sensor_msgs/msg/JointState")
+    wakes = []
+    wait = w._wake.wait
+    w._wake.wait = lambda timeout=None: (wakes.append(timeout), wait(timeout))[1]
+    w.flush()                                           # the topic is in; count from here
+    wakes.clear()
+    t0 = time.monotonic()
+    time.sleep(0.5)
+    idle = len(wakes) / (time.monotonic() - t0)
+    assert idle <= 1.5 / rosbag2_mcap.DRAIN_INTERVAL_S, f"{idle:.0f} wakes per second while idle"
+    w.write("/js", T0, joint_state_cdr(["a"], np.zeros(1)))
+    w.flush()
+    assert w.close()
+    msgs, _ = read_with_own_schemas(tmp_path / "b")
+    assert sum(len(v) for v in msgs.values()) == 1
 
 
 class _Stop(Exception):

@@ -46,7 +46,10 @@ from clusterfem_ros.recording.qos import qos_profile, qos_yaml
 CHUNK_SIZE = 768 * 1024  # bytes of uncompressed records per chunk (rosbag2's mcap default)
 FLUSH_INTERVAL_S = 0.5
 MAX_PENDING = 10_000  # queued messages before write() waits for the I/O thread
-_IDLE_SLEEP_S = 0.002
+# The I/O thread drains the queue this often, and at once on a flush, a new topic or close: a thread that
+# polled every 2 ms took the GIL 500 times a second from the physics thread to find nothing to do.
+DRAIN_INTERVAL_S = 0.05
+_BACK_PRESSURE_SLEEP_S = 0.002     # write() waits this long at a time while MAX_PENDING messages are queued
 _CDR_HEADERS = (b"\x00\x01", b"\x00\x00")  # CDR little endian / big endian
 _COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 
@@ -88,6 +91,7 @@ class Rosbag2McapWriter:
         self._ops: collections.deque[tuple] = collections.deque()
         self._topic_lock = threading.Lock()  # add_topic only; never taken by write()/close()
         self._close_requested = False
+        self._wake = threading.Event()          # set for what must not wait for the next drain
         self._error: Optional[BaseException] = None
         self._max_queue_bytes = max_queue_bytes
         self._bytes_in = 0    # queued by callers; bytes_out by the I/O thread: each counter has one writer
@@ -148,11 +152,14 @@ class Rosbag2McapWriter:
                 self.dropped += 1
                 self.dropped_bytes += len(data)
                 return False
-        else:
+        elif len(self._ops) > MAX_PENDING:
+            self._wake.set()
             while len(self._ops) > MAX_PENDING and self._thread.is_alive():  # back-pressure, no lock
-                time.sleep(_IDLE_SLEEP_S)
+                time.sleep(_BACK_PRESSURE_SLEEP_S)
         self._bytes_in += len(data)
         self._ops.append(("msg", entry[0], topic, log_time_ns, publish, data))
+        if self._max_queue_bytes is not None and 2 * self.queued_bytes > self._max_queue_bytes:
+            self._wake.set()                    # half the budget queued: drain now, before it drops messages
         return True
 
     def flush(self, timeout_s: float = 10.0) -> None:
@@ -160,6 +167,7 @@ class Rosbag2McapWriter:
         self._check_open()
         done = threading.Event()
         self._ops.append(("flush", done))
+        self._wake.set()
         if not done.wait(timeout_s):
             self._check_open()
             raise TimeoutError(f"bag {self.folder}: flush not done after {timeout_s} s")
@@ -168,6 +176,7 @@ class Rosbag2McapWriter:
         """Write everything queued, the summary, the footer and the final metadata.yaml. Idempotent.
         Returns True when the bag is closed (False only if the I/O thread did not finish in time)."""
         self._close_requested = True
+        self._wake.set()
         if self._thread is not threading.current_thread():
             self._thread.join(timeout_s)
         atexit.unregister(self.close)
@@ -201,6 +210,7 @@ class Rosbag2McapWriter:
             self._ops.append(("channel", channel, name, self._schemas[msg_type],
                               TopicInfo(name, msg_type, qos_profiles, topic_hash)))
             self._topics[name] = (channel, msg_type)
+            self._wake.set()
             return channel
 
     def _check_open(self) -> None:
@@ -214,6 +224,7 @@ class Rosbag2McapWriter:
         dirty, flushed_at = False, time.monotonic()
         try:
             while True:
+                self._wake.clear()               # before draining: what is queued after it sets it again
                 closing = self._close_requested  # read before draining: nothing queued before close is lost
                 while self._ops:
                     op = self._ops.popleft()
@@ -250,7 +261,7 @@ class Rosbag2McapWriter:
                 if dirty and time.monotonic() - flushed_at >= self._flush_interval:
                     self._flush_chunk()
                     dirty, flushed_at = False, time.monotonic()
-                time.sleep(_IDLE_SLEEP_S)
+                self._wake.wait(DRAIN_INTERVAL_S)
             self._finish()
         except BaseException as exc:  # keep the error for the caller; the file is left for recover_bag
             self._error = exc
