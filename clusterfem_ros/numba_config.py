@@ -26,10 +26,10 @@ PARALLEL = dict(SERIAL, parallel=True)
 # Only a step kernel lets the GIL go. The compiled functions the physics thread calls between its steps
 # (kinematics, the driver's targets, the stretch bound, the output checks: microseconds to tens of them) keep
 # it: a thread that lets it go waits its turn to get it back, behind the executor thread and, with several
-# bodies in one process, every other body's physics thread, for no gain. Four bodies in one process ran at
-# 0.35-0.37 of real time with those three releasing it and at 0.49 without (`python -m
-# benchmarks.realtime_benchmark --skip-everything-on --bodies 4 --scaling-duration 15`, 2-core Zen 3 VM).
-# tests/test_scene_setup.py fails if the step loop calls one that lets it go.
+# bodies in one process, every other body's physics thread, for no gain. Four bodies in one process
+# (`python -m clusterfem_ros.nodes.demo --duration 15 --bodies 4 --no-record --no-video --no-png`, 2-core Zen 3
+# VM) keep a mean real-time factor of 0.37-0.48 this way, 0.28-0.36 when kinematics, the driver's targets and
+# the stretch bound let it go too. tests/test_scene_setup.py fails if the step loop calls one that lets it go.
 HOLDS_GIL = dict(SERIAL, nogil=False)
 
 # Below this many vertices the bare force kernels (clustered_force, warped_force, vertex_rotations) run

@@ -7,11 +7,12 @@
     loop.stop()                                             # joins the thread
 
 The step kernel releases the GIL, so a step runs while the executor thread builds markers, computes stress
-and records (the small compiled functions around it keep the GIL: numba_config.HOLDS_GIL). The scene is changed by this thread only: the subscription callback queues each joint-state
-sample (a bounded queue) and this thread pushes it into the scene, so no callback waits for a step and no
-lock is held across one. The outputs never read the scene's state: batches of steps end with a ``Snapshot``,
-a fresh, read-only copy of the state, put in place by one reference assignment (atomic in Python); the copy
-being read stays whole while the next is made.
+and records (the small compiled functions around it keep the GIL: numba_config.HOLDS_GIL). The scene is
+changed by this thread only: the subscription callback queues each joint-state sample (a bounded queue) and
+this thread pushes it into the scene, so no callback waits for a step and no lock is held across one. The
+outputs never read the scene's state: batches of steps end with a ``Snapshot``, a fresh, read-only copy of the
+state, put in place by one reference assignment (atomic in Python); the copy being read stays whole while the
+next is made.
 
 The clock is the scene's physics.clock. Clock "input": each sample is taken by Scene.take_joint_state, which
 steps up to its stamp, as a replay of the recorded joint states (replay.py) does, so the replay reproduces

@@ -153,9 +153,9 @@ def test_writer_api_errors_and_idempotent_close(tmp_path):
 
 
 def test_an_idle_writer_wakes_only_at_its_drain_interval_and_a_flush_does_not_wait_for_it(tmp_path):
-    """The I/O thread sleeps between drains (it used to poll every 2 ms, taking the GIL from the physics thread
-    500 times a second) and wakes at once for a flush: the flushed message is in the file after flush()
-    returns, and an idle second costs about 1 / DRAIN_INTERVAL_S wakes."""
+    """The I/O thread sleeps between drains (each wake takes the GIL from the physics thread) and wakes at once
+    for a flush: an idle second costs about 1 / DRAIN_INTERVAL_S wakes, and the message flushed is in the
+    bag."""
     from clusterfem_ros.recording import rosbag2_mcap
     w = Rosbag2McapWriter(tmp_path / "b")
     w.add_topic("/js", "sensor_msgs/msg/JointState")

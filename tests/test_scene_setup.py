@@ -98,7 +98,7 @@ def dispatchers():  # every compiled function of the package, also those a modul
 def record_calls(found, called):  # module attributes: what Python code calls by global name (not the step builds)
     for key, d in found.items():
         name, rest = key.rsplit(".", 1)
-        attr, k = rest.split("[")
+        attr = rest.split("[")[0]
         module = sys.modules[name]
         if isinstance(vars(module)[attr], tuple):
             continue

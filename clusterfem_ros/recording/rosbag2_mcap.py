@@ -46,8 +46,9 @@ from clusterfem_ros.recording.qos import qos_profile, qos_yaml
 CHUNK_SIZE = 768 * 1024  # bytes of uncompressed records per chunk (rosbag2's mcap default)
 FLUSH_INTERVAL_S = 0.5
 MAX_PENDING = 10_000  # queued messages before write() waits for the I/O thread
-# The I/O thread drains the queue this often, and at once on a flush, a new topic or close: a thread that
-# polled every 2 ms took the GIL 500 times a second from the physics thread to find nothing to do.
+# The I/O thread drains the queue this often, and at once on a flush, a new topic, close, back-pressure or half
+# the byte budget queued. Polling every 2 ms would take the GIL from the physics thread 500 times a second,
+# nearly always to find nothing to do.
 DRAIN_INTERVAL_S = 0.05
 _BACK_PRESSURE_SLEEP_S = 0.002     # write() waits this long at a time while MAX_PENDING messages are queued
 _CDR_HEADERS = (b"\x00\x01", b"\x00\x00")  # CDR little endian / big endian
