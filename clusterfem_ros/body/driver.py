@@ -155,7 +155,8 @@ class SkeletonDriver:
         # plans its sub-steps from them). Writable like the general path's: a read-only array is another type to
         # numba, and the step would be compiled again for it.
         self._streaming = difference == "backward" and not self.points and self._line_set is None
-        k0 = self._n_inner if self.kinematic else 0
+        self._attached_from = self._n_inner if self.kinematic else 0   # kinematic: level 0 is prescribed, not attached
+        k0 = self._attached_from
         self._att_const = tuple(np.ascontiguousarray(c[k0:]) for c in (self.bound, self._kp, self._kd))
         kp, kd = self._att_const[1:]
         self._gain_max = (float(kp.max()), float(kd.max())) if kp.size else None
@@ -213,7 +214,7 @@ class SkeletonDriver:
         self.target_u = x - self._rest_b
         self.target_v, self.target_a = v, a
 
-        k0 = self._n_inner if self.kinematic else 0        # kinematic: level 0 is prescribed, not attached
+        k0 = self._attached_from
         k1 = self._n_held
         parts = [(self.bound[k0:k1], self.target_u[k0:k1], v[k0:k1], a[k0:k1], self._kp[k0:k1], self._kd[k0:k1])]
         if self.points:
@@ -259,7 +260,7 @@ class SkeletonDriver:
     def _bound_attachments(self) -> Attachments:
         """The bound points' attachments at the last targets (level 0 left out if kinematic), with the driver's
         constant index and gains and their maxima: the same arrays every step."""
-        k0 = self._n_inner if self.kinematic else 0
+        k0 = self._attached_from
         index, kp, kd = self._att_const
         return Attachments(index, self.target_u[k0:], self.target_v[k0:], self.target_a[k0:], kp, kd, self._gain_max)
 
