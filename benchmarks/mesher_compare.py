@@ -1,12 +1,16 @@
 """fTetWild (pytetwild, MPL-2.0) beside TetGen (tetgen, AGPL) on the surfaces a character scene meets.
 
-    python -m benchmarks.mesher_compare [--body PATH_TO_makehuman_base.obj]
+    python -m benchmarks.mesher_compare [--body PATH_TO_makehuman_base.obj] [--repeat 20]
 
 Surfaces: a clean capsule; two capsules overlapping (self-intersecting, as a body and a separately
 modelled limb); the capsule with a hole (not watertight); MakeHuman's body group decimated to 2500
 triangles when --body is given. Per mesher: tets, wall time, smallest dihedral angle and radius ratio, or
 the error it gave. TetGen is not a dependency of the package (AGPL): install it by hand to compare
 (pip install tetgen); the row says so when it is missing.
+
+A second table runs fTetWild ``--repeat`` times on the clean capsule with one edge length: it is not
+repeatable, and the spread of its counts is what the edge-length search in fem/tetrahedralize.py steers
+through.
 """
 from __future__ import annotations
 
@@ -65,9 +69,22 @@ def _measure(mesher: str, v: np.ndarray, f: np.ndarray, edge: float, diag: float
         out.put(["-", f"{time.perf_counter() - t0:.1f}", "-", "-", f"{type(exc).__name__}: {str(exc)[:60]}"])
 
 
+def repeatability(runs: int) -> list:
+    """[edge, runs, min, median, max tets, share within 20 % of the median] of fTetWild on the clean capsule."""
+    import trimesh
+    cap = trimesh.creation.capsule(height=0.6, radius=0.1, count=[16, 16])
+    v, f = np.asarray(cap.vertices, dtype=np.float64), np.asarray(cap.faces, dtype=np.int64)
+    diag = float(np.linalg.norm(np.ptp(v, axis=0)))
+    edge = 0.116                                        # ~400 tets, the count of the tests' capsule
+    n = np.array([_mesh_once(v, f, edge, diag).n_tets for _ in range(runs)])
+    med = float(np.median(n))
+    return [f"{edge:g} m", runs, int(n.min()), f"{med:g}", int(n.max()), f"{np.mean(abs(n / med - 1) <= 0.2):.0%}"]
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--body", default=None, help="MakeHuman's base.obj (its group 'body' is used)")
+    ap.add_argument("--repeat", type=int, default=20, help="fTetWild runs on one input for the repeatability table")
     a = ap.parse_args(argv)
     rows = []
     for name, (v, f) in _surfaces(a.body).items():
@@ -84,6 +101,10 @@ def main(argv=None) -> None:
             rows.append([name, mesher] + (q.get() if not q.empty() else
                                           ["-", "-", "-", "-", f"the process died (exit code {child.exitcode})"]))
     print(table(["surface", "mesher", "tets", "time [s]", "min dihedral [deg]", "min radius ratio", "failure"], rows))
+    if a.repeat > 0:
+        print("\nfTetWild on the same input and edge length, run after run (the clean capsule):")
+        print(table(["edge length", "runs", "min tets", "median", "max tets", "within 20 % of the median"],
+                    [repeatability(a.repeat)]))
 
 
 if __name__ == "__main__":

@@ -1,4 +1,6 @@
 """Surface bodies (body.kind surface): surface -> tets -> fitted, bound body -> motion; the cache; bad input."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -6,7 +8,7 @@ from clusterfem_ros.body.binding import bind_to_skeleton
 from clusterfem_ros.body.fit import FitError, bind_configuration
 from clusterfem_ros.body.surface_body import unbound_islands
 from clusterfem_ros.config import ConfigError, SceneConfig
-from clusterfem_ros.fem.tetrahedralize import SurfaceError, surface_to_tets, tet_quality
+from clusterfem_ros.fem.tetrahedralize import MAX_ATTEMPTS, SurfaceError, _steer_edge, surface_to_tets, tet_quality
 from clusterfem_ros.skeleton.trajectory import JointTrajectory
 from clusterfem_ros.skeleton.urdf_builder import UrdfBuilder
 
@@ -69,6 +71,41 @@ def test_tet_count_is_within_20_percent_and_quality_is_reported(surface, cache):
     assert r.mesh.volumes().sum() == pytest.approx(enclosed, rel=0.04)
     assert (r.min_dihedral_deg, r.min_radius_ratio) == pytest.approx(tet_quality(r.mesh.vertices, r.mesh.tets))
     assert 0.0 < r.min_dihedral_deg < 70.6 and 0.0 < r.min_radius_ratio <= 1.0
+
+
+def _noisy_mesher(seed: int, true_edge: float, target: int):
+    """A stand-in for fTetWild: count = target (true_edge / edge)^3 times a run-to-run noise like its own
+    on the capsule (``python -m benchmarks.mesher_compare``: about 80 % of runs within 20 % of the
+    median): 12 % log-normal and, one run in ten, 70 % more tets."""
+    rng = np.random.default_rng(seed)
+
+    def run(attempt, edge):
+        n = target * (true_edge / edge) ** 3 * np.exp(rng.normal(0.0, 0.12)) * (1.7 if rng.random() < 0.1 else 1.0)
+        return SimpleNamespace(n_tets=max(1, int(round(n))))
+    return run
+
+
+def test_the_edge_length_search_reaches_the_count_through_the_meshers_noise():
+    # the first guess is off by up to 1.5x in edge length (3.4x in count) either way; with five runs
+    # instead of MAX_ATTEMPTS, 13 of these 400 searches would miss
+    attempts = []
+    for seed in range(400):
+        true_edge = float(np.exp(np.random.default_rng(1000 + seed).uniform(-0.4, 0.4)))
+        best, n_attempts = _steer_edge(_noisy_mesher(seed, true_edge, 400), 1.0, 400, 0.2)
+        assert abs(best.n_tets / 400 - 1) <= 0.2, (seed, best.n_tets, n_attempts)
+        attempts.append(n_attempts)
+    assert np.median(attempts) <= 3
+
+
+def test_a_count_the_surface_cannot_come_down_to_gives_the_nearest_after_all_attempts():
+    runs = []
+
+    def floor_of_900(attempt, edge):           # the surface's detail keeps 900 tets whatever the edge length
+        runs.append(edge)
+        return SimpleNamespace(n_tets=900 + len(runs))
+    best, n_attempts = _steer_edge(floor_of_900, 1.0, 400, 0.2)
+    assert n_attempts == MAX_ATTEMPTS == len(runs) and best.n_tets == 901
+    assert all(b > a for a, b in zip(runs, runs[1:]))    # each miss asks for a longer edge
 
 
 def test_tet_quality_of_a_regular_tet_is_ideal():
