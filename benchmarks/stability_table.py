@@ -40,10 +40,11 @@ and 1.08 on the fine bar after 1 s, and growing: 1.17 / 1.27 at 2 / 4 s on the c
 tens of elements (8-64, det F down to -13) for the rest of the run, and the corotated energy has no smooth
 rotation there: the warm-started kernel follows one rotation branch through inversion, which gains ~1 % in
 the tear step at 59 to 236 sub-steps (fem/corotational.py's force with the SVD's max-trace rotation, taken
-afresh every sub-step, does not), and the max-trace rotation jumps where two singular values cross, so its shadow energy drifts too (4.6 %,
-1.6 %, 0 % over 1 s at 59, 118, 236 sub-steps). Neither the stretch plan (the exact tangent's largest
-eigenvalue stayed under 2.3x the linear one; the plan takes 16x) nor the changes of sub-step count (a fixed
-59 or 70 grows as much) cause it. At the scene's damping the same run is bounded (0.98).
+afresh every sub-step, does not), and the max-trace rotation jumps where two singular values cross, so its
+shadow energy drifts too (4.6 %, 1.6 %, 0 % over 1 s at 59, 118, 236 sub-steps). Neither the stretch plan
+(the exact tangent's largest eigenvalue stayed under 2.3x the linear one; the plan takes 16x) nor the
+changes of sub-step count (a fixed 59 or 70 grows as much) cause it. At the scene's damping the same run is
+bounded (0.98).
 
 The gain shrinks with the sub-step, slowly (about as its square root), which makes it the step's error
 through the inverted elements, not a force that feeds energy in. ``--torn-sweep`` runs this case alone at
