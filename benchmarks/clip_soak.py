@@ -13,6 +13,10 @@ capture with other joint names) is listed with the refusal. Columns:
 - withheld: ticks whose state Scene.output_problem refused (would not be published);
 - worst volume / worst bone distance: over the states that passed (what would be published), the largest
   |V/V0 - 1| and the largest distance of a surface vertex to the segment of its bone [m];
+- inverted: over the same states, the share of them with an inverted element (det F < 0: signed volume
+  below zero), the most elements inverted at once, and the smallest det F (V / V0 of a linear tet). The
+  corotated energy has no smooth rotation through inversion (fem/element_warping.py), so these are the states
+  where the warped force is least trustworthy;
 - step: mean wall time of a physics step (measured under whatever load the machine has);
 - joint speed: the fastest revolute joint in the played trajectory (after the BVH loader's despiking) and
   in the raw file frames [rad/s], for choosing input.max_joint_speed.
@@ -33,6 +37,7 @@ import yaml
 
 from clusterfem_ros.config import SceneConfig
 from clusterfem_ros.fem.stability import DivergenceError, StabilityError
+from clusterfem_ros.fem.tet_mesh import signed_volumes
 from .clips import clip_config, find_clip, load_manifest, missing_message
 from .timing import table
 
@@ -49,6 +54,9 @@ class SoakResult:
     shown: int = 0
     worst_volume: float = 0.0
     worst_distance: float = 0.0
+    inverted_states: int = 0     # states shown with at least one inverted element
+    most_inverted: int = 0       # the most elements inverted at once
+    min_det: float = 1.0         # the smallest det F = V / V0 of an element
     step_ms: float = 0.0
     rejected: int = 0
     joint_speed: float = 0.0
@@ -70,6 +78,13 @@ def joint_speeds(path: Path) -> tuple[float, float]:
     return out[0], out[1]
 
 
+def inverted_elements(positions: np.ndarray, tets: np.ndarray, rest_volumes: np.ndarray) -> tuple[int, float]:
+    """(elements with det F < 0, the smallest det F) at ``positions``: det F of a linear tet is its signed volume
+    over its rest volume."""
+    det = signed_volumes(positions, tets) / rest_volumes
+    return int(np.count_nonzero(det < 0.0)), float(det.min())
+
+
 def headless_soak(path: Path, overrides: dict | None = None, seconds: float | None = None,
                   scene_file: Path | None = None) -> SoakResult:
     """Play the clip at ``path`` into a Scene (of ``scene_file``, default: the default scene) for its whole length
@@ -81,6 +96,8 @@ def headless_soak(path: Path, overrides: dict | None = None, seconds: float | No
     scene = Scene.build(clip_config(overrides, scene_file), urdf_xml=motion.urdf)
     length = tr.duration if seconds is None else min(seconds, tr.duration)
     res = SoakResult(path.stem, length)
+    tets = scene.model.mesh.tets
+    rest_volumes = signed_volumes(scene.model.rest, tets)
     res.joint_speed, res.raw_joint_speed = joint_speeds(path)
     for k in range(int(length * RATE_HZ) + 1):
         t = T0 + k / RATE_HZ
@@ -101,8 +118,17 @@ def headless_soak(path: Path, overrides: dict | None = None, seconds: float | No
         res.shown += 1
         res.worst_volume = max(res.worst_volume, abs(scene.volume_error()))
         res.worst_distance = max(res.worst_distance, float(scene.bone_distance()[0].max()))
+        inverted, min_det = inverted_elements(scene.model.rest + scene.state.u, tets, rest_volumes)
+        res.inverted_states += inverted > 0
+        res.most_inverted = max(res.most_inverted, inverted)
+        res.min_det = min(res.min_det, min_det)
     res.step_ms = scene.step_wall_s / max(scene.steps_done, 1) * 1e3
     return res
+
+
+def _inverted(r: SoakResult) -> str:
+    """The inverted column: share of the states shown that had an inverted element, the most at once, min det F."""
+    return f"{100.0 * r.inverted_states / max(r.shown, 1):.0f} % / {r.most_inverted} / {r.min_det:.2f}"
 
 
 def _overrides(pairs: list[str]) -> dict:
@@ -135,12 +161,12 @@ def main(argv: list[str] | None = None) -> int:
             r = headless_soak(path, overrides, args.seconds, args.scene)
         except ValueError as exc:            # FitError, UrdfError, ConfigError: the scene refuses this skeleton
             print(f"[clip_soak] {clip.name}: refused at start: {exc}", flush=True)
-            rows.append([clip.name, "-", "refused", "", "", "", "", "", ""])
+            rows.append([clip.name, "-", "refused", "", "", "", "", "", "", ""])
             continue
         print(f"[clip_soak] {clip.name}: {r.resets} resets, {time.perf_counter() - t0:.0f} s"
               + (f"; first: {r.first_problem}" if r.first_problem else ""), flush=True)
         rows.append([r.clip, f"{r.seconds:.1f}", r.resets, r.withheld, f"{r.worst_volume * 100:.1f} %",
-                     f"{r.worst_distance:.3f}", f"{r.step_ms:.2f}", r.rejected,
+                     f"{r.worst_distance:.3f}", _inverted(r), f"{r.step_ms:.2f}", r.rejected,
                      f"{r.joint_speed:.0f} / {r.raw_joint_speed:.0f}"])
         if args.node:
             from .node_soak import node_soak
@@ -150,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nheadless, {args.scene or 'default scene'} on each clip's skeleton{' with ' + ', '.join(args.set) if args.set else ''} "
           "(step time measured under the machine's current load)")
     print(table(["clip", "s", "resets", "withheld", "worst volume", "worst bone distance [m]",
-                 "step [ms]", "inputs rejected", "joint speed played / raw [rad/s]"], rows))
+                 "inverted: states / most at once / min det F", "step [ms]", "inputs rejected", "joint speed played / raw [rad/s]"], rows))
     if node_rows:
         print("\nthrough the node (input clock): every published marker checked against the skeleton")
         print(table(["clip", "s", "resets", "withheld", "markers", "markers over the limit",

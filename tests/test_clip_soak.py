@@ -1,9 +1,11 @@
 """Soak: every fetched clip (tests/data/mocap_clips.yaml) for its whole length on the default scene, headless
 and through the node. Targets: no reset, nothing published farther than output.max_bone_distance from the
 bones. A clip that is not present is skipped with the file and manifest entry to fetch."""
+import numpy as np
 import pytest
 
 from benchmarks.clips import find_clip, load_manifest, missing_message
+from tests.shared_data import CMU_WALK
 
 CLIPS = load_manifest()
 
@@ -21,6 +23,36 @@ def test_the_manifest_names_each_clip_with_its_provenance():
     for c in CLIPS:
         assert len(c.commit) == 40 and len(c.sha256) == 64 and c.path.endswith(".bvh") and "/" in c.repository
     assert any("3dsMax" in c.motion for c in CLIPS)
+
+
+def test_the_inverted_count_is_det_f_below_zero():
+    """Two tets sharing a face; the apex of one pushed through that face: one inverted element, and the smallest
+    det F is that element's, computed from its shape gradients (F = sum_c x_c g_c^T)."""
+    from benchmarks.clip_soak import inverted_elements
+    from clusterfem_ros.fem.assembly import shape_gradients
+    from clusterfem_ros.fem.tet_mesh import signed_volumes
+    rest = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0.3, 0.3, -1]])
+    tets = np.array([[0, 1, 2, 3], [0, 2, 1, 4]])
+    rest_volumes = signed_volumes(rest, tets)
+    assert (rest_volumes > 0).all() and inverted_elements(rest, tets, rest_volumes) == (0, 1.0)
+    moved = rest.copy()
+    moved[3, 2] = -0.5                                  # tet 0's apex through the shared face z = 0
+    grads = shape_gradients(rest, tets)[0]
+    det = np.linalg.det(np.einsum("eca,ecb->eab", moved[tets], grads))
+    count, min_det = inverted_elements(moved, tets, rest_volumes)
+    assert count == 1 and det[0] < 0 < det[1]
+    assert min_det == pytest.approx(det[0], rel=1e-12)
+
+
+def test_the_headless_soak_reports_inverted_states_consistently():
+    """Half a second of the shared CMU walk on the default scene: the inverted columns agree with each other
+    (some state inverted <=> an element inverted at once <=> min det F < 0) and count only states shown."""
+    from benchmarks.clip_soak import headless_soak
+    r = headless_soak(CMU_WALK, seconds=0.5)
+    assert r.resets == 0 and r.shown > 0
+    assert 0 <= r.inverted_states <= r.shown
+    assert (r.inverted_states > 0) == (r.most_inverted > 0) == (r.min_det < 0.0)
+    assert np.isfinite(r.min_det) and r.min_det <= 1.0
 
 
 @pytest.mark.soak
