@@ -279,7 +279,8 @@ def stream_by_size(scales: list[float]) -> list[list[object]]:
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg")
 
 WARPINGS = {"linear": {}, "warped, element": {"warp": True, "warping_model": "element"},
-            "warped, vertex": {"warp": True, "warping_model": "vertex", "allow_unbounded_warping": True}}
+            "warped, vertex": {"warp": True, "warping_model": "vertex", "allow_unbounded_warping": True},
+            "neohookean": {"warp": True, "warping_model": "neohookean"}}
 
 
 def twisted_state(model) -> State:
@@ -335,7 +336,8 @@ def warping_rows(h: float, target_tets: int) -> list[list[object]]:
         us = lambda k: f"{t[k] * 1e6:.1f}"  # noqa: E731
         rows.append([name, model.n_vertices, model.mesh.n_tets, us("linear"),
                      f"{us('warped, element')} ({t['warped, element', 'linear']:.2f}x)",
-                     f"{us('warped, vertex')} ({t['warped, vertex', 'linear']:.2f}x)"])
+                     f"{us('warped, vertex')} ({t['warped, vertex', 'linear']:.2f}x)",
+                     f"{us('neohookean')} ({t['neohookean', 'linear']:.2f}x)"])
     return rows
 
 
@@ -387,8 +389,9 @@ def main(argv: list[str] | None = None) -> int:
           f"zeta={MATERIAL.zeta:g}; h = {args.step:g} s; numba threads off (serial kernels)", flush=True)
     print("\nwarped step cost: the clustered step's compiled part (serial, timed inside numba) from a twisted state, "
           "us per step, ratio to the linear step in brackets (paired medians of interleaved rounds); 'element': "
-          "per-element corotation (fem/element_warping.py), 'vertex': the paper's per-vertex warping (fem/warping.py)")
-    print(table(["body", "verts", "tets", "linear us", "warped, element us", "warped, vertex us"],
+          "per-element corotation (fem/element_warping.py), 'vertex': the paper's per-vertex warping (fem/warping.py), "
+          "'neohookean': stable Neo-Hookean elements (fem/neohookean.py)")
+    print(table(["body", "verts", "tets", "linear us", "warped, element us", "warped, vertex us", "neohookean us"],
                 warping_rows(args.step, args.tets)))
     if args.warping_only:
         return 0

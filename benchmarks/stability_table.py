@@ -64,6 +64,7 @@ import numpy as np
 
 from clusterfem_ros.fem.corotational import ElementCorotation
 from clusterfem_ros.fem.element_warping import ElementFrames, element_force, element_rotations
+from clusterfem_ros.fem import neohookean
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.material import DEFAULT_MASS_DAMPING, DEFAULT_STIFFNESS_DAMPING, Material
 from clusterfem_ros.fem.model import Control, FemModel, State, build_model
@@ -84,6 +85,7 @@ METHODS: dict[str, tuple[str, dict]] = {
     "clustered": ("clustered", {}),
     "clustered+warp": ("clustered", {"warp": True}),
     "clustered+warp vertex": ("clustered", {"warp": True, "warping_model": "vertex", **ACK}),
+    "clustered+neohookean": ("clustered", {"warp": True, "warping_model": "neohookean"}),
     "standard explicit": ("standard_explicit", {}),
     "implicit direct": ("implicit_direct", {}),
     "implicit cg": ("implicit_cg", {}),
@@ -93,7 +95,8 @@ METHODS: dict[str, tuple[str, dict]] = {
     "modal 30": ("modal", {"k": 30}),
 }
 FAMILIES = {"clustered": "linear explicit", "standard explicit": "linear explicit",
-            "clustered+warp": "element-warped explicit", "implicit direct": "linear implicit",
+            "clustered+warp": "element-warped explicit", "clustered+neohookean": "Neo-Hookean explicit",
+            "implicit direct": "linear implicit",
             "implicit cg": "linear implicit", "implicit direct+warp": "element-warped implicit",
             "implicit cg+warp": "element-warped implicit", "modal 30": "modal",
             "clustered+warp vertex": "vertex-warped (comparison)",
@@ -257,7 +260,8 @@ def _run(method: str, case: Case, scale: float, steps: int, max_substeps: int, d
     except StabilityError as exc:
         return Result(method, case.name, "refused", message=str(exc))
     warped = bool(options.get("warp"))
-    corot = ElementCorotation(model) if warped else None
+    hookean = warped and options.get("warping_model") == "neohookean"
+    corot = ElementCorotation(model) if warped and not hookean else None
     # the element model's own energy: its rotations, followed from step to step like the integrator's
     element = warped and options.get("warping_model", "element") == "element"
     frames = ElementFrames.from_model(model) if element else None
@@ -271,6 +275,8 @@ def _run(method: str, case: Case, scale: float, steps: int, max_substeps: int, d
     def elastic_force(u: np.ndarray) -> np.ndarray:
         if not warped:
             return -(model.K @ u.reshape(-1)).reshape(-1, 3)
+        if hookean:
+            return neohookean.reference_force(model, u)             # v = 0: the elastic part alone
         if frames is not None:
             return element_force(model, u, frames=frames)          # v = 0: the elastic part alone
         return warped_force(model, u)
@@ -280,6 +286,8 @@ def _run(method: str, case: Case, scale: float, steps: int, max_substeps: int, d
         elastic (the implicit and modal methods)."""
         if not warped:
             el = model.elastic_energy(s.u)
+        elif hookean:
+            el = neohookean.energy(model, s.u)
         else:
             el = corot.energy(s.u, None if frames is None else element_rotations(model, s.u, frames))
         if h_sub == 0.0:

@@ -19,7 +19,8 @@ import yaml
 from .errors import ClusterFemError
 from .fem.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSON_RATIO, DEFAULT_STIFFNESS_DAMPING,
                            DEFAULT_YOUNG_MODULUS)
-from .fem.warping_models import ACKNOWLEDGEMENT, WARPING_MODELS, vertex_refusal
+from .fem.warping_models import (ACKNOWLEDGEMENT, EXPLICIT_ONLY, WARPING_MODELS, explicit_only_refusal,
+                                 vertex_refusal)
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
 
 
@@ -64,8 +65,9 @@ PARAMS: tuple[Param, ...] = (
     Param("modal.k", 30, "number of modes for method 'modal'", 1, 2000),
     Param("warping", True, "stiffness warping: removes the linear model's volume growth under rotation"),
     Param("warping_model", "element", "'element': per-element corotation, the gradient of an energy (cannot feed "
-          "energy in); 'vertex': the paper's per-vertex warping (eq. 10), for comparison: not bounded, refused unless "
-          "physics.allow_unbounded_warping", choices=WARPING_MODELS),
+          "energy in); 'neohookean': stable Neo-Hookean elements, no rotation, an energy smooth through inversion "
+          "(method 'clustered' only; fem/neohookean.py); 'vertex': the paper's per-vertex warping (eq. 10), for "
+          "comparison: not bounded, refused unless physics.allow_unbounded_warping", choices=WARPING_MODELS),
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
     Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this before the outputs get a snapshot", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
@@ -487,6 +489,8 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
                           "different axes")
     if out["warping"] and out["method"] != "modal" and out["warping_model"] == "vertex" and not out[ACKNOWLEDGEMENT]:
         raise ConfigError(vertex_refusal())
+    if out["warping"] and out["warping_model"] in EXPLICIT_ONLY and out["method"] != "clustered":
+        raise ConfigError(explicit_only_refusal(out["warping_model"], out["method"]))
     if out["body.kind"] == "jelly_man" and out["skeleton.source"] == "none":
         raise ConfigError("body.kind = 'jelly_man' is built around a skeleton: set skeleton.source")
     return SceneConfig(out)

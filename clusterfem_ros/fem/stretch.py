@@ -14,6 +14,14 @@ step is planned for lambda_max (1 + g): zero for a body at rest or in rigid moti
 jelly man (stability margin 2.4 -> 1.5 on `scripts/run`'s summary line), where it still takes one sub-step.
 One pass over the vertices (x = X + u), one over the elements (36 multiply-adds each).
 
+``neohookean_stiffening`` is the same factor for the stable Neo-Hookean energy (fem/neohookean.py), whose
+tangent mu I + lambda_s cof F (x) cof F + lambda_s (J - alpha) d^2 J / dF^2 grows with the products of singular
+values: its largest eigenvalue is at most b = mu + lambda_s |cof F|^2 + sqrt(2) lambda_s |J - alpha| |F|_F
+(the eigenvalues of d^2 J / dF^2 are at most s_i + s_j <= sqrt(2) |F|_F), and g = max_e b_e / (3 lambda +
+2 mu) - 1, the linear material's largest modulus being 3 lambda + 2 mu. The bound is loose at rest (1.7 x at
+nu = 0.3, 1.03 x at nu = 0.49), so a Neo-Hookean body plans its step for a stiffer K even at rest; at a
+tenfold stretch the exact tangent is about 110 x the rest one, the bound 125 x.
+
 ``StretchPlan`` turns g into the factor the step is planned with. Symplectic Euler conserves a shadow
 energy only while its step stays the same, and each change of step moves it: on the torn bar (undamped, 3 s,
 benchmarks/stability_table.py), a factor that follows g at every step ended at several times the work put in,
@@ -32,6 +40,7 @@ from .assembly import shape_gradients
 from ..numba_config import HOLDS_GIL
 
 SQRT3 = math.sqrt(3.0)
+SQRT2 = math.sqrt(2.0)
 
 
 @numba.njit(**HOLDS_GIL)
@@ -76,12 +85,70 @@ def stiffening(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.
     return max(0.0, SQRT3 * max_gradient_norm(tets, gradients, rest, u, x) - 3.0)
 
 
-class StretchPlan:
-    """The stretch factor a warped explicit body plans its sub-steps with (module docstring). The bound is
-    taken at most every ``every`` simulated seconds (5 ms: every fifth step of the node's 1 ms, every step of
-    a 10 ms one: a bound costs about a quarter of the jelly man's step)."""
+@numba.njit(**HOLDS_GIL)
+def max_neohookean_bound(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.ndarray,
+                         x: np.ndarray, lam_s: float, alpha: float, mu: float) -> float:
+    """max over elements of b_e = mu + lambda_s |cof F|^2 + sqrt(2) lambda_s |J - alpha| |F|_F (module docstring),
+    F_e as in ``max_gradient_norm`` (x written the same way)."""
+    for i in range(rest.shape[0]):
+        x[i, 0] = rest[i, 0] + u[i, 0]
+        x[i, 1] = rest[i, 1] + u[i, 1]
+        x[i, 2] = rest[i, 2] + u[i, 2]
+    worst = 0.0
+    for e in range(tets.shape[0]):
+        f00 = f01 = f02 = f10 = f11 = f12 = f20 = f21 = f22 = 0.0
+        for c in range(4):
+            v = tets[e, c]
+            x0, x1, x2 = x[v, 0], x[v, 1], x[v, 2]
+            g0, g1, g2 = gradients[e, c, 0], gradients[e, c, 1], gradients[e, c, 2]
+            f00 += x0 * g0
+            f01 += x0 * g1
+            f02 += x0 * g2
+            f10 += x1 * g0
+            f11 += x1 * g1
+            f12 += x1 * g2
+            f20 += x2 * g0
+            f21 += x2 * g1
+            f22 += x2 * g2
+        c00, c01, c02 = f11 * f22 - f12 * f21, f12 * f20 - f10 * f22, f10 * f21 - f11 * f20
+        c10, c11, c12 = f21 * f02 - f22 * f01, f22 * f00 - f20 * f02, f20 * f01 - f21 * f00
+        c20, c21, c22 = f01 * f12 - f02 * f11, f02 * f10 - f00 * f12, f00 * f11 - f01 * f10
+        nc = (c00 * c00 + c01 * c01 + c02 * c02 + c10 * c10 + c11 * c11 + c12 * c12
+              + c20 * c20 + c21 * c21 + c22 * c22)
+        nf = math.sqrt(f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12
+                       + f20 * f20 + f21 * f21 + f22 * f22)
+        j = f00 * c00 + f01 * c01 + f02 * c02
+        b = mu + lam_s * nc + SQRT2 * lam_s * abs(j - alpha) * nf
+        if b > worst:
+            worst = b
+    return worst
 
-    def __init__(self, model, hold: float = 5.0, every: float = 0.005):
+
+def neohookean_stiffening(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.ndarray,
+                          lam: float, mu: float, x: np.ndarray | None = None) -> float:
+    """g >= the stable Neo-Hookean tangent's largest eigenvalue over the linear material's, minus 1 (>= 0; module
+    docstring). ``x``: an (n, 3) workspace (allocated if not given)."""
+    if tets.shape[0] == 0:
+        return 0.0
+    x = np.empty_like(rest) if x is None else x
+    lam_s = lam + mu
+    b = max_neohookean_bound(tets, gradients, rest, u, x, lam_s, 1.0 + mu / lam_s, mu)
+    return max(0.0, b / (3.0 * lam + 2.0 * mu) - 1.0)
+
+
+class StretchPlan:
+    """The stretch factor a warped explicit body plans its sub-steps with (module docstring). The corotated
+    bound is taken at most every ``every`` simulated seconds (5 ms: every fifth step of the node's 1 ms, every
+    step of a 10 ms one: a bound costs about a quarter of the jelly man's step). The Neo-Hookean bound is taken
+    every step: its stiffness grows with the square of the stretch, and the fine hard-case bar torn at h = 1 ms
+    diverged in the steps between two bounds 5 ms apart (benchmarks/stability_table.py)."""
+
+    def __init__(self, model, hold: float = 5.0, every: float = 0.005, energy: str = "corotated"):
+        if energy not in ("corotated", "neohookean"):
+            raise ValueError(f"energy = {energy!r}: 'corotated' or 'neohookean'")
+        self.energy = energy
+        every = 0.0 if energy == "neohookean" else every
+        self.lame = model.material.lame
         self.tets = np.ascontiguousarray(model.mesh.tets, dtype=np.int64)
         self.gradients = np.ascontiguousarray(shape_gradients(model.rest, self.tets)[0])
         self.rest = np.ascontiguousarray(model.rest, dtype=np.float64)
@@ -98,7 +165,10 @@ class StretchPlan:
             self._since += h
             return self.current
         self._due += max(self.every, h)
-        g = stiffening(self.tets, self.gradients, self.rest, u, self._x)
+        if self.energy == "neohookean":
+            g = neohookean_stiffening(self.tets, self.gradients, self.rest, u, *self.lame, self._x)
+        else:
+            g = stiffening(self.tets, self.gradients, self.rest, u, self._x)
         need = 2.0 ** (math.ceil(4.0 * math.log2(1.0 + g)) / 4.0) if g > 0.0 else 1.0
         if need >= self.current:
             self.current, self._since = need, 0.0

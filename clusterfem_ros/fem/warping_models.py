@@ -8,13 +8,16 @@ not the gradient of any energy, and where neighbouring rotations differ sharply 
 an inverting sliver) it feeds energy in: on the stability table it grew without bound in runs at the scene's
 default damping too, and nothing known at set-up predicts which runs. So it is refused unless the caller acknowledges that
 (``allow_unbounded_warping=True``; scene parameter ``physics.allow_unbounded_warping``), and then it runs
-as before, with one UnboundedWarpingWarning per process.
+as before, with one UnboundedWarpingWarning per process. 'neohookean': no rotation at all, the stable
+Neo-Hookean energy (fem/neohookean.py), smooth through inversion, where the corotated energy is not; on the
+clustered explicit method only (``explicit_only_refusal``).
 """
 from __future__ import annotations
 
 import warnings
 
-WARPING_MODELS = ("element", "vertex")
+WARPING_MODELS = ("element", "vertex", "neohookean")
+EXPLICIT_ONLY = ("neohookean",)              # the models only the clustered explicit method runs
 ACKNOWLEDGEMENT = "physics.allow_unbounded_warping"   # the scene parameter; integrators: allow_unbounded_warping
 
 
@@ -31,11 +34,18 @@ def vertex_refusal() -> str:
             f"paper: {ACKNOWLEDGEMENT}: true (integrators: allow_unbounded_warping=True)")
 
 
+def explicit_only_refusal(name: str, method: str) -> str:
+    """Why ``warping_model = name`` is refused on ``method``, and the ways out."""
+    return (f"warping_model = {name!r} runs on method 'clustered' only (its force has no implicit or standard "
+            f"explicit step here), not on {method!r}: use method 'clustered', or warping_model 'element'")
+
+
 def check_warping_model(name: str) -> str:
-    """The warping model's name, checked: 'element' (default) or 'vertex' (the paper's eq. 10)."""
+    """The warping model's name, checked: 'element' (default), 'vertex' (the paper's eq. 10) or 'neohookean'."""
     if name not in WARPING_MODELS:
-        raise ValueError(f"warping_model = {name!r}: choose 'element' (per-element corotation, conservative) or "
-                         "'vertex' (the paper's per-vertex warping, for comparison)")
+        raise ValueError(f"warping_model = {name!r}: choose 'element' (per-element corotation, conservative), "
+                         "'vertex' (the paper's per-vertex warping, for comparison) or 'neohookean' (stable "
+                         "Neo-Hookean elements, smooth through inversion; method 'clustered' only)")
     return name
 
 

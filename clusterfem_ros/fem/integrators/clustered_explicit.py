@@ -3,7 +3,8 @@
 All sub-steps of one step run inside one numba call: fixed vertices held at rest, force, constraint forces,
 velocity and position updates, with no Python in between. ``warp=True`` swaps in a warped force on
 the same step: per-element corotation by default (fem/element_warping.py: the gradient of an energy, so it
-cannot feed energy in), or the paper's per-vertex warping (``warping_model="vertex"``, fem/warping.py: eq.
+cannot feed energy in), stable Neo-Hookean elements (fem/neohookean.py: an energy smooth through inversion,
+``warping_model="neohookean"``), or the paper's per-vertex warping (``warping_model="vertex"``, fem/warping.py: eq.
 10, symmetrised) for comparison, which has no energy and is refused unless ``allow_unbounded_warping``; the
 linear path is a separate compiled function.
 The critical step is the linear K's. A corotated element stretched several times its size is stiffer than
@@ -37,6 +38,7 @@ from ...numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
 from ..stretch import StretchPlan
 from ..element_warping import ElementFrames, check_warping_model, element_e_parallel, element_e_serial
+from ..neohookean import neohookean_e_parallel, neohookean_e_serial
 from ..warping import VertexFrames, warped_e_parallel, warped_e_serial
 from .base import StepCommon, StepInfo
 
@@ -173,6 +175,11 @@ _element_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic
                                warped_e=element_e_serial)
 _element_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_element_parallel",
                                  warped_e=element_e_parallel)
+# and around the stable Neo-Hookean elements' kernel (fem/neohookean.py)
+_neohookean_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_neohookean",
+                                  warped_e=neohookean_e_serial)
+_neohookean_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_neohookean_parallel",
+                                    warped_e=neohookean_e_parallel)
 
 
 class ThreadChoice:
@@ -245,7 +252,8 @@ class ClusteredExplicit:
     """The paper's method. ``safety`` scales the critical step; ``threads`` forces the threaded kernel on/off
     (default: from AUTO_THREADS_MIN_VERTICES vertices, the faster build as measured by ThreadChoice);
     ``warp`` turns on stiffness warping, ``warping_model`` which: 'element' (per-element corotation, the
-    gradient of an energy: fem/element_warping.py) or 'vertex' (the paper's eq. 10, symmetrised:
+    gradient of an energy: fem/element_warping.py), 'neohookean' (stable Neo-Hookean elements, no rotation,
+    smooth through inversion: fem/neohookean.py) or 'vertex' (the paper's eq. 10, symmetrised:
     fem/warping.py; refused with StabilityError unless ``allow_unbounded_warping``: fem/warping_models.py);
     ``plan_stretch=False`` plans a warped step from the linear K alone (for comparison:
     fem/stretch.py says why it is on)."""
@@ -264,11 +272,13 @@ class ClusteredExplicit:
         n = model.n_vertices
         self.thread_choice = ThreadChoice() if threads is None and n >= AUTO_THREADS_MIN_VERTICES else None
         self.threads = bool(threads)
-        if self.warp and warping_model == "element":
-            self.name = "clustered_warp"
+        if self.warp and warping_model in ("element", "neohookean"):
+            element = warping_model == "element"
+            self.name = "clustered_warp" if element else "clustered_neohookean"
             frames = self.frames = ElementFrames.from_model(model)
             self._model_args = (frames.elems, frames.gather, frames.rest, frames.work)
-            self._builds = (_element_step_serial, _element_step_parallel)
+            self._builds = ((_element_step_serial, _element_step_parallel) if element
+                            else (_neohookean_step_serial, _neohookean_step_parallel))
             self._w, self._f = frames.w, frames.e     # w: x0 + u + zeta v by vertex; e: the gathered rows
         elif self.warp:
             self.name = "clustered_warp_vertex"
@@ -287,7 +297,8 @@ class ClusteredExplicit:
         self._common = StepCommon(model)
         m = model.material
         self._zeta, self._xi = float(m.zeta), float(m.xi)
-        self.stretch = StretchPlan(model) if self.warp and plan_stretch else None
+        energy = "neohookean" if warping_model == "neohookean" else "corotated"
+        self.stretch = StretchPlan(model, energy=energy) if self.warp and plan_stretch else None
         self._plan_key = None
         self._plan = None
         self._info = None

@@ -70,7 +70,8 @@ class StandardImplicit:
         self.model = model
         self.solver = solver
         self.warp = bool(warp)
-        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping)
+        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping,
+                                                 f"implicit_{solver}")
         self.element = self.warp and warping_model == "element"
         self.name = f"implicit_{solver}" + (("_warp" if self.element else "_warp_vertex") if self.warp else "")
         nu = model.material.nu
