@@ -42,8 +42,9 @@ element data and workspace; fem/corotational.py (numpy) is the twin the tests co
 
 What a build injects: the kernel sources ``_element_e`` and ``_element_force`` call compiled functions by
 global names that no import defines, bound per build (serial or threaded) by numba_config.compiled, hence
-``# noqa: F821`` at each call: ``element_pass`` and ``gather_rows`` in ``_element_e``; ``kernel_input``,
-``element_e`` and ``finish`` in ``_element_force``.
+``# noqa: F821`` at each call: ``chunk`` (``_element_chunk``; fem/neohookean.py binds its own) in
+``_element_pass``; ``element_pass`` and ``gather_rows`` in ``_element_e``; ``kernel_input``, ``element_e`` and
+``finish`` in ``_element_force``.
 """
 from __future__ import annotations
 
@@ -83,6 +84,9 @@ def check_warping_model(name: str, warp: bool = True, allow_unbounded_warping: b
 # Chunks are handed to threads in BLOCKS contiguous runs, each with its own workspace (a chunk's result does
 # not depend on the workspace it used, so serial and threaded builds give the same bits).
 BLOCKS = 16
+# The lane steps shared with fem/neohookean.py are inlined by numba, not left to LLVM: called as functions,
+# their indexing kept the element pass from vectorising (the jelly man's warped force took 1.9x as long).
+INLINED = dict(SERIAL, inline="always")
 
 
 @numba.njit(**SERIAL)
@@ -111,26 +115,53 @@ def _differences(corner, u, w, D, DW, forces):
             _corner_differences(corner, l, w, DW)
 
 
+@numba.njit(**INLINED)
+def lane_gradient(D, grad, l, one):
+    """one I + sum_c d_c g_c^T of lane l (d_c = D's rows 3 (c - 1).., g_c = grad's), row-major: with one = 1
+    and D the differences of u, F = I + grad u; with one = 0 and D those of w = x0 + u + zeta v, G, the gradient
+    of w. The element passes' shared first step (here and in fem/neohookean.py), inlined into their lane
+    loops."""
+    g10, g11, g12 = grad[l], grad[1 * LANES + l], grad[2 * LANES + l]
+    g20, g21, g22 = grad[3 * LANES + l], grad[4 * LANES + l], grad[5 * LANES + l]
+    g30, g31, g32 = grad[6 * LANES + l], grad[7 * LANES + l], grad[8 * LANES + l]
+    d10, d11, d12 = D[l], D[1 * LANES + l], D[2 * LANES + l]
+    d20, d21, d22 = D[3 * LANES + l], D[4 * LANES + l], D[5 * LANES + l]
+    d30, d31, d32 = D[6 * LANES + l], D[7 * LANES + l], D[8 * LANES + l]
+    return ((one + d10 * g10) + (d20 * g20 + d30 * g30), d10 * g11 + (d20 * g21 + d30 * g31),
+            d10 * g12 + (d20 * g22 + d30 * g32), d11 * g10 + (d21 * g20 + d31 * g30),
+            (one + d11 * g11) + (d21 * g21 + d31 * g31), d11 * g12 + (d21 * g22 + d31 * g32),
+            d12 * g10 + (d22 * g20 + d32 * g30), d12 * g11 + (d22 * g21 + d32 * g31),
+            (one + d12 * g12) + (d22 * g22 + d32 * g32))
+
+
+@numba.njit(**INLINED)
+def store_corner_forces(fe, grad, l, p00, p01, p02, p10, p11, p12, p20, p21, p22):
+    """fe[(3 c + a) LANES + l] <- component a of P g_c (c = 1, 2, 3), fe_0 = -(fe_1 + fe_2 + fe_3): lane l's
+    corner forces (the force is -fe) from its stress P times volume, row-major; the element passes' last step."""
+    g10, g11, g12 = grad[l], grad[1 * LANES + l], grad[2 * LANES + l]
+    g20, g21, g22 = grad[3 * LANES + l], grad[4 * LANES + l], grad[5 * LANES + l]
+    g30, g31, g32 = grad[6 * LANES + l], grad[7 * LANES + l], grad[8 * LANES + l]
+    f10 = p00 * g10 + p01 * g11 + p02 * g12
+    f11 = p10 * g10 + p11 * g11 + p12 * g12
+    f12 = p20 * g10 + p21 * g11 + p22 * g12
+    f20 = p00 * g20 + p01 * g21 + p02 * g22
+    f21 = p10 * g20 + p11 * g21 + p12 * g22
+    f22 = p20 * g20 + p21 * g21 + p22 * g22
+    f30 = p00 * g30 + p01 * g31 + p02 * g32
+    f31 = p10 * g30 + p11 * g31 + p12 * g32
+    f32 = p20 * g30 + p21 * g31 + p22 * g32
+    fe[l], fe[LANES + l], fe[2 * LANES + l] = -(f10 + f20 + f30), -(f11 + f21 + f31), -(f12 + f22 + f32)
+    fe[3 * LANES + l], fe[4 * LANES + l], fe[5 * LANES + l] = f10, f11, f12
+    fe[6 * LANES + l], fe[7 * LANES + l], fe[8 * LANES + l] = f20, f21, f22
+    fe[9 * LANES + l], fe[10 * LANES + l], fe[11 * LANES + l] = f30, f31, f32
+
+
 @numba.njit(**SERIAL)
 def _warm_gradients(D, grad, rot, X):
     """X <- R^T F per lane: F = I + sum_c d_c g_c^T (d_c = D's rows 3 (c - 1)..), R the element's previous
     rotation, whose polar factor R^T polar(F) is near the identity while the element turns little."""
     for l in range(LANES):
-        g10, g11, g12 = grad[l], grad[1 * LANES + l], grad[2 * LANES + l]
-        g20, g21, g22 = grad[3 * LANES + l], grad[4 * LANES + l], grad[5 * LANES + l]
-        g30, g31, g32 = grad[6 * LANES + l], grad[7 * LANES + l], grad[8 * LANES + l]
-        d10, d11, d12 = D[l], D[1 * LANES + l], D[2 * LANES + l]
-        d20, d21, d22 = D[3 * LANES + l], D[4 * LANES + l], D[5 * LANES + l]
-        d30, d31, d32 = D[6 * LANES + l], D[7 * LANES + l], D[8 * LANES + l]
-        f00 = (1.0 + d10 * g10) + (d20 * g20 + d30 * g30)
-        f01 = d10 * g11 + (d20 * g21 + d30 * g31)
-        f02 = d10 * g12 + (d20 * g22 + d30 * g32)
-        f10 = d11 * g10 + (d21 * g20 + d31 * g30)
-        f11 = (1.0 + d11 * g11) + (d21 * g21 + d31 * g31)
-        f12 = d11 * g12 + (d21 * g22 + d31 * g32)
-        f20 = d12 * g10 + (d22 * g20 + d32 * g30)
-        f21 = d12 * g11 + (d22 * g21 + d32 * g31)
-        f22 = (1.0 + d12 * g12) + (d22 * g22 + d32 * g32)
+        f00, f01, f02, f10, f11, f12, f20, f21, f22 = lane_gradient(D, grad, l, 1.0)
         r00, r01, r02 = rot[l], rot[1 * LANES + l], rot[2 * LANES + l]
         r10, r11, r12 = rot[3 * LANES + l], rot[4 * LANES + l], rot[5 * LANES + l]
         r20, r21, r22 = rot[6 * LANES + l], rot[7 * LANES + l], rot[8 * LANES + l]
@@ -150,21 +181,7 @@ def _chunk_forces(DW, grad, vol, lam, mu, R, fe):
     """fe[(3 c + a) LANES + l] <- component a of V R sigma g_c per lane (module docstring; the force is -fe):
     G = sum_c dw_c g_c^T the gradient of w, A = R^T G, sigma = mu (A + A^T) - 2 mu I + lambda tr(A - I) I."""
     for l in range(LANES):
-        g10, g11, g12 = grad[l], grad[1 * LANES + l], grad[2 * LANES + l]
-        g20, g21, g22 = grad[3 * LANES + l], grad[4 * LANES + l], grad[5 * LANES + l]
-        g30, g31, g32 = grad[6 * LANES + l], grad[7 * LANES + l], grad[8 * LANES + l]
-        d10, d11, d12 = DW[l], DW[1 * LANES + l], DW[2 * LANES + l]
-        d20, d21, d22 = DW[3 * LANES + l], DW[4 * LANES + l], DW[5 * LANES + l]
-        d30, d31, d32 = DW[6 * LANES + l], DW[7 * LANES + l], DW[8 * LANES + l]
-        G00 = d10 * g10 + (d20 * g20 + d30 * g30)
-        G01 = d10 * g11 + (d20 * g21 + d30 * g31)
-        G02 = d10 * g12 + (d20 * g22 + d30 * g32)
-        G10 = d11 * g10 + (d21 * g20 + d31 * g30)
-        G11 = d11 * g11 + (d21 * g21 + d31 * g31)
-        G12 = d11 * g12 + (d21 * g22 + d31 * g32)
-        G20 = d12 * g10 + (d22 * g20 + d32 * g30)
-        G21 = d12 * g11 + (d22 * g21 + d32 * g31)
-        G22 = d12 * g12 + (d22 * g22 + d32 * g32)
+        G00, G01, G02, G10, G11, G12, G20, G21, G22 = lane_gradient(DW, grad, l, 0.0)
         r00, r01, r02 = R[l], R[1 * LANES + l], R[2 * LANES + l]
         r10, r11, r12 = R[3 * LANES + l], R[4 * LANES + l], R[5 * LANES + l]
         r20, r21, r22 = R[6 * LANES + l], R[7 * LANES + l], R[8 * LANES + l]
@@ -190,19 +207,7 @@ def _chunk_forces(DW, grad, vol, lam, mu, R, fe):
         p20 = r20 * s00 + r21 * s01 + r22 * s02
         p21 = r20 * s01 + r21 * s11 + r22 * s12
         p22 = r20 * s02 + r21 * s12 + r22 * s22
-        f10 = p00 * g10 + p01 * g11 + p02 * g12                  # fe_c = P g_c, fe_0 = -(fe_1 + fe_2 + fe_3)
-        f11 = p10 * g10 + p11 * g11 + p12 * g12
-        f12 = p20 * g10 + p21 * g11 + p22 * g12
-        f20 = p00 * g20 + p01 * g21 + p02 * g22
-        f21 = p10 * g20 + p11 * g21 + p12 * g22
-        f22 = p20 * g20 + p21 * g21 + p22 * g22
-        f30 = p00 * g30 + p01 * g31 + p02 * g32
-        f31 = p10 * g30 + p11 * g31 + p12 * g32
-        f32 = p20 * g30 + p21 * g31 + p22 * g32
-        fe[l], fe[LANES + l], fe[2 * LANES + l] = -(f10 + f20 + f30), -(f11 + f21 + f31), -(f12 + f22 + f32)
-        fe[3 * LANES + l], fe[4 * LANES + l], fe[5 * LANES + l] = f10, f11, f12
-        fe[6 * LANES + l], fe[7 * LANES + l], fe[8 * LANES + l] = f20, f21, f22
-        fe[9 * LANES + l], fe[10 * LANES + l], fe[11 * LANES + l] = f30, f31, f32
+        store_corner_forces(fe, grad, l, p00, p01, p02, p10, p11, p12, p20, p21, p22)
 
 
 @numba.njit(**SERIAL)
@@ -232,7 +237,7 @@ def _element_pass(elems, u, w, work, forces):
     per = -(-chunks // blocks)
     for b in prange(blocks):
         for c in range(b * per, min((b + 1) * per, chunks)):
-            _element_chunk(c, buf[b], how[b], tmp[b], forces, corner, grad, vol, lame[0], lame[1], u, w, rot, fe)
+            chunk(c, buf[b], how[b], tmp[b], forces, corner, grad, vol, lame[0], lame[1], u, w, rot, fe)  # noqa: F821
 
 
 def _gather(gather, fe, e):
@@ -253,7 +258,8 @@ def _gather(gather, fe, e):
         e[i, 2] = z
 
 
-element_pass_serial, element_pass_parallel = serial_and_parallel(_element_pass)
+element_pass_serial, element_pass_parallel = serial_and_parallel(_element_pass, serial={"chunk": _element_chunk},
+                                                                 parallel={"chunk": _element_chunk})
 gather_serial, gather_parallel = serial_and_parallel(_gather)
 
 
@@ -360,12 +366,19 @@ def element_rotations(model: FemModel, u: np.ndarray, frames: ElementFrames | No
 def element_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None, frames: ElementFrames | None = None,
                   out: np.ndarray | None = None, threads: bool | None = None) -> np.ndarray:
     """Element-warped elastic + damping force, (n, 3) (module docstring), including -xi M v."""
+    return run_element_kernel(element_kernel_serial, element_kernel_parallel, model, u, v, frames, out, threads)
+
+
+def run_element_kernel(serial, parallel, model: FemModel, u: np.ndarray, v: np.ndarray | None,
+                       frames: ElementFrames | None, out: np.ndarray | None, threads: bool | None) -> np.ndarray:
+    """out <- the force of (u, v) by an element kernel's serial or threaded build (this module's, or
+    fem/neohookean.py's), arguments checked (kernel_args) and frames built if not given."""
     (u,) = checked_rows(model, u=u)
     (v,) = checked_rows(model, v=np.zeros_like(u) if v is None else v)
     frames = ElementFrames.from_model(model) if frames is None else frames
     n = model.n_vertices
     out = output_rows(n, out)
-    kern = pick_build(n, threads, element_kernel_serial, element_kernel_parallel)
+    kern = pick_build(n, threads, serial, parallel)
     m = model.material
     kern(frames.elems, frames.gather, frames.rest, u, v, frames.w, np.repeat(model.mass, 3), float(m.zeta),
          float(m.xi), frames.work, out)

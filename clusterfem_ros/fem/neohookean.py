@@ -34,21 +34,20 @@ LANES elements by lane, element corner forces gathered per vertex in element ord
 builds give the same bits) without the rotations. ``neohookean_force`` is the checked public entry;
 ``reference_force`` and ``energy`` (numpy) are the twins the tests and the stability table use.
 
-What a build injects: ``_neohookean_e`` calls ``neohookean_pass`` and ``gather_rows``, ``_neohookean_force``
-calls ``kernel_input``, ``neohookean_e`` and ``finish``, by global names bound per build
-(numba_config.compiled), hence ``# noqa: F821`` at each call.
+Builds: the element warping's pass, pass-and-gather and force sources (``_element_pass``, ``_element_e``,
+``_element_force``) with this module's ``_neohookean_chunk`` bound as their ``chunk`` (numba_config.compiled).
 """
 from __future__ import annotations
 
 import numba
 import numpy as np
-from numba import prange
 
 from .assembly import shape_gradients
 from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .element_rotation import LANES
-from .element_warping import ElementFrames, _differences, gather_parallel, gather_serial
-from .kernel_args import checked_rows, output_rows, pick_build
+from .element_warping import (ElementFrames, _differences, _element_e, _element_force, _element_pass,
+                              gather_parallel, gather_serial, lane_gradient, run_element_kernel,
+                              store_corner_forces)
 from .model import FemModel
 from ..numba_config import SERIAL, compiled, serial_and_parallel
 
@@ -118,33 +117,11 @@ def _chunk_forces(D, DW, grad, vol, lam, mu, fe):
     lam_s = lam + mu
     alpha = 1.0 + mu / lam_s
     for l in range(LANES):
-        g10, g11, g12 = grad[l], grad[1 * LANES + l], grad[2 * LANES + l]
-        g20, g21, g22 = grad[3 * LANES + l], grad[4 * LANES + l], grad[5 * LANES + l]
-        g30, g31, g32 = grad[6 * LANES + l], grad[7 * LANES + l], grad[8 * LANES + l]
-        d10, d11, d12 = D[l], D[1 * LANES + l], D[2 * LANES + l]
-        d20, d21, d22 = D[3 * LANES + l], D[4 * LANES + l], D[5 * LANES + l]
-        d30, d31, d32 = D[6 * LANES + l], D[7 * LANES + l], D[8 * LANES + l]
-        f00 = (1.0 + d10 * g10) + (d20 * g20 + d30 * g30)
-        f01 = d10 * g11 + (d20 * g21 + d30 * g31)
-        f02 = d10 * g12 + (d20 * g22 + d30 * g32)
-        f10 = d11 * g10 + (d21 * g20 + d31 * g30)
-        f11 = (1.0 + d11 * g11) + (d21 * g21 + d31 * g31)
-        f12 = d11 * g12 + (d21 * g22 + d31 * g32)
-        f20 = d12 * g10 + (d22 * g20 + d32 * g30)
-        f21 = d12 * g11 + (d22 * g21 + d32 * g31)
-        f22 = (1.0 + d12 * g12) + (d22 * g22 + d32 * g32)
-        w10, w11, w12 = DW[l], DW[1 * LANES + l], DW[2 * LANES + l]
-        w20, w21, w22 = DW[3 * LANES + l], DW[4 * LANES + l], DW[5 * LANES + l]
-        w30, w31, w32 = DW[6 * LANES + l], DW[7 * LANES + l], DW[8 * LANES + l]
-        z00 = (w10 * g10 + (w20 * g20 + w30 * g30)) - f00           # Z = G - F = zeta dF/dt
-        z01 = (w10 * g11 + (w20 * g21 + w30 * g31)) - f01
-        z02 = (w10 * g12 + (w20 * g22 + w30 * g32)) - f02
-        z10 = (w11 * g10 + (w21 * g20 + w31 * g30)) - f10
-        z11 = (w11 * g11 + (w21 * g21 + w31 * g31)) - f11
-        z12 = (w11 * g12 + (w21 * g22 + w31 * g32)) - f12
-        z20 = (w12 * g10 + (w22 * g20 + w32 * g30)) - f20
-        z21 = (w12 * g11 + (w22 * g21 + w32 * g31)) - f21
-        z22 = (w12 * g12 + (w22 * g22 + w32 * g32)) - f22
+        f00, f01, f02, f10, f11, f12, f20, f21, f22 = lane_gradient(D, grad, l, 1.0)
+        G00, G01, G02, G10, G11, G12, G20, G21, G22 = lane_gradient(DW, grad, l, 0.0)
+        z00, z01, z02 = G00 - f00, G01 - f01, G02 - f02                 # Z = G - F = zeta dF/dt
+        z10, z11, z12 = G10 - f10, G11 - f11, G12 - f12
+        z20, z21, z22 = G20 - f20, G21 - f21, G22 - f22
         c00, c01, c02 = f11 * f22 - f12 * f21, f12 * f20 - f10 * f22, f10 * f21 - f11 * f20     # cof F
         c10, c11, c12 = f21 * f02 - f22 * f01, f22 * f00 - f20 * f02, f20 * f01 - f21 * f00
         c20, c21, c22 = f01 * f12 - f02 * f11, f02 * f10 - f00 * f12, f00 * f11 - f01 * f10
@@ -168,73 +145,34 @@ def _chunk_forces(D, DW, grad, vol, lam, mu, fe):
         p20 = v * (f20 * s00 + f21 * s01 + f22 * s02 + k * c20)
         p21 = v * (f20 * s01 + f21 * s11 + f22 * s12 + k * c21)
         p22 = v * (f20 * s02 + f21 * s12 + f22 * s22 + k * c22)
-        h10 = p00 * g10 + p01 * g11 + p02 * g12                     # fe_c = P g_c, fe_0 = -(fe_1 + fe_2 + fe_3)
-        h11 = p10 * g10 + p11 * g11 + p12 * g12
-        h12 = p20 * g10 + p21 * g11 + p22 * g12
-        h20 = p00 * g20 + p01 * g21 + p02 * g22
-        h21 = p10 * g20 + p11 * g21 + p12 * g22
-        h22 = p20 * g20 + p21 * g21 + p22 * g22
-        h30 = p00 * g30 + p01 * g31 + p02 * g32
-        h31 = p10 * g30 + p11 * g31 + p12 * g32
-        h32 = p20 * g30 + p21 * g31 + p22 * g32
-        fe[l], fe[LANES + l], fe[2 * LANES + l] = -(h10 + h20 + h30), -(h11 + h21 + h31), -(h12 + h22 + h32)
-        fe[3 * LANES + l], fe[4 * LANES + l], fe[5 * LANES + l] = h10, h11, h12
-        fe[6 * LANES + l], fe[7 * LANES + l], fe[8 * LANES + l] = h20, h21, h22
-        fe[9 * LANES + l], fe[10 * LANES + l], fe[11 * LANES + l] = h30, h31, h32
+        store_corner_forces(fe, grad, l, p00, p01, p02, p10, p11, p12, p20, p21, p22)
 
 
-def _neohookean_pass(elems, u, w, work):
-    """fe <- the element forces of (u, w) (blocks of chunks in parallel; ElementFrames' argument groups)."""
-    corner, grad, vol, lame = elems
-    _, buf, _, _, fe, _ = work
-    chunks = fe.shape[0]
-    blocks = buf.shape[0]
-    per = -(-chunks // blocks)
-    for b in prange(blocks):
-        D, DW = buf[b, 0], buf[b, 1]
-        for c in range(b * per, min((b + 1) * per, chunks)):
-            _differences(corner[c], u, w, D, DW, True)
-            _chunk_forces(D, DW, grad[c], vol[c], lame[0], lame[1], fe[c])
+@numba.njit(**SERIAL)
+def _neohookean_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, rot, fe):
+    """Chunk c: differences of u and w, then the element forces. The element warping's chunk signature, so its
+    pass runs this one; the rotation workspace (how, tmp, rot) is unused and ``forces`` is always true here."""
+    D, DW = buf[0], buf[1]
+    _differences(corner[c], u, w, D, DW, True)
+    _chunk_forces(D, DW, grad[c], vol[c], lam, mu, fe[c])
 
 
-neohookean_pass_serial, neohookean_pass_parallel = serial_and_parallel(_neohookean_pass)
-
-
-def _neohookean_e(elems, gather, u, w, work):
-    """e <- the elastic-damping part of the force of w = x0 + u + zeta v (f = -e - xi M v), in rows by vertex;
-    the clustered integrator's warped step source runs it in place of the element warping's."""
-    neohookean_pass(elems, u, w, work)  # noqa: F821 (bound)
-    gather_rows(gather, work[4], work[5])  # noqa: F821
-
-
-def _neohookean_force(elems, gather, rest, u, v, w, mass3, zeta, xi, work, out):
-    """out <- the force of (u, v), f = -e - xi M v (mass3: the lumped mass per coordinate)."""
-    kernel_input(u.shape[0], zeta, rest, u, v, w, True)  # noqa: F821 (bound)
-    neohookean_e(elems, gather, u, w, work)  # noqa: F821
-    finish(work[5], v, mass3, xi, out)  # noqa: F821
-
-
-# no loop of their own: their callees carry the threads
-neohookean_e_serial = compiled(_neohookean_e, neohookean_pass=neohookean_pass_serial, gather_rows=gather_serial)
-neohookean_e_parallel = compiled(_neohookean_e, "_parallel", neohookean_pass=neohookean_pass_parallel,
+# the element warping's sources around this chunk: the pass over blocks of chunks, the pass and gather, and
+# the whole force (w, the pass and gather, the finish)
+neohookean_pass_serial, neohookean_pass_parallel = serial_and_parallel(
+    _element_pass, "_neohookean", serial={"chunk": _neohookean_chunk}, parallel={"chunk": _neohookean_chunk})
+neohookean_e_serial = compiled(_element_e, "_neohookean", element_pass=neohookean_pass_serial,
+                               gather_rows=gather_serial)
+neohookean_e_parallel = compiled(_element_e, "_neohookean_parallel", element_pass=neohookean_pass_parallel,
                                  gather_rows=gather_parallel)
-neohookean_kernel_serial = compiled(_neohookean_force, kernel_input=kernel_input_serial,
-                                    neohookean_e=neohookean_e_serial, finish=finish_serial)
-neohookean_kernel_parallel = compiled(_neohookean_force, "_parallel", kernel_input=kernel_input_parallel,
-                                      neohookean_e=neohookean_e_parallel, finish=finish_parallel)
+neohookean_kernel_serial = compiled(_element_force, "_neohookean", kernel_input=kernel_input_serial,
+                                    element_e=neohookean_e_serial, finish=finish_serial)
+neohookean_kernel_parallel = compiled(_element_force, "_neohookean_parallel", kernel_input=kernel_input_parallel,
+                                      element_e=neohookean_e_parallel, finish=finish_parallel)
 
 
 def neohookean_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None,
                      frames: ElementFrames | None = None, out: np.ndarray | None = None,
                      threads: bool | None = None) -> np.ndarray:
     """Stable Neo-Hookean elastic + damping force, (n, 3) (module docstring), including -xi M v."""
-    (u,) = checked_rows(model, u=u)
-    (v,) = checked_rows(model, v=np.zeros_like(u) if v is None else v)
-    frames = ElementFrames.from_model(model) if frames is None else frames
-    n = model.n_vertices
-    out = output_rows(n, out)
-    kern = pick_build(n, threads, neohookean_kernel_serial, neohookean_kernel_parallel)
-    m = model.material
-    kern(frames.elems, frames.gather, frames.rest, u, v, frames.w, np.repeat(model.mass, 3), float(m.zeta),
-         float(m.xi), frames.work, out)
-    return out
+    return run_element_kernel(neohookean_kernel_serial, neohookean_kernel_parallel, model, u, v, frames, out, threads)

@@ -41,6 +41,36 @@ from ..numba_config import HOLDS_GIL
 
 SQRT3 = math.sqrt(3.0)
 SQRT2 = math.sqrt(2.0)
+INLINED = dict(HOLDS_GIL, inline="always")   # the bounds' shared steps, inlined by numba (element_warping.INLINED)
+
+
+@numba.njit(**INLINED)
+def _positions(rest: np.ndarray, u: np.ndarray, x: np.ndarray) -> None:
+    """x <- rest + u (each vertex once, not once per element corner, and one array to gather from)."""
+    for i in range(rest.shape[0]):
+        x[i, 0] = rest[i, 0] + u[i, 0]
+        x[i, 1] = rest[i, 1] + u[i, 1]
+        x[i, 2] = rest[i, 2] + u[i, 2]
+
+
+@numba.njit(**INLINED)
+def _element_gradient(tets: np.ndarray, gradients: np.ndarray, x: np.ndarray, e: int):
+    """F_e = sum_c x_c outer g_{e,c}, row-major (inlined into the bounds' element loops)."""
+    f00 = f01 = f02 = f10 = f11 = f12 = f20 = f21 = f22 = 0.0
+    for c in range(4):
+        v = tets[e, c]
+        x0, x1, x2 = x[v, 0], x[v, 1], x[v, 2]
+        g0, g1, g2 = gradients[e, c, 0], gradients[e, c, 1], gradients[e, c, 2]
+        f00 += x0 * g0
+        f01 += x0 * g1
+        f02 += x0 * g2
+        f10 += x1 * g0
+        f11 += x1 * g1
+        f12 += x1 * g2
+        f20 += x2 * g0
+        f21 += x2 * g1
+        f22 += x2 * g2
+    return f00, f01, f02, f10, f11, f12, f20, f21, f22
 
 
 @numba.njit(**HOLDS_GIL)
@@ -48,26 +78,10 @@ def max_gradient_norm(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray,
                       x: np.ndarray) -> float:
     """max over elements of |F_e|_F, F_e = sum_c x_c outer g_{e,c}, x = rest + u (written to ``x`` (n, 3) first:
     each vertex once, not once per element corner, and one array to gather from instead of two)."""
-    for i in range(rest.shape[0]):
-        x[i, 0] = rest[i, 0] + u[i, 0]
-        x[i, 1] = rest[i, 1] + u[i, 1]
-        x[i, 2] = rest[i, 2] + u[i, 2]
+    _positions(rest, u, x)
     worst = 0.0
     for e in range(tets.shape[0]):
-        f00 = f01 = f02 = f10 = f11 = f12 = f20 = f21 = f22 = 0.0
-        for c in range(4):
-            v = tets[e, c]
-            x0, x1, x2 = x[v, 0], x[v, 1], x[v, 2]
-            g0, g1, g2 = gradients[e, c, 0], gradients[e, c, 1], gradients[e, c, 2]
-            f00 += x0 * g0
-            f01 += x0 * g1
-            f02 += x0 * g2
-            f10 += x1 * g0
-            f11 += x1 * g1
-            f12 += x1 * g2
-            f20 += x2 * g0
-            f21 += x2 * g1
-            f22 += x2 * g2
+        f00, f01, f02, f10, f11, f12, f20, f21, f22 = _element_gradient(tets, gradients, x, e)
         s = (f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12
              + f20 * f20 + f21 * f21 + f22 * f22)
         if s > worst:
@@ -90,26 +104,10 @@ def max_neohookean_bound(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarr
                          x: np.ndarray, lam_s: float, alpha: float, mu: float) -> float:
     """max over elements of b_e = mu + lambda_s |cof F|^2 + sqrt(2) lambda_s |J - alpha| |F|_F (module docstring),
     F_e as in ``max_gradient_norm`` (x written the same way)."""
-    for i in range(rest.shape[0]):
-        x[i, 0] = rest[i, 0] + u[i, 0]
-        x[i, 1] = rest[i, 1] + u[i, 1]
-        x[i, 2] = rest[i, 2] + u[i, 2]
+    _positions(rest, u, x)
     worst = 0.0
     for e in range(tets.shape[0]):
-        f00 = f01 = f02 = f10 = f11 = f12 = f20 = f21 = f22 = 0.0
-        for c in range(4):
-            v = tets[e, c]
-            x0, x1, x2 = x[v, 0], x[v, 1], x[v, 2]
-            g0, g1, g2 = gradients[e, c, 0], gradients[e, c, 1], gradients[e, c, 2]
-            f00 += x0 * g0
-            f01 += x0 * g1
-            f02 += x0 * g2
-            f10 += x1 * g0
-            f11 += x1 * g1
-            f12 += x1 * g2
-            f20 += x2 * g0
-            f21 += x2 * g1
-            f22 += x2 * g2
+        f00, f01, f02, f10, f11, f12, f20, f21, f22 = _element_gradient(tets, gradients, x, e)
         c00, c01, c02 = f11 * f22 - f12 * f21, f12 * f20 - f10 * f22, f10 * f21 - f11 * f20
         c10, c11, c12 = f21 * f02 - f22 * f01, f22 * f00 - f20 * f02, f20 * f01 - f21 * f00
         c20, c21, c22 = f01 * f12 - f02 * f11, f02 * f10 - f00 * f12, f00 * f11 - f01 * f10
