@@ -76,7 +76,7 @@ def build_scene(target_tets: int, duration: float, step: float):
 
 def run(skeleton, traj, model, binding, gains, warp: bool | str, duration: float, step: float) -> dict:
     """Walk for ``duration`` s; time it after a 20-step warm-up (JIT compile) that is then discarded. ``warp``:
-    False (linear), True (the default warping model) or a warping model's name ('element', 'vertex')."""
+    False (linear), True (the default warping model) or a warping model's name ('element', 'vertex', 'neohookean')."""
     opts = {"warp": bool(warp)}
     if isinstance(warp, str):
         opts["warping_model"] = warp
@@ -130,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     for w in binding.warnings:
         print(f"  binding: {w}")
     rows = []
-    for warp in (False, "element", "vertex"):
+    for warp in (False, "element", "vertex", "neohookean"):
         print(f"  running warp={warp} ...", file=sys.stderr, flush=True)
         try:
             r = run(skeleton, traj, model, binding, gains, warp, args.duration, args.step)
