@@ -158,3 +158,5 @@ def test_only_the_clustered_method_takes_it():
     with pytest.raises(ConfigError, match="'neohookean' runs on method 'clustered' only"):
         from_mapping({"method": "implicit_direct", "warping_model": "neohookean"})
     assert from_mapping({"method": "implicit_direct", "warping_model": "neohookean", "warping": False})
+    with pytest.raises(ConfigError, match="budget.max_error_mm = 5 .*set budget.max_error_mm 0"):
+        from_mapping({"warping_model": "neohookean", "budget.max_error_mm": 5.0})

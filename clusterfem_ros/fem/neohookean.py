@@ -19,7 +19,7 @@ singular values meet; symplectic Euler keeps a shadow energy bounded only for a 
 corotated bar with a vertex torn away and held, undamped, gains energy for as long as its elements stay
 inverted. This energy has no such place: after the tear its shadow energy stays flat
 (benchmarks/stability_table.py). The price is stiffness at large stretch: cof F grows with the product of
-two singular values, so an element stretched tenfold is tens of times stiffer than at rest, and the step
+two singular values, so an element stretched tenfold is about a hundred times stiffer than at rest, and the step
 plan must follow (fem/stretch.py, ``neohookean_stiffening``). No polar iteration: the pass costs less than
 the corotated one (benchmarks/core_benchmark.py --warping-only).
 
