@@ -176,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nheadless, {args.scene or 'default scene'} on each clip's skeleton{' with ' + ', '.join(args.set) if args.set else ''} "
           "(step time measured under the machine's current load)")
     print(table(["clip", "s", "resets", "withheld", "worst volume", "worst bone distance [m]",
-                 "inverted: states / most at once / min det F", "step [ms]", "inputs rejected", "joint speed played / raw [rad/s]"], rows))
+                 "inverted: states / most at once / min det F", "step [ms]", "inputs rejected",
+                 "joint speed played / raw [rad/s]"], rows))
     if node_rows:
         print("\nthrough the node (input clock): every published marker checked against the skeleton")
         print(table(["clip", "s", "resets", "withheld", "markers", "markers over the limit",
