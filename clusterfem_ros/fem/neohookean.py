@@ -44,6 +44,7 @@ import numpy as np
 
 from .assembly import shape_gradients
 from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
+from .corotational import deformation_gradients
 from .element_rotation import LANES
 from .element_warping import (ElementFrames, _differences, _element_e, _element_force, _element_pass,
                               gather_parallel, gather_serial, lane_gradient, run_element_kernel,
@@ -68,12 +69,10 @@ def _cofactor(F: np.ndarray) -> np.ndarray:
 
 
 def _gradients(model: FemModel, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(F (m, 3, 3), rest gradients (m, 4, 3), rest volumes (m,)) of displacement u, relative to each tet's first
-    vertex (round-off relative to the element's size)."""
+    """(F (m, 3, 3), rest gradients (m, 4, 3), rest volumes (m,)) of displacement u."""
     tets = model.mesh.tets
     g, vol = shape_gradients(model.rest, tets)
-    d = u[tets] - u[tets][:, :1]
-    return np.eye(3) + np.einsum("eca,ecb->eab", d, g), g, vol
+    return deformation_gradients(g, tets, u), g, vol
 
 
 def energy(model: FemModel, u: np.ndarray) -> float:
@@ -96,9 +95,7 @@ def reference_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None)
     F, g, vol = _gradients(model, u)
     P = mu * F + (lam_s * (np.linalg.det(F) - alpha))[:, None, None] * _cofactor(F)
     if m.zeta:
-        tets = model.mesh.tets
-        dv = v[tets] - v[tets][:, :1]
-        Z = m.zeta * np.einsum("eca,ecb->eab", dv, g)                # zeta dF/dt
+        Z = deformation_gradients(g, model.mesh.tets, m.zeta * v) - np.eye(3)     # zeta dF/dt
         A = np.einsum("eba,ebc->eac", F, Z)
         E = 0.5 * (A + np.transpose(A, (0, 2, 1)))
         S = 2.0 * mu * E + (lam * np.trace(E, axis1=1, axis2=2))[:, None, None] * np.eye(3)
