@@ -139,13 +139,16 @@ class StretchPlan:
     bound is taken at most every ``every`` simulated seconds (5 ms: every fifth step of the node's 1 ms, every
     step of a 10 ms one: a bound costs about a quarter of the jelly man's step). The Neo-Hookean bound is taken
     every step: its stiffness grows with the square of the stretch, and the fine hard-case bar torn at h = 1 ms
-    diverged in the steps between two bounds 5 ms apart (benchmarks/stability_table.py)."""
+    diverged in the steps between two bounds 5 ms apart (benchmarks/stability_table.py). ``every`` None takes
+    the energy's own interval (EVERY)."""
 
-    def __init__(self, model, hold: float = 5.0, every: float = 0.005, energy: str = "corotated"):
-        if energy not in ("corotated", "neohookean"):
+    EVERY = {"corotated": 0.005, "neohookean": 0.0}
+
+    def __init__(self, model, hold: float = 5.0, every: float | None = None, energy: str = "corotated"):
+        if energy not in self.EVERY:
             raise ValueError(f"energy = {energy!r}: 'corotated' or 'neohookean'")
         self.energy = energy
-        every = 0.0 if energy == "neohookean" else every
+        every = self.EVERY[energy] if every is None else every
         self.lame = model.material.lame
         self.tets = np.ascontiguousarray(model.mesh.tets, dtype=np.int64)
         self.gradients = np.ascontiguousarray(shape_gradients(model.rest, self.tets)[0])
