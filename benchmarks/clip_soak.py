@@ -97,7 +97,7 @@ def headless_soak(path: Path, overrides: dict | None = None, seconds: float | No
     length = tr.duration if seconds is None else min(seconds, tr.duration)
     res = SoakResult(path.stem, length)
     tets = scene.model.mesh.tets
-    rest_volumes = signed_volumes(scene.model.rest, tets)
+    rest_volumes = scene.model.mesh.volumes()
     res.joint_speed, res.raw_joint_speed = joint_speeds(path)
     for k in range(int(length * RATE_HZ) + 1):
         t = T0 + k / RATE_HZ
