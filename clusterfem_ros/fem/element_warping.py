@@ -299,13 +299,23 @@ def _flat_lanes(a: np.ndarray, chunks: int) -> np.ndarray:
     return _by_chunk(a, chunks).reshape(chunks, -1)
 
 
+def lane_elements(model: FemModel) -> tuple:
+    """The element data by chunk, ElementFrames.elems: (corner (chunks, 4, LANES) int64, grad (chunks, 9 LANES):
+    rest gradients g_1..g_3, vol (chunks, LANES), lame (2,) = (lambda, mu)); padding lanes: vertex 0, zeros."""
+    tets = np.ascontiguousarray(model.mesh.tets, dtype=np.int64)
+    m = tets.shape[0]
+    chunks = -(-m // LANES)
+    g, vol = shape_gradients(model.rest, tets)
+    return (_by_chunk(tets, chunks), _flat_lanes(g[:, 1:].reshape(m, 9), chunks), _by_chunk(vol, chunks),
+            np.array(model.material.lame, dtype=np.float64))
+
+
 @dataclass
 class ElementFrames:
     """What element warping keeps per model: the element data by chunk, each element's last rotation (the warm
     start), the per-vertex gather and workspace. Build once per model (``from_model``)."""
     rest: np.ndarray        # (n, 3)
-    elems: tuple            # (corner (chunks, 4, LANES) int64, grad (chunks, 9 LANES): rest gradients g_1..g_3,
-                            #   vol (chunks, LANES), lame (2,) = (lambda, mu)); padding lanes: vertex 0, zeros
+    elems: tuple            # the element data by chunk (lane_elements)
     gather: tuple           # (vptr (n + 1,), slot (4 m,)): where vertex i's element corners' x components are in
                             #   fe (flat), by ascending element
     rot_lanes: np.ndarray   # (chunks, 9 LANES) rotations by lane, updated by every force / rotation call
@@ -322,8 +332,6 @@ class ElementFrames:
     def from_model(cls, model: FemModel) -> "ElementFrames":
         tets = np.ascontiguousarray(model.mesh.tets, dtype=np.int64)
         m, n = tets.shape[0], model.n_vertices
-        g, vol = shape_gradients(model.rest, tets)
-        lam, mu = model.material.lame
         order = np.argsort(tets.reshape(-1), kind="stable")         # corners 4 e + c by vertex, element order kept
         vptr = np.zeros(n + 1, dtype=np.int64)
         vptr[1:] = np.cumsum(np.bincount(tets.reshape(-1), minlength=n))
@@ -334,8 +342,7 @@ class ElementFrames:
         rot = _by_chunk(np.repeat(np.eye(3).reshape(1, 9), m, axis=0), chunks)
         rot[:, [0, 4, 8], :] = 1.0                                  # padding lanes too
         rot = rot.reshape(chunks, -1)
-        elems = (_by_chunk(tets, chunks), _flat_lanes(g[:, 1:].reshape(m, 9), chunks), _by_chunk(vol, chunks),
-                 np.array([lam, mu], dtype=np.float64))
+        elems = lane_elements(model)
         return cls(np.ascontiguousarray(model.rest, dtype=np.float64), elems, (vptr, slot.astype(np.int64)), rot,
                    np.zeros((blocks, 6, 9 * LANES)), np.zeros((blocks, LANES), dtype=np.int8),
                    np.zeros((blocks, 3, 3, 3)), np.zeros((chunks, 12 * LANES)), np.zeros((n + 1, 3)),
