@@ -19,8 +19,8 @@ import yaml
 from .errors import ClusterFemError
 from .fem.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSON_RATIO, DEFAULT_STIFFNESS_DAMPING,
                            DEFAULT_YOUNG_MODULUS)
-from .fem.warping_models import (ACKNOWLEDGEMENT, EXPLICIT_ONLY, WARPING_MODELS, explicit_only_refusal,
-                                 vertex_refusal)
+from .fem.warping_models import (ACKNOWLEDGEMENT, AUTO, EXPLICIT_ONLY, WARPING_MODELS, auto_model,
+                                 explicit_only_refusal, stretch_plan_refusal, vertex_refusal)
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
 
 
@@ -64,10 +64,12 @@ PARAMS: tuple[Param, ...] = (
     Param("budget.measured_points", "", "CSV of measured (method, step, error, cost) points for the budget choice; '' = the shipped clusterfem_ros/data/speed_error.csv"),
     Param("modal.k", 30, "number of modes for method 'modal'", 1, 2000),
     Param("warping", True, "stiffness warping: removes the linear model's volume growth under rotation"),
-    Param("warping_model", "element", "'element': per-element corotation, the gradient of an energy (cannot feed "
-          "energy in); 'neohookean': stable Neo-Hookean elements, no rotation, an energy smooth through inversion "
-          "(method 'clustered' only; fem/neohookean.py); 'vertex': the paper's per-vertex warping (eq. 10), for "
-          "comparison: not bounded, refused unless physics.allow_unbounded_warping", choices=WARPING_MODELS),
+    Param("warping_model", AUTO, "'auto': 'neohookean' on method 'clustered', 'element' on the others and with "
+          "an error budget; 'neohookean': stable Neo-Hookean elements, no rotation, an energy smooth through "
+          "inversion (method 'clustered' only; fem/neohookean.py); 'element': per-element corotation, the gradient "
+          "of an energy (cannot feed energy in while no element is inverted); 'vertex': the paper's per-vertex "
+          "warping (eq. 10), for comparison: not bounded, refused unless physics.allow_unbounded_warping",
+          choices=(AUTO,) + WARPING_MODELS),
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
     Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this before the outputs get a snapshot", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
@@ -372,8 +374,11 @@ class SceneConfig:
 
     @property
     def warping_model(self) -> str:
-        """One of WARPING_MODELS."""
-        return self.values["warping_model"]
+        """One of WARPING_MODELS: the parameter, with 'auto' resolved (fem/warping_models.auto_model)."""
+        name = self.values["warping_model"]
+        if name != AUTO:
+            return name
+        return auto_model(self.method, self.values["budget.max_error_mm"] > 0, self.values["physics.plan_stretch"])
 
     # Each typed section is built once per config (a config is never changed, with_values makes a new one):
     # the physics thread and the joint-state callback read them per step and per message.
@@ -420,6 +425,11 @@ class SceneConfig:
     @cached_property
     def recording(self) -> RecordingSection:
         return self.section("recording")
+
+    def resolved(self) -> "SceneConfig":
+        """A copy with ``warping_model: auto`` replaced by the model it runs: what a recording keeps, so that its
+        replay runs the same model whatever the default becomes."""
+        return self.with_values(warping_model=self.warping_model)
 
     def with_values(self, values: dict[str, Any] | None = None, **overrides: Any) -> "SceneConfig":
         """A copy with parameters replaced, from a {name: value} mapping and/or keywords that use '__'
@@ -491,6 +501,8 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
         raise ConfigError(vertex_refusal())
     if out["warping"] and out["warping_model"] in EXPLICIT_ONLY and out["method"] != "clustered":
         raise ConfigError(explicit_only_refusal(out["warping_model"], out["method"]))
+    if out["warping"] and out["warping_model"] in EXPLICIT_ONLY and not out["physics.plan_stretch"]:
+        raise ConfigError(stretch_plan_refusal(out["warping_model"]))
     if out["warping_model"] in EXPLICIT_ONLY and out["budget.max_error_mm"] > 0:
         raise ConfigError(f"budget.max_error_mm = {out['budget.max_error_mm']:g} chooses among points measured with "
                           f"warping_model 'element', and may choose an implicit method, which warping_model "

@@ -67,3 +67,31 @@ def test_the_scene_config_refuses_vertex_warping_unless_acknowledged():
         assert config.from_mapping({"warping_model": "vertex", **other})["warping_model"] == "vertex"
     assert config.SceneConfig().physics.allow_unbounded_warping is False
     assert integrator_choice(config.SceneConfig())[1]["allow_unbounded_warping"] is False
+
+
+def test_auto_runs_neohookean_on_the_clustered_method_and_element_where_that_cannot_run():
+    """The scene's default 'auto': the Neo-Hookean elements on method 'clustered'; the per-element corotation on
+    the methods without a Neo-Hookean step, with an error budget (it chooses among points measured with
+    'element') and without the stretch plan (which the Neo-Hookean step needs, and is refused without)."""
+    default = config.SceneConfig()
+    assert default["warping_model"] == "auto" and default.method == "clustered"
+    assert default.warping_model == "neohookean"
+    assert integrator_choice(default)[1]["warping_model"] == "neohookean"
+    for other in ({"method": "standard_explicit"}, {"method": "implicit_direct"}, {"method": "implicit_cg"},
+                  {"budget.max_error_mm": 5.0}, {"physics.plan_stretch": False}):
+        assert default.with_values(other).warping_model == "element", other
+    with pytest.raises(config.ConfigError, match="'neohookean' with physics.plan_stretch false.*plan_stretch true"):
+        config.from_mapping({"warping_model": "neohookean", "physics.plan_stretch": False})
+    assert config.from_mapping({"warping_model": "element", "physics.plan_stretch": False}).warping_model == "element"
+
+
+def test_a_recording_keeps_the_model_auto_ran(tmp_path):
+    """What the node writes beside a bag (SceneConfig.resolved): the model by name, so the replay runs it
+    whatever the default becomes; everything else as given."""
+    c = config.SceneConfig().with_values(body__kind="torus", skeleton__source="none")
+    f = tmp_path / "scene.yaml"
+    f.write_text(config.scene_file_text(c.resolved()))
+    back = config.load_scene_file(f)
+    assert back["warping_model"] == "neohookean"
+    assert {k: v for k, v in back.values.items() if k != "warping_model"} == \
+        {k: v for k, v in c.values.items() if k != "warping_model"}

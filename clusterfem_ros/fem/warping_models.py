@@ -1,7 +1,8 @@
 """The warping models by name, and the acknowledgement the per-vertex one needs. No numba, no scipy: the
-scene configuration (config.py) checks the same names and gives the same refusal.
+scene configuration (config.py) checks the same names and gives the same refusal. A scene's default,
+'auto', stands for 'neohookean' on the clustered method and 'element' on the others (``auto_model``).
 
-'element' (default): per-element corotation (element_warping.py), the gradient of an energy, so symplectic
+'element' (the integrators' default): per-element corotation (element_warping.py), the gradient of an energy, so symplectic
 Euler keeps a shadow energy bounded (while no element is inverted: benchmarks/stability_table.py) and damping
 only removes energy. 'vertex': the paper's per-vertex warping (eq. 10, symmetrised; warping.py). Its force is
 not the gradient of any energy, and where neighbouring rotations differ sharply (a vertex torn away and held,
@@ -18,6 +19,7 @@ import warnings
 
 WARPING_MODELS = ("element", "vertex", "neohookean")
 EXPLICIT_ONLY = ("neohookean",)              # the models only the clustered explicit method runs
+AUTO = "auto"                                # the scene's default: ``auto_model`` picks one of WARPING_MODELS
 ACKNOWLEDGEMENT = "physics.allow_unbounded_warping"   # the scene parameter; integrators: allow_unbounded_warping
 
 
@@ -29,9 +31,9 @@ def vertex_refusal() -> str:
     """Why ``warping_model = 'vertex'`` is refused, and the two ways out."""
     return ("warping_model = 'vertex' (the paper's per-vertex warping) is refused: its force is not the gradient "
             "of an energy and grew without bound on the stability table's torn-vertex and sliver cases, at the "
-            "default damping too, which no set-up check predicts. Use warping_model 'element' (the default, "
-            "per-element corotation, the gradient of an energy), or acknowledge the risk to compare against the "
-            f"paper: {ACKNOWLEDGEMENT}: true (integrators: allow_unbounded_warping=True)")
+            "default damping too, which no set-up check predicts. Use warping_model 'auto' (the default), "
+            "'neohookean' or 'element' (their forces are gradients of energies), or acknowledge the risk to compare "
+            f"against the paper: {ACKNOWLEDGEMENT}: true (integrators: allow_unbounded_warping=True)")
 
 
 def explicit_only_refusal(name: str, method: str) -> str:
@@ -40,8 +42,24 @@ def explicit_only_refusal(name: str, method: str) -> str:
             f"explicit step here), not on {method!r}: use method 'clustered', or warping_model 'element'")
 
 
+def auto_model(method: str, error_budget: bool, plan_stretch: bool) -> str:
+    """The model a scene's ``warping_model: auto`` runs: 'neohookean' on method 'clustered' (smooth through
+    inversion, and the cheaper step: benchmarks/core_benchmark.py, benchmarks/stability_table.py); 'element' on
+    the other methods, which do not run it, when an error budget chooses the method among points measured with
+    'element', and when the step is planned without the stretch (``stretch_plan_refusal``)."""
+    return "neohookean" if method == "clustered" and not error_budget and plan_stretch else "element"
+
+
+def stretch_plan_refusal(name: str) -> str:
+    """Why ``warping_model = name`` is refused without the stretch plan, and the ways out."""
+    return (f"warping_model = {name!r} with physics.plan_stretch false: its elements stiffen with the square of "
+            "the stretch (fem/stretch.py), and a step planned for the linear stiffness alone can diverge where an "
+            "element is stretched: set physics.plan_stretch true, or warping_model 'element'")
+
+
 def check_warping_model(name: str) -> str:
-    """The warping model's name, checked: 'element' (default), 'vertex' (the paper's eq. 10) or 'neohookean'."""
+    """The warping model's name, checked: 'element' (the integrators' default), 'vertex' (the paper's eq. 10) or
+    'neohookean' (a scene's 'auto' is resolved before: auto_model)."""
     if name not in WARPING_MODELS:
         raise ValueError(f"warping_model = {name!r}: choose 'element' (per-element corotation, conservative), "
                          "'vertex' (the paper's per-vertex warping, for comparison) or 'neohookean' (stable "

@@ -124,7 +124,7 @@ class ClusterFemNode(Node):
         self.recording_path = path
         from ..config import scene_file_text
         from ..recording.bag_reader import PARAMS_FILE
-        (path / PARAMS_FILE).write_text(scene_file_text(self.config))   # what a replay needs besides the inputs
+        (path / PARAMS_FILE).write_text(scene_file_text(self.config.resolved()))   # a replay's other input
         self.get_logger().info(f"recording to {path}")
 
     def _make_output_timers(self) -> None:
