@@ -5,7 +5,7 @@ torn bar the energy gains only in the tear step, by an amount that shrinks at se
 import numpy as np
 import pytest
 
-from benchmarks.stability_table import CASES, bar_mesh, run
+from benchmarks.stability_table import CASES, ENERGY_SLACK, bar_mesh, run
 from clusterfem_ros.config import ConfigError, from_mapping
 from clusterfem_ros.fem import neohookean as nh
 from clusterfem_ros.fem.element_rotation import LANES
@@ -143,7 +143,8 @@ def test_the_undamped_torn_vertex_gains_only_in_the_tear_step_and_at_second_orde
     """The hard cases' coarse bar, a vertex torn 0.5 m away and held, no damping: max E / budget after the tear
     and the few steps of its transient (10 steps, 0.1 s) is the same after 40 (no drift, where the corotated
     energy keeps gaining), and halving the safety factor cuts the gain about fourfold (second order: the
-    energy is smooth)."""
+    energy is smooth); at the default safety the plan's accuracy factor keeps it within the hard-case table's
+    tolerance."""
     case = next(c for c in CASES if c.teleport)
     gain = {}
     for safety in (0.8, 0.4):
@@ -152,6 +153,7 @@ def test_the_undamped_torn_vertex_gains_only_in_the_tear_step_and_at_second_orde
         assert np.isfinite(long.energy_ratio) and long.energy_ratio == pytest.approx(short.energy_ratio, abs=1e-4)
         gain[safety] = long.energy_ratio - 1.0
     assert 0.0 < gain[0.4] < 0.35 * gain[0.8]
+    assert gain[0.8] <= ENERGY_SLACK - 1.0          # the default safety: within the table's tolerance
     corotated = run("clustered+warp", case, 1.0, 40, 100000, "undamped")
     corotated_short = run("clustered+warp", case, 1.0, 10, 100000, "undamped")
     assert corotated.energy_ratio > corotated_short.energy_ratio + 1e-3
