@@ -20,7 +20,8 @@ from .errors import ClusterFemError
 from .fem.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSON_RATIO, DEFAULT_STIFFNESS_DAMPING,
                            DEFAULT_YOUNG_MODULUS)
 from .fem.warping_models import (ACKNOWLEDGEMENT, AUTO, EXPLICIT_ONLY, WARPING_MODELS, auto_model,
-                                 explicit_only_refusal, stretch_plan_refusal, vertex_refusal)
+                                 explicit_only_refusal, stretch_plan_refusal, undamped_corotation_refusal,
+                                 unacknowledged_undamped, vertex_refusal)
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
 
 
@@ -74,9 +75,10 @@ PARAMS: tuple[Param, ...] = (
     Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this before the outputs get a snapshot", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
     Param("physics.plan_stretch", True, "explicit with warping: plan the sub-steps for the body's most stretched element (fem/stretch.py; keeps an undamped torn vertex bounded) instead of the linear stiffness alone"),
-    Param(ACKNOWLEDGEMENT, False, "true: accept warping_model 'vertex' (the paper's per-vertex warping) knowing "
-          "its energy can grow without bound (torn vertices, slivers; benchmarks/stability_table.py); it runs with a "
-          "warning. false: a scene with it is refused"),
+    Param(ACKNOWLEDGEMENT, False, "true: accept warping_model 'vertex' (the paper's per-vertex warping), and "
+          "'element' on an explicit method without damping, knowing their energy can grow without bound (torn "
+          "vertices, slivers; benchmarks/stability_table.py); 'vertex' runs with a warning. false: such a scene is "
+          "refused"),
     Param("physics.max_substeps", 64, "explicit methods refuse a step needing more sub-steps than this; implicit with warping sub-steps up to it where rotations turn fast", 1, 100000),
     Param("physics.clock", "wall", "'wall': physics follows the ROS clock; 'input': it follows the newest joint-state "
           "stamp (deterministic replay of a recording)", choices=("wall", "input")),
@@ -501,6 +503,10 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
         raise ConfigError(vertex_refusal())
     if out["warping"] and out["warping_model"] in EXPLICIT_ONLY and out["method"] != "clustered":
         raise ConfigError(explicit_only_refusal(out["warping_model"], out["method"]))
+    if out["method"] in ("clustered", "standard_explicit") and unacknowledged_undamped(
+            SceneConfig(out).warping_model, out["warping"], out["material.mass_damping"],
+            out["material.stiffness_damping"], out[ACKNOWLEDGEMENT]):
+        raise ConfigError(undamped_corotation_refusal(out["method"]))
     if out["warping"] and out["warping_model"] in EXPLICIT_ONLY and not out["physics.plan_stretch"]:
         raise ConfigError(stretch_plan_refusal(out["warping_model"]))
     if out["warping_model"] in EXPLICIT_ONLY and out["budget.max_error_mm"] > 0:

@@ -95,3 +95,30 @@ def test_a_recording_keeps_the_model_auto_ran(tmp_path):
     assert back["warping_model"] == "neohookean"
     assert {k: v for k, v in back.values.items() if k != "warping_model"} == \
         {k: v for k, v in c.values.items() if k != "warping_model"}
+
+
+def test_undamped_corotated_elements_on_an_explicit_method_are_refused_unless_acknowledged():
+    """The 'element' model on an explicit method with neither mass nor stiffness damping: refused at set-up,
+    naming the ways out; runs when acknowledged, with any damping, on the implicit methods, and the default
+    ('auto': Neo-Hookean on the clustered method) runs undamped."""
+    mesh = box_mesh((0.2, 0.05, 0.05), (4, 1, 1))
+    undamped = build_model(mesh, Material(E=1e5, xi=0.0, zeta=0.0), fixed=np.isclose(mesh.vertices[:, 0], 0.0))
+    for method in ("clustered", "standard_explicit"):
+        with pytest.raises(StabilityError, match=f"'element' on the explicit method '{method}' without damping"
+                                                 f".*'neohookean'.*damping.*{ACKNOWLEDGEMENT}: true"):
+            make_integrator(method, undamped, warp=True, warping_model="element")
+        make_integrator(method, undamped, warp=True, warping_model="element", allow_unbounded_warping=True)
+        make_integrator(method, undamped)                                      # linear: no rotation
+    make_integrator("implicit_direct", undamped, warp=True, warping_model="element")
+    make_integrator("clustered", undamped, warp=True, warping_model="neohookean")
+    for damping in ({"xi": 0.5, "zeta": 0.0}, {"xi": 0.0, "zeta": 1e-5}):
+        damped = build_model(mesh, Material(E=1e5, **damping), fixed=np.isclose(mesh.vertices[:, 0], 0.0))
+        make_integrator("clustered", damped, warp=True, warping_model="element")
+    still = {"material.mass_damping": 0.0, "material.stiffness_damping": 0.0}
+    with pytest.raises(config.ConfigError, match="'element' on the explicit method 'clustered' without damping"):
+        config.from_mapping({**still, "warping_model": "element"})
+    with pytest.raises(config.ConfigError, match="'standard_explicit' without damping"):
+        config.from_mapping({**still, "method": "standard_explicit"})              # 'auto' is 'element' there
+    assert config.from_mapping({**still}).warping_model == "neohookean"
+    assert config.from_mapping({**still, "warping_model": "element", ACKNOWLEDGEMENT: True})
+    assert config.from_mapping({**still, "method": "implicit_direct"}).warping_model == "element"

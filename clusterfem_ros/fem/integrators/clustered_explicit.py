@@ -265,7 +265,8 @@ class ClusteredExplicit:
                  allow_unbounded_warping: bool = False):
         self.model = model
         self.warp = bool(warp)
-        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping)
+        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping,
+                                                 material=model.material)
         self.safety = safety
         self.max_substeps = max_substeps
         self.lam_max = max_eigenvalue(model) if lam_max is None else lam_max

@@ -30,7 +30,8 @@ class StandardExplicit:
                  plan_stretch: bool = True, allow_unbounded_warping: bool = False):
         self.model = model
         self.warp = bool(warp)
-        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping, self.name)
+        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping, self.name,
+                                                 material=model.material)
         if self.warp and warping_model == "element":
             self.name = "standard_explicit_warp"
             self.frames = ElementFrames.from_model(model)
