@@ -2,19 +2,20 @@
 scene configuration (config.py) checks the same names and gives the same refusal. A scene's default,
 'auto', stands for 'neohookean' on the clustered method and 'element' on the others (``auto_model``).
 
-'element' (the integrators' default): per-element corotation (element_warping.py), the gradient of an energy, so symplectic
-Euler keeps a shadow energy bounded (while no element is inverted: benchmarks/stability_table.py) and damping
-only removes energy. 'vertex': the paper's per-vertex warping (eq. 10, symmetrised; warping.py). Its force is
-not the gradient of any energy, and where neighbouring rotations differ sharply (a vertex torn away and held,
-an inverting sliver) it feeds energy in: on the stability table it grew without bound in runs at the scene's
-default damping too, and nothing known at set-up predicts which runs. So it is refused unless the caller acknowledges that
-(``allow_unbounded_warping=True``; scene parameter ``physics.allow_unbounded_warping``), and then it runs
-as before, with one UnboundedWarpingWarning per process. 'neohookean': no rotation at all, the stable
-Neo-Hookean energy (fem/neohookean.py), smooth through inversion, where the corotated energy is not; on the
-clustered explicit method only (``explicit_only_refusal``). The 'element' model on an explicit method without
-any damping is refused too unless acknowledged (``undamped_corotation_refusal``): undamped, the explicit step
-gains energy where its elements invert, and keeps gaining while they stay inverted; damping removed that gain
-on every hard case, and the implicit step damps it numerically.
+'element' (the integrators' default): per-element corotation (element_warping.py), the gradient of an energy,
+so symplectic Euler keeps a shadow energy bounded (while no element is inverted: benchmarks/stability_table.py)
+and damping only removes energy. 'vertex': the paper's per-vertex warping (eq. 10, symmetrised; warping.py).
+Its force is not the gradient of any energy, and where neighbouring rotations differ sharply (a vertex torn
+away and held, an inverting sliver) it feeds energy in: on the stability table it grew without bound in runs at
+the scene's default damping too, and nothing known at set-up predicts which runs. So it is refused unless the
+caller acknowledges that (``allow_unbounded_warping=True``; scene parameter
+``physics.allow_unbounded_warping``), and then it runs as before, with one UnboundedWarpingWarning per process.
+'neohookean': no rotation at all, the stable Neo-Hookean energy (fem/neohookean.py), smooth through inversion,
+where the corotated energy is not; on the clustered explicit method only (``explicit_only_refusal``). The
+'element' model on an explicit method without any damping is refused too unless acknowledged
+(``undamped_corotation_refusal``): undamped, the explicit step gains energy where its elements invert, and
+keeps gaining while they stay inverted; damping removed that gain on every hard case, and the implicit step
+damps it numerically.
 """
 from __future__ import annotations
 
