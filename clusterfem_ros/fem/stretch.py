@@ -56,40 +56,11 @@ import numpy as np
 from .assembly import shape_gradients
 from .element_rotation import LANES
 from .element_warping import _differences, lane_elements, lane_gradient
+from .neohookean import parameters
 from ..numba_config import HOLDS_GIL
 
 SQRT3 = math.sqrt(3.0)
 SQRT2 = math.sqrt(2.0)
-INLINED = dict(HOLDS_GIL, inline="always")   # the bounds' shared steps, inlined by numba (element_warping.INLINED)
-
-
-@numba.njit(**INLINED)
-def _positions(rest: np.ndarray, u: np.ndarray, x: np.ndarray) -> None:
-    """x <- rest + u (each vertex once, not once per element corner, and one array to gather from)."""
-    for i in range(rest.shape[0]):
-        x[i, 0] = rest[i, 0] + u[i, 0]
-        x[i, 1] = rest[i, 1] + u[i, 1]
-        x[i, 2] = rest[i, 2] + u[i, 2]
-
-
-@numba.njit(**INLINED)
-def _element_gradient(tets: np.ndarray, gradients: np.ndarray, x: np.ndarray, e: int):
-    """F_e = sum_c x_c outer g_{e,c}, row-major (inlined into the bounds' element loops)."""
-    f00 = f01 = f02 = f10 = f11 = f12 = f20 = f21 = f22 = 0.0
-    for c in range(4):
-        v = tets[e, c]
-        x0, x1, x2 = x[v, 0], x[v, 1], x[v, 2]
-        g0, g1, g2 = gradients[e, c, 0], gradients[e, c, 1], gradients[e, c, 2]
-        f00 += x0 * g0
-        f01 += x0 * g1
-        f02 += x0 * g2
-        f10 += x1 * g0
-        f11 += x1 * g1
-        f12 += x1 * g2
-        f20 += x2 * g0
-        f21 += x2 * g1
-        f22 += x2 * g2
-    return f00, f01, f02, f10, f11, f12, f20, f21, f22
 
 
 @numba.njit(**HOLDS_GIL)
@@ -97,10 +68,26 @@ def max_gradient_norm(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray,
                       x: np.ndarray) -> float:
     """max over elements of |F_e|_F, F_e = sum_c x_c outer g_{e,c}, x = rest + u (written to ``x`` (n, 3) first:
     each vertex once, not once per element corner, and one array to gather from instead of two)."""
-    _positions(rest, u, x)
+    for i in range(rest.shape[0]):
+        x[i, 0] = rest[i, 0] + u[i, 0]
+        x[i, 1] = rest[i, 1] + u[i, 1]
+        x[i, 2] = rest[i, 2] + u[i, 2]
     worst = 0.0
     for e in range(tets.shape[0]):
-        f00, f01, f02, f10, f11, f12, f20, f21, f22 = _element_gradient(tets, gradients, x, e)
+        f00 = f01 = f02 = f10 = f11 = f12 = f20 = f21 = f22 = 0.0
+        for c in range(4):
+            v = tets[e, c]
+            x0, x1, x2 = x[v, 0], x[v, 1], x[v, 2]
+            g0, g1, g2 = gradients[e, c, 0], gradients[e, c, 1], gradients[e, c, 2]
+            f00 += x0 * g0
+            f01 += x0 * g1
+            f02 += x0 * g2
+            f10 += x1 * g0
+            f11 += x1 * g1
+            f12 += x1 * g2
+            f20 += x2 * g0
+            f21 += x2 * g1
+            f22 += x2 * g2
         s = (f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12
              + f20 * f20 + f21 * f21 + f22 * f22)
         if s > worst:
@@ -156,8 +143,7 @@ def neohookean_stiffening(elems: tuple, u: np.ndarray, D: np.ndarray | None = No
     docstring). elems: element_warping.lane_elements; ``D``: a (9 LANES,) workspace (allocated if not given)."""
     D = np.empty(9 * LANES) if D is None else D
     lam, mu = elems[3]
-    lam_s = lam + mu
-    b = max_neohookean_bound(elems, u, D, lam_s, 1.0 + mu / lam_s, mu)
+    b = max_neohookean_bound(elems, u, D, *parameters(lam, mu), mu)
     return max(0.0, b / (3.0 * lam + 2.0 * mu) - 1.0)
 
 
@@ -179,13 +165,13 @@ class StretchPlan:
         self.energy = energy
         every = self.EVERY[energy] if every is None else every
         hold = self.HOLD[energy] if hold is None else hold
-        self.lame = model.material.lame
-        self.tets = np.ascontiguousarray(model.mesh.tets, dtype=np.int64)
-        self.gradients = np.ascontiguousarray(shape_gradients(model.rest, self.tets)[0])
-        self.rest = np.ascontiguousarray(model.rest, dtype=np.float64)
-        self._x = np.empty_like(self.rest)
         if energy == "neohookean":
             self.elems, self._D = lane_elements(model), np.empty(9 * LANES)
+        else:
+            self.tets = np.ascontiguousarray(model.mesh.tets, dtype=np.int64)
+            self.gradients = np.ascontiguousarray(shape_gradients(model.rest, self.tets)[0])
+            self.rest = np.ascontiguousarray(model.rest, dtype=np.float64)
+            self._x = np.empty_like(self.rest)
         self.hold, self.every = float(hold), float(every)
         self.current = 1.0
         self._since = 0.0              # simulated seconds since ``current`` was last needed
