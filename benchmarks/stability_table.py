@@ -235,8 +235,13 @@ def run(method: str, case: Case, scale: float = 1.0, steps: int = 100, max_subst
     """One run of ``method`` on ``case`` at step ``h`` (default the case's); ``safety``: an explicit method's
     safety factor on the critical step (default the integrator's, 0.8)."""
     h = case.h if h is None else h
-    r = _run(method, case, scale, steps, max_substeps, damping, h, safety)
-    r.h, r.damping, r.scale = h, damping, scale
+    model = case.model(scale, damping)
+    kind, options = METHODS[method]
+    m = model.material
+    acknowledged = kind in EXPLICIT_KINDS and unacknowledged_undamped(
+        options.get("warping_model", "element"), bool(options.get("warp")), m.xi, m.zeta, False)
+    r = _run(method, case, model, steps, max_substeps, h, safety, acknowledged)
+    r.h, r.damping, r.scale, r.acknowledged = h, damping, scale, acknowledged
     return r
 
 
@@ -253,9 +258,10 @@ def run_accepted(method: str, case: Case, scale: float = 1.0, steps: int = 100, 
     return out
 
 
-def _run(method: str, case: Case, scale: float, steps: int, max_substeps: int, damping: str, h: float,
-         safety: float | None = None) -> Result:
-    model = case.model(scale, damping)
+def _run(method: str, case: Case, model: FemModel, steps: int, max_substeps: int, h: float,
+         safety: float | None, acknowledged: bool) -> Result:
+    """``run``'s run on the case's ``model``; ``acknowledged``: an undamped element-warped explicit run, which
+    the integrator refuses unless acknowledged (fem/warping_models.py): run with the acknowledgement."""
     kind, options = METHODS[method]
     options = dict(options)
     explicit = kind in EXPLICIT_KINDS
@@ -263,15 +269,12 @@ def _run(method: str, case: Case, scale: float, steps: int, max_substeps: int, d
         options["max_substeps"] = max_substeps
         if safety is not None:
             options["safety"] = safety
-    m = model.material
-    acknowledged = explicit and unacknowledged_undamped(options.get("warping_model", "element"),
-                                                        bool(options.get("warp")), m.xi, m.zeta, False)
     if acknowledged:
         options.update(ACK)             # refused at set-up without it: run, to show why (module docstring)
     try:
         integ = make_integrator(kind, model, **options)
     except StabilityError as exc:
-        return Result(method, case.name, "refused", message=str(exc), acknowledged=acknowledged)
+        return Result(method, case.name, "refused", message=str(exc))
     warped = bool(options.get("warp"))
     hookean = warped and options.get("warping_model") == "neohookean"
     corot = ElementCorotation(model) if warped and not hookean else None
@@ -327,20 +330,19 @@ def _run(method: str, case: Case, scale: float, steps: int, max_substeps: int, d
         except StabilityError as exc:
             return Result(method, case.name, "refused", message=str(exc))
         except DivergenceError as exc:
-            return Result(method, case.name, "diverged", ratio, vol_err, *_span(subs), message=str(exc),
-                          acknowledged=acknowledged)
+            return Result(method, case.name, "diverged", ratio, vol_err, *_span(subs), message=str(exc))
         subs.append(info.substeps)
         budget += float((gravity * (state.u - u_before)).sum())
         h_sub = h / info.substeps if explicit else 0.0
         e = energy(state, h_sub)
         if not np.isfinite(e):
             return Result(method, case.name, "diverged", ratio, vol_err, *_span(subs),
-                          message=f"energy {e} at step {k}", acknowledged=acknowledged)
+                          message=f"energy {e} at step {k}")
         if budget > 0:
             ratio = max(ratio, e / budget)
         vol_err = max(vol_err, abs(float(signed_volumes(model.rest + state.u, tets).sum()) / v0 - 1.0))
     outcome = "bounded" if ratio <= ENERGY_SLACK else "energy grew"
-    return Result(method, case.name, outcome, ratio, vol_err, *_span(subs), acknowledged=acknowledged)
+    return Result(method, case.name, outcome, ratio, vol_err, *_span(subs))
 
 
 def _span(subs: list[int]) -> tuple[int, int]:
