@@ -102,7 +102,7 @@ def test_unknown_method_is_named():
         make_integrator("rk4", model)
 
 
-@pytest.mark.parametrize("warp", [False, "element", "vertex"])
+@pytest.mark.parametrize("warp", [False, "element", "vertex", "neohookean"])
 def test_clustered_plan_follows_h_and_gains_and_fixed_vertices_stay_at_rest(warp):
     """The sub-step plan is cached, but a new h or stiffer attachment gains re-plan it; fixed vertices moved
     from outside are put back at rest by the step (the kernel, not Python, holds them now)."""
@@ -125,7 +125,7 @@ def test_clustered_plan_follows_h_and_gains_and_fixed_vertices_stay_at_rest(warp
     assert not s.u[fixed].any() and not s.v[fixed].any()
 
 
-@pytest.mark.parametrize("warp", [False, "element", "vertex"])
+@pytest.mark.parametrize("warp", [False, "element", "vertex", "neohookean"])
 def test_threaded_and_serial_clustered_steps_are_bit_identical(warp):
     """Each row / chunk is computed by one thread in the same order: switching builds changes no bit
     (what lets ThreadChoice switch mid-run without breaking deterministic replay)."""
@@ -137,7 +137,7 @@ def test_threaded_and_serial_clustered_steps_are_bit_identical(warp):
     assert np.array_equal(a.u, b.u) and np.array_equal(a.v, b.v)
 
 
-@pytest.mark.parametrize("warp", [False, "element", "vertex"])
+@pytest.mark.parametrize("warp", [False, "element", "vertex", "neohookean"])
 def test_the_benchmarks_compiled_step_is_the_step(warp):
     """benchmarks/core_benchmark times ClusteredExplicit.compiled_step without Python: calling it must advance the
     state exactly as step() does, and it refuses what it does not cover (attachments)."""

@@ -8,12 +8,10 @@ import pytest
 from benchmarks.stability_table import CASES, ENERGY_SLACK, bar_mesh, run
 from clusterfem_ros.config import ConfigError, from_mapping
 from clusterfem_ros.fem import neohookean as nh
-from clusterfem_ros.fem.element_rotation import LANES
-from clusterfem_ros.fem.element_warping import ElementFrames, lane_elements
+from clusterfem_ros.fem.element_warping import ElementFrames
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import build_model
-from clusterfem_ros.fem.stretch import max_neohookean_bound
 from clusterfem_ros.fem.tet_mesh import TetMesh, signed_volumes
 
 
@@ -97,21 +95,22 @@ def test_the_compiled_kernel_is_its_numpy_twin(threads):
     frames = ElementFrames.from_model(model)
     other = nh.neohookean_force(model, u, v, frames=frames, threads=not threads)
     assert np.array_equal(f, other)                     # serial and threaded: the same bits
+    bounds = nh.tangent_bounds(model, u, threads=threads)    # the step plan's bounds, the pass without forces
+    assert bounds.shape == (model.mesh.n_tets,) and bounds.min() > 0
+    assert np.array_equal(frames.bounds.reshape(-1)[:frames.m], bounds)    # the force pass leaves the same
 
 
 def test_the_stretch_bound_covers_the_tangent_and_is_exact_at_rest():
     """One unit tet moved to x = F X: the compiled bound b >= the largest eigenvalue of dP/dF (finite
     differences of the stress) for stretched, sheared, rotated and inverted F, and within 1.6x of it (the
     Frobenius bound alone was up to 3.4x above); at rest and under a rigid rotation b is that eigenvalue, the
-    linear material's largest modulus 3 lambda + 2 mu (which the chunk's padding lanes also give: b is at least
-    that)."""
+    linear material's largest modulus 3 lambda + 2 mu."""
     rest = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
     rng = np.random.default_rng(8)
     rotation = np.linalg.qr(rng.normal(size=(3, 3)))[0]
     rotation *= np.sign(np.linalg.det(rotation))
     for nu in (0.3, 0.49):
         model = build_model(TetMesh(rest, np.array([[0, 1, 2, 3]])), Material(E=1.0, nu=nu))
-        elems = lane_elements(model)
         lam, mu = model.material.lame
         lam_s, alpha = nh.parameters(lam, mu)
 
@@ -130,9 +129,9 @@ def test_the_stretch_bound_covers_the_tangent_and_is_exact_at_rest():
                 e[j] = 1e-6
                 H[:, j] = (stress(F + e.reshape(3, 3)) - stress(F - e.reshape(3, 3))).ravel() / 2e-6
             top = np.linalg.eigvalsh(0.5 * (H + H.T)).max()
-            b = max_neohookean_bound(elems, rest @ F.T - rest, np.empty(9 * LANES), lam_s, alpha, mu)
-            floor = max(top, 3 * lam + 2 * mu)                 # the chunk's padding lanes are at rest
-            assert floor <= b * (1 + 1e-6)
+            (b,) = nh.tangent_bounds(model, rest @ F.T - rest)
+            floor = max(top, 3 * lam + 2 * mu)                 # the step plan's floor: the rest value
+            assert top <= b * (1 + 1e-6)
             assert b <= 1.6 * floor
             if k < 2:
                 assert top == pytest.approx(3 * lam + 2 * mu, rel=1e-8)

@@ -1,5 +1,6 @@
 """The stretch bound that plans warped explicit sub-steps (fem/stretch.py)."""
 import numpy as np
+import pytest
 from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
@@ -56,3 +57,23 @@ def test_the_plan_rises_at_once_and_falls_only_after_the_hold():
     for _ in range(5):                                       # 0.05 s without need: still held
         assert plan.factor(np.zeros_like(model.rest), 0.01) == up
     assert plan.factor(np.zeros_like(model.rest), 0.01) == 1.0
+
+
+def test_the_neohookean_plan_reads_the_force_passs_bound():
+    """The Neo-Hookean plan takes the largest tangent bound over the rest modulus 3 lambda + 2 mu, past 4x times
+    the accuracy factor (1 + g) / 4 up to 4, rounded up to a quarter octave; it holds as the corotated plan does,
+    and asking it for the corotated factor is an error that names the right call."""
+    model = _bar()
+    lam, mu = model.material.lame
+    rest = 3 * lam + 2 * mu
+    plan = StretchPlan(model, hold=0.05, energy="neohookean")
+    assert plan.neohookean_factor(rest, 0.01) == 1.0
+    assert plan.neohookean_factor(0.5 * rest, 0.01) == 1.0             # softer than at rest: the linear plan
+    assert plan.neohookean_factor(3.0 * rest, 0.01) == 2 ** (7 / 4)    # 3 rounded up to a quarter octave
+    assert plan.neohookean_factor(8.0 * rest, 0.01) == 16.0            # 8 x min(4, 8 / 4)
+    assert plan.neohookean_factor(32.0 * rest, 0.01) == 128.0          # the accuracy factor stops at 4
+    for _ in range(5):
+        assert plan.neohookean_factor(rest, 0.01) == 128.0
+    assert plan.neohookean_factor(rest, 0.01) == 1.0
+    with pytest.raises(ValueError, match="neohookean_factor"):
+        plan.factor(np.zeros_like(model.rest), 0.01)

@@ -323,7 +323,8 @@ class ElementFrames:
     elems: tuple            # the element data by chunk (lane_elements)
     gather: tuple           # (vptr (n + 1,), slot (4 m,)): where vertex i's element corners' x components are in
                             #   fe (flat), by ascending element
-    rot_lanes: np.ndarray   # (chunks, 9 LANES) rotations by lane, updated by every force / rotation call
+    rot_lanes: np.ndarray   # (chunks, 9 LANES) rotations by lane, updated by every force / rotation call (the
+                            #   Neo-Hookean pass keeps its tangent bounds in the first LANES: ``bounds``)
     buf: np.ndarray         # (BLOCKS, 6, 9 LANES) workspace: differences, iterates
     how: np.ndarray         # (BLOCKS, LANES) workspace of the robust path: 0 polar, 1 inverted/flat
     tmp: np.ndarray         # (BLOCKS, 3, 3, 3) workspace of the scalar fallback
@@ -357,6 +358,12 @@ class ElementFrames:
     def work(self) -> tuple:
         """The kernels' workspace group: (rot_lanes, buf, how, tmp, fe, e)."""
         return self.rot_lanes, self.buf, self.how, self.tmp, self.fe, self.e
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(chunks, LANES) view: the Neo-Hookean pass's tangent bounds by lane (fem/neohookean.py), kept where the
+        corotated pass keeps its rotations (padding lanes: the rest value)."""
+        return self.rot_lanes[:, :LANES]
 
     @property
     def rot(self) -> np.ndarray:

@@ -20,14 +20,30 @@ corotated bar with a vertex torn away and held, undamped, gains energy for as lo
 inverted. This energy has no such place: after the tear its shadow energy stays flat
 (benchmarks/stability_table.py). The price is stiffness at large stretch: cof F grows with the product of
 two singular values, so an element stretched tenfold is about a hundred times stiffer than at rest, and the step
-plan must follow (fem/stretch.py, ``neohookean_stiffening``). No polar iteration: the pass costs less than
-the corotated one (benchmarks/core_benchmark.py --warping-only).
+plan must follow (below, and fem/stretch.py). No polar iteration: the pass costs less than the corotated one
+(benchmarks/core_benchmark.py --warping-only).
 
 Damping. The stiffness damping is a viscous stress on the rate of the right Cauchy-Green tensor:
 P_d = F S_d, S_d = lambda tr(E') I + 2 mu E', E' = sym(F^T zeta dF/dt). Its power S_d : E' / zeta >= 0, so it
 only removes energy; it is zero for any rigid velocity (dF/dt = W F, W skew, gives E' = 0); at F = I it is
 zeta K v, the linear model's. With w = x0 + u + zeta v (the kernels' input) zeta dF/dt = G - F, G the
 gradient of w. The mass damping -xi M v is added by the caller, as for the other models.
+
+The step plan's bound. The explicit step is planned for the largest eigenvalue of the tangent dP/dF over the
+elements (fem/stretch.py). With F's signed singular values s_i and J = s_0 s_1 s_2, the tangent's nine
+eigenvalues (Smith, de Goes and Kim 2019, analytic eigensystems of isotropic energies) are the six twist and
+flip values mu +- lambda_s (J - alpha) s_k and the eigenvalues of the 3 x 3 scaling block A,
+A_ii = mu + lambda_s (s_j s_k)^2, A_ij = lambda_s s_k (2 J - alpha). No SVD: from the invariants of C = F^T F,
+I1 = |F|^2 and I2 = |cof F|^2, every |s_i| <= s with s^2 = I1 / 3 + 2 / 3 sqrt(I1^2 - 3 I2) (the largest
+eigenvalue of a symmetric 3 x 3 matrix is at most its mean plus sqrt 2 times the spread of its eigenvalues),
+and (s_j s_k)^2 <= p, the same bound for cof C (invariants I2 and I1 J^2). So the largest eigenvalue is at
+most the larger of mu + lambda_s |J - alpha| s and A's Gershgorin row bound
+mu + lambda_s p + 2 lambda_s |2 J - alpha| s; taken with the cruder
+mu + lambda_s I2 + sqrt(2) lambda_s |J - alpha| |F|_F, the smaller of the two. At rest and in any rigid
+motion it is 3 lambda + 2 mu, the linear material's largest modulus, exactly; elsewhere within 1.6 x of the
+tangent's largest eigenvalue (tests/test_neohookean.py). The force pass computes it beside each element's force
+from the same F (``ElementFrames.bounds``; four square roots an element, about a seventh of the pass on the
+jelly man), so the step gets it with its first force; ``tangent_bounds`` runs the pass without the forces.
 
 The compiled pass has the element warping's layout (fem/element_warping.py: ``ElementFrames``, chunks of
 LANES elements by lane, element corner forces gathered per vertex in element order, so serial and threaded
@@ -39,6 +55,8 @@ Builds: the element warping's pass, pass-and-gather and force sources (``_elemen
 """
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -46,11 +64,14 @@ from .assembly import shape_gradients
 from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .corotational import deformation_gradients
 from .element_rotation import LANES
-from .element_warping import (ElementFrames, _differences, _element_e, _element_force, _element_pass,
+from .element_warping import (INLINED, ElementFrames, _differences, _element_e, _element_force, _element_pass,
                               gather_parallel, gather_serial, lane_gradient, run_element_kernel,
                               store_corner_forces)
+from .kernel_args import checked_rows, pick_build
 from .model import FemModel
 from ..numba_config import SERIAL, compiled, serial_and_parallel
+
+SQRT2 = math.sqrt(2.0)
 
 
 def parameters(lam: float, mu: float) -> tuple[float, float]:
@@ -106,11 +127,36 @@ def reference_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None)
     return out - m.xi * model.mass[:, None] * v
 
 
+@numba.njit(**INLINED)
+def lane_cofactor(f00, f01, f02, f10, f11, f12, f20, f21, f22):
+    """cof F = dJ/dF, row-major (rows f1 x f2, f2 x f0, f0 x f1 of F's rows f0, f1, f2)."""
+    return (f11 * f22 - f12 * f21, f12 * f20 - f10 * f22, f10 * f21 - f11 * f20,
+            f21 * f02 - f22 * f01, f22 * f00 - f20 * f02, f20 * f01 - f21 * f00,
+            f01 * f12 - f02 * f11, f02 * f10 - f00 * f12, f00 * f11 - f01 * f10)
+
+
+@numba.njit(**INLINED)
+def lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
+                       c00, c01, c02, c10, c11, c12, c20, c21, c22, j, lam_s, alpha, mu):
+    """b >= the largest eigenvalue of dP/dF at F (cof F = c, J = det F; module docstring, The step plan's bound)."""
+    i2 = (c00 * c00 + c01 * c01 + c02 * c02 + c10 * c10 + c11 * c11 + c12 * c12
+          + c20 * c20 + c21 * c21 + c22 * c22)                      # |cof F|^2
+    i1 = (f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12
+          + f20 * f20 + f21 * f21 + f22 * f22)                      # |F|^2
+    nf = math.sqrt(i1)
+    s = math.sqrt(i1 / 3.0 + 2.0 / 3.0 * math.sqrt(max(0.0, i1 * i1 - 3.0 * i2)))        # >= |s_i|
+    p = min(i2, i2 / 3.0 + 2.0 / 3.0 * math.sqrt(max(0.0, i2 * i2 - 3.0 * i1 * j * j)))   # >= (s_j s_k)^2
+    frobenius = mu + lam_s * i2 + SQRT2 * lam_s * abs(j - alpha) * nf
+    twist = mu + lam_s * abs(j - alpha) * s
+    scaling = mu + lam_s * p + lam_s * abs(2.0 * j - alpha) * min(2.0 * s, SQRT2 * nf)
+    return min(frobenius, max(twist, scaling))
+
+
 @numba.njit(**SERIAL)
-def _chunk_forces(D, DW, grad, vol, lam, mu, fe):
+def _chunk_forces(D, DW, grad, vol, lam, mu, fe, bound):
     """fe[(3 c + a) LANES + l] <- component a of V P g_c per lane (the force is -fe): F = I + sum_c d_c g_c^T from
     the differences of u (D), G = sum_c dw_c g_c^T from those of w = x0 + u + zeta v (DW), P the elastic stress
-    plus the damping F S_d with zeta dF/dt = G - F (module docstring)."""
+    plus the damping F S_d with zeta dF/dt = G - F (module docstring); bound[l] <- the tangent bound at F."""
     lam_s = lam + mu
     alpha = 1.0 + mu / lam_s
     for l in range(LANES):
@@ -119,10 +165,11 @@ def _chunk_forces(D, DW, grad, vol, lam, mu, fe):
         z00, z01, z02 = G00 - f00, G01 - f01, G02 - f02                 # Z = G - F = zeta dF/dt
         z10, z11, z12 = G10 - f10, G11 - f11, G12 - f12
         z20, z21, z22 = G20 - f20, G21 - f21, G22 - f22
-        c00, c01, c02 = f11 * f22 - f12 * f21, f12 * f20 - f10 * f22, f10 * f21 - f11 * f20     # cof F
-        c10, c11, c12 = f21 * f02 - f22 * f01, f22 * f00 - f20 * f02, f20 * f01 - f21 * f00
-        c20, c21, c22 = f01 * f12 - f02 * f11, f02 * f10 - f00 * f12, f00 * f11 - f01 * f10
-        k = lam_s * ((f00 * c00 + f01 * c01 + f02 * c02) - alpha)
+        c00, c01, c02, c10, c11, c12, c20, c21, c22 = lane_cofactor(f00, f01, f02, f10, f11, f12, f20, f21, f22)
+        j = f00 * c00 + f01 * c01 + f02 * c02
+        bound[l] = lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
+                                      c00, c01, c02, c10, c11, c12, c20, c21, c22, j, lam_s, alpha, mu)
+        k = lam_s * (j - alpha)
         e00 = f00 * z00 + f10 * z10 + f20 * z20                     # E' = sym(F^T Z)
         e11 = f01 * z01 + f11 * z11 + f21 * z21
         e22 = f02 * z02 + f12 * z12 + f22 * z22
@@ -146,12 +193,29 @@ def _chunk_forces(D, DW, grad, vol, lam, mu, fe):
 
 
 @numba.njit(**SERIAL)
-def _neohookean_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, rot, fe):
-    """Chunk c: differences of u and w, then the element forces. The element warping's chunk signature, so its
-    pass runs this one; the rotation workspace (how, tmp, rot) is unused and ``forces`` is always true here."""
+def _chunk_bounds(D, grad, lam, mu, bound):
+    """bound[l] <- the tangent bound at F = I + sum_c d_c g_c^T (D: the differences of u), without the forces."""
+    lam_s = lam + mu
+    alpha = 1.0 + mu / lam_s
+    for l in range(LANES):
+        f00, f01, f02, f10, f11, f12, f20, f21, f22 = lane_gradient(D, grad, l, 1.0)
+        c00, c01, c02, c10, c11, c12, c20, c21, c22 = lane_cofactor(f00, f01, f02, f10, f11, f12, f20, f21, f22)
+        j = f00 * c00 + f01 * c01 + f02 * c02
+        bound[l] = lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
+                                      c00, c01, c02, c10, c11, c12, c20, c21, c22, j, lam_s, alpha, mu)
+
+
+@numba.njit(**SERIAL)
+def _neohookean_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, kept, fe):
+    """Chunk c: differences of u (and of w), the tangent bounds in kept[c, :LANES] (ElementFrames.bounds: where
+    the corotated chunk keeps its rotations) and with ``forces`` the element forces. The element warping's
+    chunk signature, so its pass runs this one; the rotation workspace (how, tmp) is unused."""
     D, DW = buf[0], buf[1]
-    _differences(corner[c], u, w, D, DW, True)
-    _chunk_forces(D, DW, grad[c], vol[c], lam, mu, fe[c])
+    _differences(corner[c], u, w, D, DW, forces)
+    if forces:
+        _chunk_forces(D, DW, grad[c], vol[c], lam, mu, fe[c], kept[c])
+    else:
+        _chunk_bounds(D, grad[c], lam, mu, kept[c])
 
 
 # the element warping's sources around this chunk: the pass over blocks of chunks, the pass and gather, and
@@ -173,3 +237,14 @@ def neohookean_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None
                      threads: bool | None = None) -> np.ndarray:
     """Stable Neo-Hookean elastic + damping force, (n, 3) (module docstring), including -xi M v."""
     return run_element_kernel(neohookean_kernel_serial, neohookean_kernel_parallel, model, u, v, frames, out, threads)
+
+
+def tangent_bounds(model: FemModel, u: np.ndarray, frames: ElementFrames | None = None,
+                   threads: bool | None = None) -> np.ndarray:
+    """b_e >= the largest eigenvalue of element e's stress tangent dP/dF at displacement u, (m,) (module
+    docstring, The step plan's bound): the pass without the forces."""
+    (u,) = checked_rows(model, u=u)
+    frames = ElementFrames.from_model(model) if frames is None else frames
+    kern = pick_build(model.n_vertices, threads, neohookean_pass_serial, neohookean_pass_parallel)
+    kern(frames.elems, u, frames.w, frames.work, False)
+    return frames.bounds.reshape(-1)[:frames.m].copy()

@@ -14,19 +14,11 @@ step is planned for lambda_max (1 + g): zero for a body at rest or in rigid moti
 jelly man (stability margin 2.4 -> 1.5 on `scripts/run`'s summary line), where it still takes one sub-step.
 One pass over the vertices (x = X + u), one over the elements (36 multiply-adds each).
 
-``neohookean_stiffening`` is the same factor for the stable Neo-Hookean energy (fem/neohookean.py). Its tangent's
-nine eigenvalues, with F's signed singular values s_i and J = s_0 s_1 s_2 (Smith, de Goes and Kim 2019, analytic
-eigensystems of isotropic energies), are the six twist and flip values mu +- lambda_s (J - alpha) s_k and the
-eigenvalues of the 3 x 3 scaling block A, A_ii = mu + lambda_s (s_j s_k)^2, A_ij = lambda_s s_k (2 J - alpha).
-No SVD: from the invariants of C = F^T F, I1 = |F|^2 and I2 = |cof F|^2, every |s_i| <= s with
-s^2 = I1 / 3 + 2 / 3 sqrt(I1^2 - 3 I2) (the largest eigenvalue of a symmetric 3 x 3 matrix is at most its mean
-plus sqrt 2 times the spread of its eigenvalues), and (s_j s_k)^2 <= p, the same bound for cof C (invariants I2
-and I1 J^2). So the largest eigenvalue is at most the larger of mu + lambda_s |J - alpha| s and A's Gershgorin
-row bound mu + lambda_s p + 2 lambda_s |2 J - alpha| s; taken with the cruder mu + lambda_s I2 + sqrt(2)
-lambda_s |J - alpha| |F|_F, the smaller of the two. At rest and in any rigid motion it is 3 lambda + 2 mu, the
-linear material's largest modulus, exactly; elsewhere within 1.6 x of the tangent's largest eigenvalue
-(tests/test_neohookean.py), and g = max_e b_e / (3 lambda + 2 mu) - 1. The pass runs in the element warping's
-chunks of lanes (element_warping.lane_elements), so it vectorises.
+For the stable Neo-Hookean energy (fem/neohookean.py) the same factor is g = max_e b_e / (3 lambda + 2 mu) - 1,
+b_e the bound on element e's stress tangent that the Neo-Hookean force pass leaves beside its forces
+(fem/neohookean.py, The step plan's bound): exact at rest and in rigid motion, within 1.6x of the tangent
+elsewhere. The clustered step computes its first force before it plans its sub-steps, so the plan is for
+the state the step starts from at no extra pass (fem/integrators/clustered_explicit.py).
 
 ``StretchPlan`` turns g into the factor the step is planned with. Symplectic Euler conserves a shadow
 energy only while its step stays the same, and each change of step moves it: on the torn bar (undamped, 3 s,
@@ -54,13 +46,9 @@ import numba
 import numpy as np
 
 from .assembly import shape_gradients
-from .element_rotation import LANES
-from .element_warping import _differences, lane_elements, lane_gradient
-from .neohookean import parameters
 from ..numba_config import HOLDS_GIL
 
 SQRT3 = math.sqrt(3.0)
-SQRT2 = math.sqrt(2.0)
 
 
 @numba.njit(**HOLDS_GIL)
@@ -105,68 +93,26 @@ def stiffening(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.
     return max(0.0, SQRT3 * max_gradient_norm(tets, gradients, rest, u, x) - 3.0)
 
 
-@numba.njit(**HOLDS_GIL)
-def max_neohookean_bound(elems: tuple, u: np.ndarray, D: np.ndarray, lam_s: float, alpha: float,
-                         mu: float) -> float:
-    """max over elements of the bound b_e on the stable Neo-Hookean tangent (module docstring), in the element
-    warping's chunks of LANES elements (elems: element_warping.lane_elements; D: a (9 LANES,) workspace), so
-    the lanes vectorise; padding lanes (F = I) give the rest value 3 lambda + 2 mu."""
-    corner, grad = elems[0], elems[1]
-    b = np.empty(LANES)
-    worst = 0.0
-    for c in range(corner.shape[0]):
-        _differences(corner[c], u, u, D, D, False)
-        for l in range(LANES):
-            f00, f01, f02, f10, f11, f12, f20, f21, f22 = lane_gradient(D, grad[c], l, 1.0)
-            c00, c01, c02 = f11 * f22 - f12 * f21, f12 * f20 - f10 * f22, f10 * f21 - f11 * f20
-            c10, c11, c12 = f21 * f02 - f22 * f01, f22 * f00 - f20 * f02, f20 * f01 - f21 * f00
-            c20, c21, c22 = f01 * f12 - f02 * f11, f02 * f10 - f00 * f12, f00 * f11 - f01 * f10
-            i2 = (c00 * c00 + c01 * c01 + c02 * c02 + c10 * c10 + c11 * c11 + c12 * c12
-                  + c20 * c20 + c21 * c21 + c22 * c22)                  # |cof F|^2
-            i1 = (f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12
-                  + f20 * f20 + f21 * f21 + f22 * f22)                  # |F|^2
-            j = f00 * c00 + f01 * c01 + f02 * c02
-            nf = math.sqrt(i1)
-            s = math.sqrt(i1 / 3.0 + 2.0 / 3.0 * math.sqrt(max(0.0, i1 * i1 - 3.0 * i2)))    # >= |s_i|
-            p = min(i2, i2 / 3.0 + 2.0 / 3.0 * math.sqrt(max(0.0, i2 * i2 - 3.0 * i1 * j * j)))   # >= (s_j s_k)^2
-            frobenius = mu + lam_s * i2 + SQRT2 * lam_s * abs(j - alpha) * nf
-            twist = mu + lam_s * abs(j - alpha) * s
-            scaling = mu + lam_s * p + lam_s * abs(2.0 * j - alpha) * min(2.0 * s, SQRT2 * nf)
-            b[l] = min(frobenius, max(twist, scaling))
-        for l in range(LANES):
-            worst = max(worst, b[l])
-    return worst
-
-
-def neohookean_stiffening(elems: tuple, u: np.ndarray, D: np.ndarray | None = None) -> float:
-    """g >= the stable Neo-Hookean tangent's largest eigenvalue over the linear material's, minus 1 (>= 0; module
-    docstring). elems: element_warping.lane_elements; ``D``: a (9 LANES,) workspace (allocated if not given)."""
-    D = np.empty(9 * LANES) if D is None else D
-    lam, mu = elems[3]
-    b = max_neohookean_bound(elems, u, D, *parameters(lam, mu), mu)
-    return max(0.0, b / (3.0 * lam + 2.0 * mu) - 1.0)
-
-
 class StretchPlan:
     """The stretch factor a warped explicit body plans its sub-steps with (module docstring). The corotated
-    bound is taken at most every ``every`` simulated seconds (5 ms: every fifth step of the node's 1 ms, every
-    step of a 10 ms one: a bound costs about a quarter of the jelly man's step). The Neo-Hookean bound is taken
-    every step: its stiffness grows with the square of the stretch, and the fine hard-case bar torn at h = 1 ms
-    diverged in the steps between two bounds 5 ms apart (benchmarks/stability_table.py). ``every`` and ``hold``
-    None take the energy's own (EVERY, HOLD; module docstring)."""
+    bound (``factor``) is taken at most every ``every`` simulated seconds (5 ms: every fifth step of the node's
+    1 ms, every step of a 10 ms one: a bound costs about a quarter of the jelly man's step). The Neo-Hookean one
+    (``neohookean_factor``) comes with every step's first force: its stiffness grows with the square of the
+    stretch, and the fine hard-case bar torn at h = 1 ms diverged in the steps between two bounds 5 ms apart
+    (benchmarks/stability_table.py). ``hold`` None takes the energy's own (HOLD; module docstring)."""
 
-    EVERY = {"corotated": 0.005, "neohookean": 0.0}
+    EVERY = 0.005
     HOLD = {"corotated": 5.0, "neohookean": 0.5}
     KNEE, ACCURACY = 4.0, 4.0      # Neo-Hookean: beyond 4x the linear stiffness, up to 4x more (half the sub-step)
 
-    def __init__(self, model, hold: float | None = None, every: float | None = None, energy: str = "corotated"):
-        if energy not in self.EVERY:
+    def __init__(self, model, hold: float | None = None, every: float = EVERY, energy: str = "corotated"):
+        if energy not in self.HOLD:
             raise ValueError(f"energy = {energy!r}: 'corotated' or 'neohookean'")
         self.energy = energy
-        every = self.EVERY[energy] if every is None else every
         hold = self.HOLD[energy] if hold is None else hold
         if energy == "neohookean":
-            self.elems, self._D = lane_elements(model), np.empty(9 * LANES)
+            lam, mu = model.material.lame
+            self.rest_modulus = 3.0 * lam + 2.0 * mu      # the tangent's largest eigenvalue at rest
         else:
             self.tets = np.ascontiguousarray(model.mesh.tets, dtype=np.int64)
             self.gradients = np.ascontiguousarray(shape_gradients(model.rest, self.tets)[0])
@@ -175,21 +121,28 @@ class StretchPlan:
         self.hold, self.every = float(hold), float(every)
         self.current = 1.0
         self._since = 0.0              # simulated seconds since ``current`` was last needed
-        self._due = 0.0                # simulated seconds until the next bound
+        self._due = 0.0                # simulated seconds until the next corotated bound
 
     def factor(self, u: np.ndarray, h: float) -> float:
-        """The factor for a step of h from displacement u: >= 1 + g (Neo-Hookean: times the accuracy factor)
-        rounded up to a quarter octave."""
+        """The corotated factor for a step of h from displacement u: >= 1 + g rounded up to a quarter octave."""
+        if self.energy != "corotated":
+            raise ValueError("factor(u, h) plans the corotated energy; the Neo-Hookean one: neohookean_factor")
         self._due -= h
         if self._due > 0.0:
             self._since += h
             return self.current
         self._due += max(self.every, h)
-        if self.energy == "neohookean":
-            stiffer = 1.0 + neohookean_stiffening(self.elems, u, self._D)
-            stiffer *= min(self.ACCURACY, max(1.0, stiffer / self.KNEE))
-        else:
-            stiffer = 1.0 + stiffening(self.tets, self.gradients, self.rest, u, self._x)
+        return self._settle(1.0 + stiffening(self.tets, self.gradients, self.rest, u, self._x), h)
+
+    def neohookean_factor(self, bound: float, h: float) -> float:
+        """The Neo-Hookean factor for a step of h whose elements' largest tangent bound is ``bound``
+        (fem/neohookean.py; the force pass leaves it in ElementFrames.bounds): >= 1 + g times the accuracy factor,
+        rounded up to a quarter octave."""
+        stiffer = max(1.0, bound / self.rest_modulus)
+        return self._settle(stiffer * min(self.ACCURACY, max(1.0, stiffer / self.KNEE)), h)
+
+    def _settle(self, stiffer: float, h: float) -> float:
+        """The factor for ``stiffer`` after rounding: it rises at once and falls after ``hold`` without need."""
         need = 2.0 ** (math.ceil(4.0 * math.log2(stiffer)) / 4.0) if stiffer > 1.0 else 1.0
         if need >= self.current:
             self.current, self._since = need, 0.0

@@ -136,26 +136,37 @@ def _free_symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner
 
 def _warped_symplectic_euler(gradients, slices, rest, work,
                              mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
-                             att_idx, att_u, att_v, att_a, att_kp, att_kd):
+                             first_force, att_idx, att_u, att_v, att_a, att_kp, att_kd):
     """The warped step around one build of the warped kernel (``warped_e``); w = x0 + u + zeta v. The kernel
     leaves e, the warped counterpart of K w (fem/warped_force_kernel.py), in vertex order, and the update
-    finishes the force as in the linear step."""
+    finishes the force as in the linear step. ``first_force`` false: the caller has made the first sub-step's
+    force (``_warped_first_force``: the Neo-Hookean step plans its sub-steps from the bounds that pass leaves)."""
     n = u.shape[0]
-    _prepare(n, zeta, fixed, rest, u, v, w, True)
+    if first_force:
+        _prepare(n, zeta, fixed, rest, u, v, w, True)
     ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
     for s in range(nsub):
-        warped_e(gradients, slices, u, w, work)  # noqa: F821 (bound)
+        if first_force or s > 0:
+            warped_e(gradients, slices, u, w, work)  # noqa: F821 (bound)
         _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, e)
         ok = _update(n, h, zeta, inv_mass3, e, xi, mass3, f_const, rest, u, v, w, True, limit, s + 1 < nsub)
     return ok
 
 
 def _free_warped_symplectic_euler(gradients, slices, rest, work,
-                                  mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e):
+                                  mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
+                                  first_force):
     """The warped ``step`` for a body with no attachments."""
     return step(gradients, slices, rest, work,  # noqa: F821 (bound)
-                mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
+                mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e, first_force,
                 _NO_INDEX, _NO_VEC, _NO_VEC, _NO_VEC, _NO_GAIN, _NO_GAIN)
+
+
+def _warped_first_force(gradients, slices, rest, work, fixed, u, v, zeta, w):
+    """Fixed vertices held at rest, w and e: the first sub-step's force of a warped step, which the step then
+    takes with ``first_force`` false."""
+    _prepare(u.shape[0], zeta, fixed, rest, u, v, w, True)
+    warped_e(gradients, slices, u, w, work)  # noqa: F821 (bound)
 
 
 def _builds(step_source, free_source, suffix, **kernel):
@@ -175,11 +186,13 @@ _element_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic
                                warped_e=element_e_serial)
 _element_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_element_parallel",
                                  warped_e=element_e_parallel)
-# and around the stable Neo-Hookean elements' kernel (fem/neohookean.py)
+# and around the stable Neo-Hookean elements' kernel (fem/neohookean.py), with its first force on its own
 _neohookean_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_neohookean",
                                   warped_e=neohookean_e_serial)
 _neohookean_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_neohookean_parallel",
                                     warped_e=neohookean_e_parallel)
+_neohookean_first = (compiled(_warped_first_force, "_neohookean", warped_e=neohookean_e_serial),
+                     compiled(_warped_first_force, "_neohookean_parallel", warped_e=neohookean_e_parallel))
 
 
 class ThreadChoice:
@@ -327,20 +340,36 @@ class ClusteredExplicit:
             self._plan_key = key
         return self._plan
 
-    def _step_args(self, state: State, control: Control, plan, inv_mass3: np.ndarray) -> tuple:
-        """The compiled step's arguments up to the attachments (its attachment-free build takes just these)."""
+    def _step_args(self, state: State, control: Control, plan, inv_mass3: np.ndarray,
+                   first_force: bool = True) -> tuple:
+        """The compiled step's arguments up to the attachments (its attachment-free build takes just these);
+        ``first_force`` false: the step's first force is made (``_stiffer``)."""
         common = self._common
-        return (*self._model_args, self.model.mass, self._mass3, inv_mass3, common.fixed_index, state.u, state.v,
+        args = (*self._model_args, self.model.mass, self._mass3, inv_mass3, common.fixed_index, state.u, state.v,
                 common.constant_forces(control), self._zeta, self._xi, plan.h_sub, plan.substeps, common.limit,
                 self._w, self._f)
+        return (*args, first_force) if self.warp else args
+
+    def _stiffer(self, state: State, h: float, parallel: bool) -> tuple[float, bool]:
+        """(the stretch factor for a step of h from ``state``, whether the step's first force is made). The
+        Neo-Hookean bounds come with the force pass, so its first force is made here, before the plan."""
+        stretch = self.stretch
+        if stretch is None:
+            return 1.0, False
+        if stretch.energy == "corotated":
+            return stretch.factor(state.u, h), False
+        _neohookean_first[parallel](*self._model_args, self._common.fixed_index, state.u, state.v, self._zeta,
+                                    self._w)
+        return stretch.neohookean_factor(float(self.frames.bounds.max()), h), True
 
     def compiled_step(self, state: State, control: Control, h: float) -> tuple:
         """(function, arguments) of one step's compiled part for a body without attachments or prescribed
-        vertices, serial build: what ``step`` calls after its Python bookkeeping (benchmarks/core_benchmark.py times
-        it inside numba, without the dispatch)."""
+        vertices, serial build: what ``step`` calls after its Python bookkeeping (benchmarks/core_benchmark.py
+        times it inside numba, without the dispatch). The function makes the step's first force itself, so
+        the Neo-Hookean step is timed with the bounds it plans from."""
         if control.attachments.index.size or control.prescribed_index.size:
             raise ValueError("compiled_step covers bodies without attachments or prescribed vertices")
-        stiffer = self.stretch.factor(state.u, h) if self.stretch is not None else 1.0
+        stiffer, _ = self._stiffer(state, h, False)
         return self._builds[False][1], self._step_args(state, control, self._plan_for(h, control, stiffer),
                                                        self._inv_mass3)
 
@@ -350,16 +379,17 @@ class ClusteredExplicit:
         if control.prescribed_index.size:   # fixed vertices are zeroed in the kernel; prescribed ones here
             held = common.apply_prescribed(state, control)
             inv_mass3 = np.where(np.repeat(held, 3), 0.0, inv_mass3)
-        stiffer = self.stretch.factor(state.u, h) if self.stretch is not None else 1.0
-        plan = self._plan_for(h, control, stiffer)
-        att = control.attachments
         choice = self.thread_choice
+        parallel = self.threads
         if choice is not None:
             parallel = choice.use_parallel()
             self._step = self._builds[parallel]
             t0 = time.perf_counter()
+        stiffer, made = self._stiffer(state, h, parallel)
+        plan = self._plan_for(h, control, stiffer)
+        att = control.attachments
         step_attached, step_free = self._step
-        args = self._step_args(state, control, plan, inv_mass3)
+        args = self._step_args(state, control, plan, inv_mass3, first_force=not made)
         if att.index.size:
             ok = step_attached(*args, att.index, att.target_u, att.target_v, att.target_a, att.kp, att.kd)
         else:
