@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from .body.bone_distance import segment_distances
+from .body.bone_distance import any_beyond, segment_distances
 from .config import SceneConfig
 from .fem.model import Control, State
 from .fem.stability import DivergenceError
@@ -83,7 +83,7 @@ class Scene:
         self.rest_volume = parts.rest_volume
         self.state = State.rest(self.model)
         self._corners = None            # the tets transposed (4, m), for the volume checks
-        self._distance_limit = None     # (k,) how far each surface vertex may be from its bone (bone_distance)
+        self._distance_limit = None     # (limit, its square) (k,): how far each surface vertex may be from its bone
         self.check_wall_s = 0.0         # wall seconds in state_problem's checks (the node's "checks" stage)
         self._pose_memo = None          # ((t, stream revision), bone poses) of the last _poses
         self.inputs = InputCounters()
@@ -361,14 +361,27 @@ class Scene:
         k = self.surface_vertices.size
         if self.driver is None:
             return np.zeros(k), np.full(k, np.inf)
-        b = self.binding
-        if self._distance_limit is None:
-            self._distance_limit = np.maximum(self.config.output.max_bone_distance,
-                                              REST_DISTANCE_FACTOR * b.distance[self.surface_vertices])
         poses = self._poses(self.sim_time)
-        dist = segment_distances(self.model.rest, self.state.u, self.surface_vertices, b.bone, poses.rotation,
-                                 poses.translation, b.axis_local)
-        return dist, self._distance_limit
+        dist = segment_distances(self.model.rest, self.state.u, self.surface_vertices, self.binding.bone,
+                                 poses.rotation, poses.translation, self.binding.axis_local)
+        return dist, self._distance_limits()[0]
+
+    def _distance_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """(limit, limit squared) (k,) [m, m^2] of every surface vertex's distance to its bone (bone_distance)."""
+        if self._distance_limit is None:
+            limit = np.maximum(self.config.output.max_bone_distance,
+                               REST_DISTANCE_FACTOR * self.binding.distance[self.surface_vertices])
+            self._distance_limit = (limit, limit * limit)
+        return self._distance_limit
+
+    def _torn(self) -> bool:
+        """Whether a surface vertex is beyond its limit from its bone (bone_distance's question, without the
+        distances)."""
+        if self.driver is None:
+            return False
+        poses = self._poses(self.sim_time)
+        return any_beyond(self.model.rest, self.state.u, self.surface_vertices, self.binding.bone, poses.rotation,
+                          poses.translation, self.binding.axis_local, self._distance_limits()[1])
 
     def state_problem(self, volume: bool = True, bones: bool = True) -> str | None:
         """What makes the current state unfit to show, or None: a non-finite value, the volume off by more than
@@ -386,7 +399,7 @@ class Scene:
             err = self.volume_error() if volume else 0.0
             if not abs(err) <= MAX_VOLUME_ERROR:
                 problem = f"the body's volume is off by {err * 100:+.3g} %"      # the limit: MAX_VOLUME_ERROR
-            elif bones:
+            elif bones and self._torn():
                 dist, limit = self.bone_distance()
                 over = dist - limit
                 if dist.size and over.max() > 0:

@@ -106,8 +106,9 @@ def _naive_segment_distances(x, bone, R, p, axis_local):
 
 
 def test_the_bone_distance_kernel_equals_its_naive_twin_to_round_off():
-    """Random poses, points on both sides of both ends and beside the segment, and one zero-length bone."""
-    from clusterfem_ros.body.bone_distance import segment_distances
+    """Random poses, points on both sides of both ends and beside the segment, and one zero-length bone; the
+    check's kernel (any_beyond) finds a vertex 1 % beyond its limit and none when all are 1 % within."""
+    from clusterfem_ros.body.bone_distance import any_beyond, segment_distances
     rng = np.random.default_rng(3)
     nb, n = 5, 400
     q, _ = np.linalg.qr(rng.standard_normal((nb, 3, 3)))
@@ -123,6 +124,13 @@ def test_the_bone_distance_kernel_equals_its_naive_twin_to_round_off():
     want = _naive_segment_distances((rest + u)[vertices], bone[vertices], R, p, axis_local)
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
     assert (bone[vertices] == 2).any()                             # the point bone was exercised
+    # the check's question: is any vertex beyond its limit; each vertex in turn 1 % beyond, the others within
+    args = (rest, u, vertices, bone, R, p, axis_local)
+    assert not any_beyond(*args, (1.01 * want) ** 2)
+    for k in rng.choice(vertices.size, 20, replace=False):
+        limit = 1.01 * want
+        limit[k] = 0.99 * want[k]
+        assert any_beyond(*args, limit ** 2)
 
 
 def test_the_scene_bone_distance_equals_the_naive_twin_on_a_posed_body(scene):
