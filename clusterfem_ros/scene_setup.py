@@ -198,4 +198,6 @@ def warm_up(parts: RunningParts, control: Callable[[State], Control], h: float,
         parts.integrator.step(state, first, h)
     if parts.driver is not None:
         parts.driver.reset()
+    if parts.stream is not None:
+        parts.stream.load_kernels()
     compute_stress(parts.model, state.u, corotated=parts.config.warping)
