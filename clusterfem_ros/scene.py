@@ -14,6 +14,7 @@ extrapolates inputs: it runs on the last joint sample held when the stream stops
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -261,7 +262,7 @@ class Scene:
     def steps_due(self, t: float) -> int:
         """Whole steps from sim_time up to t (a step due within 1 us counts: stamps near 1e9 s carry
         ~0.2 us of round-off)."""
-        return int(np.floor((t - self.sim_time) / self.h + 1e-6 / self.h))
+        return math.floor((t - self.sim_time) / self.h + 1e-6 / self.h)
 
     def advance_to(self, t: float, max_steps: int | None = None, deadline: float | None = None,
                    on_step: Callable[[], None] | None = None) -> StepReport:

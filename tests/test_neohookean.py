@@ -98,6 +98,7 @@ def test_the_compiled_kernel_is_its_numpy_twin(threads):
     bounds = nh.tangent_bounds(model, u, threads=threads)    # the step plan's bounds, the pass without forces
     assert bounds.shape == (model.mesh.n_tets,) and bounds.min() > 0
     assert np.array_equal(frames.bounds.reshape(-1)[:frames.m], bounds)    # the force pass leaves the same
+    assert nh.largest_bound(frames) == frames.bounds.max() >= bounds.max()      # what the step plans for
 
 
 def test_the_stretch_bound_covers_the_tangent_and_is_exact_at_rest():

@@ -69,7 +69,7 @@ from .element_warping import (INLINED, ElementFrames, _differences, _element_e, 
                               store_corner_forces)
 from .kernel_args import checked_rows, pick_build
 from .model import FemModel
-from ..numba_config import SERIAL, compiled, serial_and_parallel
+from ..numba_config import HOLDS_GIL, SERIAL, compiled, serial_and_parallel
 
 SQRT2 = math.sqrt(2.0)
 
@@ -237,6 +237,21 @@ def neohookean_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None
                      threads: bool | None = None) -> np.ndarray:
     """Stable Neo-Hookean elastic + damping force, (n, 3) (module docstring), including -xi M v."""
     return run_element_kernel(neohookean_kernel_serial, neohookean_kernel_parallel, model, u, v, frames, out, threads)
+
+
+@numba.njit(**HOLDS_GIL)
+def _largest_bound(kept):
+    worst = 0.0
+    for c in range(kept.shape[0]):
+        for l in range(LANES):
+            worst = max(worst, kept[c, l])
+    return worst
+
+
+def largest_bound(frames: ElementFrames) -> float:
+    """The largest tangent bound the last pass left (ElementFrames.bounds; padding lanes give the rest value):
+    what the step plans for, without numpy's reduction over the strided view (3.7 us a step)."""
+    return _largest_bound(frames.rot_lanes)
 
 
 def tangent_bounds(model: FemModel, u: np.ndarray, frames: ElementFrames | None = None,

@@ -38,7 +38,7 @@ from ...numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
 from ..stability import control_critical_step, max_eigenvalue, plan_substeps
 from ..stretch import StretchPlan
 from ..element_warping import ElementFrames, check_warping_model, element_e_parallel, element_e_serial
-from ..neohookean import neohookean_e_parallel, neohookean_e_serial
+from ..neohookean import largest_bound, neohookean_e_parallel, neohookean_e_serial
 from ..warping import VertexFrames, warped_e_parallel, warped_e_serial
 from .base import StepCommon, StepInfo
 
@@ -316,6 +316,7 @@ class ClusteredExplicit:
         self._plan_key = None
         self._plan = None
         self._info = None
+        self.threaded_steps = 0         # steps run on the threaded build (its worker threads' CPU is not the caller's)
 
     @property
     def kernels(self) -> tuple:
@@ -360,7 +361,7 @@ class ClusteredExplicit:
             return stretch.factor(state.u, h), False
         _neohookean_first[parallel](*self._model_args, self._common.fixed_index, state.u, state.v, self._zeta,
                                     self._w)
-        return stretch.neohookean_factor(float(self.frames.bounds.max()), h), True
+        return stretch.neohookean_factor(largest_bound(self.frames), h), True
 
     def compiled_step(self, state: State, control: Control, h: float) -> tuple:
         """(function, arguments) of one step's compiled part for a body without attachments or prescribed
@@ -385,6 +386,7 @@ class ClusteredExplicit:
             parallel = choice.use_parallel()
             self._step = self._builds[parallel]
             t0 = time.perf_counter()
+        self.threaded_steps += parallel
         stiffer, made = self._stiffer(state, h, parallel)
         plan = self._plan_for(h, control, stiffer)
         att = control.attachments
