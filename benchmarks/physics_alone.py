@@ -16,7 +16,9 @@ simulated seconds each:
 
 each with the other core idle, and with a busy loop (a second Python process, ``while True: pass``, which
 touches no memory) on it. Printed per run: CPU ms per step (the thread's CPU time, ``time.thread_time``),
-the headroom it gives (simulated seconds per CPU second) and the wall real-time factor. The differences
+the headroom it gives (simulated seconds per CPU second), the wall real-time factor and the share of steps the
+integrator ran on its threaded build (ThreadChoice picks it where it measures faster, which back to back on
+an idle machine it can be: their worker threads' CPU is then not in the thread's time). The differences
 between the rows are the host's, not the code's: on a VM whose two vCPUs share a physical core's
 resources, or whose clock drops when both are busy, the thread's CPU per step rises with the other core's
 load, and a thread that sleeps between steps restarts with colder caches.
@@ -48,6 +50,7 @@ def run(scene, walk, duration: float, rate: float, paced: bool) -> dict:
     t_sim = 0.0 if scene.sim_time is None else scene.sim_time - 1.0      # stamps start at 1 s
     steps = int(round(duration / h))
     next_input = t_sim
+    threaded0 = getattr(scene.integrator, "threaded_steps", 0)
     steps0, cpu0, wall0 = scene.steps_done, time.thread_time(), time.perf_counter()
     for k in range(steps):
         if paced:
@@ -66,7 +69,8 @@ def run(scene, walk, duration: float, rate: float, paced: bool) -> dict:
             scene.state.u.copy(), scene.state.v.copy()
     cpu, wall = time.thread_time() - cpu0, time.perf_counter() - wall0
     n = scene.steps_done - steps0
-    return {"steps": n, "cpu_ms": cpu / n * 1e3, "headroom": n * h / cpu, "rtf": n * h / wall}
+    threaded = (getattr(scene.integrator, "threaded_steps", 0) - threaded0) / n
+    return {"steps": n, "cpu_ms": cpu / n * 1e3, "headroom": n * h / cpu, "rtf": n * h / wall, "threaded": threaded}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -92,15 +96,17 @@ def main(argv: list[str] | None = None) -> int:
                 if not np.isfinite(scene.state.u).all():
                     raise SystemExit("[bench] the state is not finite: the run is not a measurement")
                 rows.append(["paced (real time)" if paced else "back to back", other, f"{r['cpu_ms']:.3f}",
-                             f"{r['headroom']:.2f}", f"{r['rtf']:.2f}"])
+                             f"{r['headroom']:.2f}", f"{r['rtf']:.2f}", f"{100 * r['threaded']:.0f}"])
         finally:
             if hog is not None:
                 hog.kill()
                 hog.wait()
     print(f"\n## The physics thread alone: default scene, {args.rate:g} joint states/s, {args.duration:g} s per run\n")
-    print(table(["run", "other core", "CPU ms per step", "headroom (sim s per CPU s)", "real-time factor"], rows))
+    print(table(["run", "other core", "CPU ms per step", "headroom (sim s per CPU s)", "real-time factor",
+                 "threaded steps %"], rows))
     print("\nheadroom: simulated seconds per CPU second of this thread (inputs, skeleton, physics, checks, "
-          "snapshot copies), as the node's physics_headroom counts it")
+          "snapshot copies), as the node's physics_headroom counts it; a step on the threaded build (chosen by "
+          "measured time, ClusteredExplicit's ThreadChoice) leaves its worker threads' CPU out of it")
     return 0
 
 

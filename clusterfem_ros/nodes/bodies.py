@@ -68,6 +68,7 @@ class RunWindow:
         self.steps0, self.wall0, self.busy0, self.thread_cpu0 = s.steps_done, s.step_wall_s, loop.busy_s(), loop.cpu_s()
         self.stages0 = dict(loop.stages.totals)
         self.inputs0 = s.inputs.accepted
+        self.threaded0 = getattr(s.integrator, "threaded_steps", 0)
         loop.latency.restart()
 
     def result(self) -> dict:
@@ -83,6 +84,8 @@ class RunWindow:
                 "mean_step_ms": wall / max(steps, 1) * 1e3,
                 "headroom": steps * s.h / cpu if cpu > 0 else 0.0,
                 "headroom_in_node": steps * s.h / busy if busy > 0 else 0.0,
+                # the headroom counts the physics thread's CPU: a threaded step's workers are not in it
+                "threaded_steps": (getattr(s.integrator, "threaded_steps", 0) - self.threaded0) / max(steps, 1),
                 "tet_steps_per_s": m.mesh.n_tets * steps / elapsed,
                 **loop.latency.percentiles(), "latencies": loop.latency.count,
                 "shares": {k: (v - self.stages0[k]) / elapsed for k, v in loop.stages.totals.items()},
