@@ -72,6 +72,11 @@ from .model import FemModel
 from ..numba_config import HOLDS_GIL, SERIAL, compiled, serial_and_parallel
 
 SQRT2 = math.sqrt(2.0)
+THIRD = 1.0 / 3.0
+# The lane arithmetic with FMA contraction: a product and the sum it feeds in one rounding, no reassociation, so
+# the source's order holds and the serial and threaded builds give the same bits (tests/test_neohookean.py). A
+# fifteenth of the force pass on the jelly man (benchmarks/core_benchmark.py --warping-only times the step).
+CONTRACTED = dict(SERIAL, fastmath={"contract"})
 
 
 def parameters(lam: float, mu: float) -> tuple[float, float]:
@@ -144,15 +149,15 @@ def lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
     i1 = (f00 * f00 + f01 * f01 + f02 * f02 + f10 * f10 + f11 * f11 + f12 * f12
           + f20 * f20 + f21 * f21 + f22 * f22)                      # |F|^2
     nf = math.sqrt(i1)
-    s = math.sqrt(i1 / 3.0 + 2.0 / 3.0 * math.sqrt(max(0.0, i1 * i1 - 3.0 * i2)))        # >= |s_i|
-    p = min(i2, i2 / 3.0 + 2.0 / 3.0 * math.sqrt(max(0.0, i2 * i2 - 3.0 * i1 * j * j)))   # >= (s_j s_k)^2
+    s = math.sqrt(THIRD * (i1 + 2.0 * math.sqrt(max(0.0, i1 * i1 - 3.0 * i2))))         # >= |s_i|
+    p = min(i2, THIRD * (i2 + 2.0 * math.sqrt(max(0.0, i2 * i2 - 3.0 * i1 * j * j))))    # >= (s_j s_k)^2
     frobenius = mu + lam_s * i2 + SQRT2 * lam_s * abs(j - alpha) * nf
     twist = mu + lam_s * abs(j - alpha) * s
     scaling = mu + lam_s * p + lam_s * abs(2.0 * j - alpha) * min(2.0 * s, SQRT2 * nf)
     return min(frobenius, max(twist, scaling))
 
 
-@numba.njit(**SERIAL)
+@numba.njit(**CONTRACTED)
 def _chunk_forces(D, DW, grad, vol, lam, mu, fe, bound):
     """fe[(3 c + a) LANES + l] <- component a of V P g_c per lane (the force is -fe): F = I + sum_c d_c g_c^T from
     the differences of u (D), G = sum_c dw_c g_c^T from those of w = x0 + u + zeta v (DW), P the elastic stress
@@ -192,7 +197,7 @@ def _chunk_forces(D, DW, grad, vol, lam, mu, fe, bound):
         store_corner_forces(fe, grad, l, p00, p01, p02, p10, p11, p12, p20, p21, p22)
 
 
-@numba.njit(**SERIAL)
+@numba.njit(**CONTRACTED)
 def _chunk_bounds(D, grad, lam, mu, bound):
     """bound[l] <- the tangent bound at F = I + sum_c d_c g_c^T (D: the differences of u), without the forces."""
     lam_s = lam + mu
