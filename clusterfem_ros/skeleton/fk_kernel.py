@@ -49,17 +49,20 @@ def tree_forward(parent, place_R, place_p, axis, prismatic, q, qd, frame_joint, 
                 for k in range(3):
                     acc += (oR[par, r, k] if par >= 0 else (1.0 if r == k else 0.0)) * place_R[i, k, c]
                 base[r, c] = acc
-        wa = np.zeros(3)                      # world axis oR_par Rpl a
-        for r in range(3):
-            wa[r] = base[r, 0] * axis[i, 0] + base[r, 1] * axis[i, 1] + base[r, 2] * axis[i, 2]
+        # world axis oR_par Rpl a (scalars: an array allocated per joint was a third of the call)
+        wa0 = base[0, 0] * axis[i, 0] + base[0, 1] * axis[i, 1] + base[0, 2] * axis[i, 2]
+        wa1 = base[1, 0] * axis[i, 0] + base[1, 1] * axis[i, 1] + base[1, 2] * axis[i, 2]
+        wa2 = base[2, 0] * axis[i, 0] + base[2, 1] * axis[i, 1] + base[2, 2] * axis[i, 2]
         for r in range(3):
             acc = 0.0
             for k in range(3):
                 acc += (oR[par, r, k] if par >= 0 else (1.0 if r == k else 0.0)) * place_p[i, k]
             op[i, r] = (op[par, r] if par >= 0 else 0.0) + acc
         if prismatic[i]:
+            op[i, 0] += wa0 * q[i]
+            op[i, 1] += wa1 * q[i]
+            op[i, 2] += wa2 * q[i]
             for r in range(3):
-                op[i, r] += wa[r] * q[i]
                 for c in range(3):
                     oR[i, r, c] = base[r, c]
         else:
@@ -78,11 +81,14 @@ def tree_forward(parent, place_R, place_p, axis, prismatic, q, qd, frame_joint, 
             for r in range(3):
                 w[i, r] = 0.0
                 vo[i, r] = 0.0
-        for r in range(3):
-            if prismatic[i]:
-                vo[i, r] += wa[r] * qd[i]
-            else:
-                w[i, r] += wa[r] * qd[i]
+        if prismatic[i]:
+            vo[i, 0] += wa0 * qd[i]
+            vo[i, 1] += wa1 * qd[i]
+            vo[i, 2] += wa2 * qd[i]
+        else:
+            w[i, 0] += wa0 * qd[i]
+            w[i, 1] += wa1 * qd[i]
+            w[i, 2] += wa2 * qd[i]
     for b in range(frame_joint.shape[0]):
         j = frame_joint[b]
         for r in range(3):
