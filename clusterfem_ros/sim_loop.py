@@ -10,15 +10,16 @@ The step kernel releases the GIL, so a step runs while the executor thread build
 and records (the small compiled functions around it keep the GIL: numba_config.HOLDS_GIL). The scene is
 changed by this thread only: the subscription callback queues each joint-state sample (a bounded queue) and
 this thread pushes it into the scene, so no callback waits for a step and no lock is held across one. The
-outputs never read the scene's state: batches of steps end with a ``Snapshot``, a fresh, read-only copy of the
-state, put in place by one reference assignment (atomic in Python); the copy being read stays whole while the
-next is made.
+outputs never read the scene's state: finished states are handed over as a ``Snapshot``, a fresh, read-only
+copy of the state, put in place by one reference assignment (atomic in Python); the copy being read stays whole
+while the next is made.
 
 The clock is the scene's physics.clock. Clock "input": each sample is taken by Scene.take_joint_state, which
 steps up to its stamp, as a replay of the recorded joint states (replay.py) does, so the replay reproduces
-every published state bit for bit. Clock "wall"
-steps up to the clock whenever a joint state arrives or 1 / timer_hz has passed, at most 0.7 / timer_hz per
-batch (then a snapshot, then on), in slow motion up to ``max_catchup_steps`` behind.
+every published state bit for bit. Clock "wall" steps up to the clock whenever a joint state arrives or
+1 / timer_hz has passed, at most 0.7 / timer_hz per batch, in slow motion up to ``max_catchup_steps`` behind; it
+hands over the first state that saw each input, and the state a batch ends on at most once per 1 / timer_hz
+(``_follow_clock``).
 
 A divergence resets the body. Any other exception in a step is logged, counted in ``crashes``
 and ``error``, and the body is reset; after ``MAX_CRASHES_IN_A_ROW`` crashes with no good step between them
@@ -197,6 +198,8 @@ class SimLoop:
         self._queue: deque = deque()
         self._wake = threading.Condition()
         self._pending = False                            # an input arrived since the thread last looked
+        self._taken = (-1, float("-inf"))                # (steps_done, perf_counter) of the last state looked at
+                                                         # for a snapshot (handed over or refused)
         self._stop = threading.Event()
         self._in_a_row = 0
         self._headroom = (0, 0.0, 0.0)                   # (steps, CPU s, busy s) at the previous headroom() call
@@ -307,9 +310,13 @@ class SimLoop:
         """Clock "wall": the queued inputs pushed, then steps up to now, until none is due or the batch's
         time is up. The first state that saw a new input is handed over at once, and an input no step has
         seen yet wakes the thread when the next step is due (not a timer period later): so from an input's
-        arrival to a snapshot that used it takes about a step, whatever else the batch does."""
+        arrival to a snapshot that used it takes about a step, whatever else the batch does. The state a
+        batch ends on is handed over too, unless the last hand-over is less than a timer period old: then the
+        next input's state comes first, or a later batch's end (the thread wakes at least once a period), so
+        the outputs never show a state more than about a period and a batch older than physics. A streamed
+        body hands over a state per input, not two: half the snapshots and their checks."""
         deadline = time.perf_counter() + 0.7 * self.period
-        stepped, due_in, unsent = 0, None, False
+        stepped, due_in = 0, None
         scene = self.scene
         while not self._stop.is_set():
             while self._queue:
@@ -323,13 +330,12 @@ class SimLoop:
             used = self._seen = self._accepted
             # deadline 0: advance_to does one step (or drops the gap past max_steps, or starts the clock)
             stepped += self._timed(lambda: scene.advance_to(target, self.max_steps, deadline=0.0)) or 1
-            unsent = not fresh
             if fresh:
                 self._take_snapshot(used)
             if time.perf_counter() > deadline:
                 break
-        if unsent:
-            self._take_snapshot(used)
+        if self._taken[0] != scene.steps_done and time.perf_counter() - self._taken[1] >= self.period:
+            self._take_snapshot(self._seen)
         if stepped == 0 or time.perf_counter() <= deadline:
             self._wait(due_in)
 
@@ -352,6 +358,7 @@ class SimLoop:
     def _take_snapshot(self, used: int) -> None:
         t = time.perf_counter()
         s = self.scene
+        self._taken = (s.steps_done, t)
         check0 = getattr(s, "check_wall_s", 0.0)
         problem = output_problem(s)
         checks = getattr(s, "check_wall_s", 0.0) - check0

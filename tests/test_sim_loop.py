@@ -215,7 +215,7 @@ def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_wait
     loop, log = _loop(scene, now=lambda: clock["now"])
     handed = []
     original = loop.latency.handed_over
-    loop.latency.handed_over = lambda used, t: handed.append((used, loop.snapshot.steps)) or original(used, t)
+    loop.latency.handed_over = lambda used, t: handed.append((used, loop.snapshot.steps, t)) or original(used, t)
     loop.start()
     try:
         _wait_for(lambda: scene.sim_time is not None, 10, "the wall clock to start the scene")
@@ -226,9 +226,39 @@ def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_wait
     finally:
         assert loop.stop()
     assert handed[0][0] == 1                                      # nothing before the input placed the body
-    assert (1, 1) in handed                                       # the first step that saw the input, at once
-    assert handed[-1] == (1, 5) and log == []
-    assert loop.latency.percentiles()["latency_state_p50_ms"] > 0
+    assert [h[:2] for h in handed] == [(1, 1), (1, 5)]            # the first step that saw the input, at once;
+    assert handed[1][2] - handed[0][2] >= loop.period             # the batch's end a timer period after it
+    assert log == [] and loop.latency.percentiles()["latency_state_p50_ms"] > 0
+
+
+def test_a_streamed_body_hands_over_about_one_state_per_input():
+    """Clock "wall" with joint states at 120 Hz: the first state that saw each input is handed over at once, the
+    state a batch ends on only when no hand-over is a timer period old: about one snapshot (and one output check)
+    per input, and never a state older than a period and a batch."""
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    t_start = time.perf_counter()
+    now = lambda: T0 + time.perf_counter() - t_start       # noqa: E731
+    loop, log = _loop(scene, now=now)
+    handed = []
+    original = loop.latency.handed_over
+    loop.latency.handed_over = lambda used, t: handed.append((loop.snapshot.sim_time, now())) or original(used, t)
+    loop.start()
+    inputs = 0
+    try:
+        for stamp, names, q, v in _samples(1.0):
+            wait = t_start + (stamp - T0) - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
+            loop.take_input(lambda stamp=stamp, q=q, v=v: scene.take_joint_state(stamp, names, q, v, received=now()))
+            inputs += 1
+        _wait_for(lambda: scene.inputs.accepted == inputs, 10, "every input taken")
+        time.sleep(2 * loop.period)                     # and the state the last batch ended on handed over
+    finally:
+        assert loop.stop()
+    assert log == []
+    assert inputs <= len(handed) <= 1.25 * inputs
+    late = max(at - sim_time for sim_time, at in handed[10:])
+    assert late < 0.1                                   # stale by more than this only if the host stalled the run
 
 
 def test_the_input_queue_is_bounded_and_counts_what_it_drops():
