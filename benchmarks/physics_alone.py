@@ -8,8 +8,8 @@ measured where the thread runs: paced by the wall clock (one step, then a wait f
 wall clock runs it) while the executor, the DDS threads and the player process use the other core. This
 command makes the same calls in one thread of its own, without ROS: the default scene, the built-in walk's
 joint states at ``--rate`` Hz through ``Scene.take_joint_state``, one step per ``advance_to`` (deadline 0),
-and on every new sample the output check and the state copy of a snapshot. Four runs of ``--duration``
-simulated seconds each:
+and on every new sample what the thread does to hand a state over (the placement check and the copies of a
+snapshot; the outputs check it on their side). Four runs of ``--duration`` simulated seconds each:
 
 - back to back: steps as fast as the thread can, the simulated time running ahead of the wall;
 - paced: each step waits until its wall time is due (real time), as in the node;
@@ -45,7 +45,7 @@ def _scene_and_walk():
 
 def run(scene, walk, duration: float, rate: float, paced: bool) -> dict:
     """``duration`` simulated seconds of the physics thread's calls on ``scene`` (module docstring)."""
-    from clusterfem_ros.sim_loop import output_problem
+    from clusterfem_ros.sim_loop import Snapshot
     names, h, period = list(walk.names), scene.h, 1.0 / rate
     t_sim = 0.0 if scene.sim_time is None else scene.sim_time - 1.0      # stamps start at 1 s
     steps = int(round(duration / h))
@@ -65,8 +65,9 @@ def run(scene, walk, duration: float, rate: float, paced: bool) -> dict:
         t_sim += h
         scene.advance_to(1.0 + t_sim + 1e-3 * h, 10, deadline=0.0)
         if fresh:
-            output_problem(scene)
-            scene.state.u.copy(), scene.state.v.copy()
+            if scene.placement_problem() is None:
+                Snapshot.of(scene.state.u, scene.state.v, scene.output_check(), sim_time=scene.sim_time,
+                            steps=scene.steps_done, inputs_used=0, taken_at=0.0)
     cpu, wall = time.thread_time() - cpu0, time.perf_counter() - wall0
     n = scene.steps_done - steps0
     threaded = (getattr(scene.integrator, "threaded_steps", 0) - threaded0) / n

@@ -72,7 +72,7 @@ PARAMS: tuple[Param, ...] = (
           "warping (eq. 10), for comparison: not bounded, refused unless physics.allow_unbounded_warping",
           choices=(AUTO,) + WARPING_MODELS),
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
-    Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this before the outputs get a snapshot", 1.0, 2000.0),
+    Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this, and the state a batch ends on goes to the outputs when their last snapshot is 1 / this old", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
     Param("physics.plan_stretch", True, "explicit with warping: plan the sub-steps for the body's most stretched element (fem/stretch.py; keeps an undamped torn vertex bounded) instead of the linear stiffness alone"),
     Param(ACKNOWLEDGEMENT, False, "true: accept warping_model 'vertex' (the paper's per-vertex warping), and "

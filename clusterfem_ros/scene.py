@@ -359,11 +359,13 @@ class Scene:
         """(distance (k,), limit (k,)) [m] of every surface vertex to the segment of the bone it is bound to, at
         sim_time, and the distance it may reach: ``output.max_bone_distance`` or ``REST_DISTANCE_FACTOR`` times
         its distance at rest, the larger. Zeros (and infinite limits) without a skeleton."""
+        return self._bone_distance(self.state.u, self._poses(self.sim_time) if self.driver is not None else None)
+
+    def _bone_distance(self, u: np.ndarray, poses) -> tuple[np.ndarray, np.ndarray]:
         k = self.surface_vertices.size
-        if self.driver is None:
+        if poses is None:
             return np.zeros(k), np.full(k, np.inf)
-        poses = self._poses(self.sim_time)
-        dist = segment_distances(self.model.rest, self.state.u, self.surface_vertices, self.binding.bone,
+        dist = segment_distances(self.model.rest, u, self.surface_vertices, self.binding.bone,
                                  poses.rotation, poses.translation, self.binding.axis_local)
         return dist, self._distance_limits()[0]
 
@@ -375,53 +377,65 @@ class Scene:
             self._distance_limit = (limit, limit * limit)
         return self._distance_limit
 
-    def _torn(self) -> bool:
-        """Whether a surface vertex is beyond its limit from its bone (bone_distance's question, without the
-        distances)."""
-        if self.driver is None:
-            return False
-        poses = self._poses(self.sim_time)
-        return any_beyond(self.model.rest, self.state.u, self.surface_vertices, self.binding.bone, poses.rotation,
-                          poses.translation, self.binding.axis_local, self._distance_limits()[1])
-
     def state_problem(self, volume: bool = True, bones: bool = True) -> str | None:
-        """What makes the current state unfit to show, or None: a non-finite value, the volume off by more than
-        ``MAX_VOLUME_ERROR`` (``volume=False``: not looked at), a surface vertex beyond its limit from its bone
-        (``bone_distance``; ``bones=False``: not looked at). A full check is cached per state: the marker and the
-        stress cloud ask about the same state."""
+        """What makes the current state unfit to show, or None (``problem_of`` of the state at sim_time;
+        ``volume=False`` / ``bones=False``: that check left out). A full check is cached per state: the marker
+        and the stress cloud ask about the same state."""
         key = (self.steps_done, id(self.state), self._k)
         if self._checked is not None and self._checked[0] == key:
             return self._checked[1]
         t0 = time.perf_counter()
-        problem = None
-        if not (np.isfinite(self.state.u).all() and np.isfinite(self.state.v).all()):
-            problem = "the state is not finite"
-        else:
-            err = self.volume_error() if volume else 0.0
-            if not abs(err) <= MAX_VOLUME_ERROR:
-                problem = f"the body's volume is off by {err * 100:+.3g} %"      # the limit: MAX_VOLUME_ERROR
-            elif bones and self._torn():
-                dist, limit = self.bone_distance()
-                over = dist - limit
-                if dist.size and over.max() > 0:
-                    i = int(np.argmax(over))
-                    name = self.skeleton.bone_names[int(self.binding.bone[self.surface_vertices[i]])]
-                    problem = (f"surface vertex {int(self.surface_vertices[i])} is {dist[i]:.3g} m from its bone "
-                               f"{name!r} (limit {limit[i]:.3g} m, output.max_bone_distance)")
+        poses = self._poses(self.sim_time) if bones and self.driver is not None else None
+        problem = self.problem_of(self.state.u, self.state.v, poses, volume=volume)
         if (volume and bones) or problem is not None:
             self._checked = (key, problem)
         self.check_wall_s += time.perf_counter() - t0
         return problem
 
-    def output_problem(self) -> str | None:
-        """Why the current state must not be published or recorded, or None: not yet placed on the skeleton
-        (before the first joint sample), or ``state_problem``. Call it before taking a state for the outputs."""
+    def problem_of(self, u: np.ndarray, v: np.ndarray, poses, volume: bool = True) -> str | None:
+        """What makes the state (u, v) unfit to show, or None: a non-finite value, the volume off by more than
+        ``MAX_VOLUME_ERROR`` (``volume=False``: not looked at), a surface vertex beyond its limit from its bone
+        placed at ``poses`` (``bone_distance``; poses None: not looked at). Reads only the scene's constant
+        data, so the outputs check a snapshot's copy with it on their own thread (sim_loop.Snapshot.problem)."""
+        if not (np.isfinite(u).all() and np.isfinite(v).all()):
+            return "the state is not finite"
+        err = self.volume_error_of(self.model.rest + u) if volume else 0.0
+        if not abs(err) <= MAX_VOLUME_ERROR:
+            return f"the body's volume is off by {err * 100:+.3g} %"      # the limit: MAX_VOLUME_ERROR
+        if poses is None or not any_beyond(self.model.rest, u, self.surface_vertices, self.binding.bone,
+                                           poses.rotation, poses.translation, self.binding.axis_local,
+                                           self._distance_limits()[1]):
+            return None
+        dist, limit = self._bone_distance(u, poses)
+        over = dist - limit
+        if not (dist.size and over.max() > 0):
+            return None
+        i = int(np.argmax(over))
+        name = self.skeleton.bone_names[int(self.binding.bone[self.surface_vertices[i]])]
+        return (f"surface vertex {int(self.surface_vertices[i])} is {dist[i]:.3g} m from its bone {name!r} "
+                f"(limit {limit[i]:.3g} m, output.max_bone_distance)")
+
+    def output_check(self) -> Callable[[np.ndarray, np.ndarray], str | None]:
+        """``problem_of`` for a copy of the current state, to run later on another thread (sim_loop.Snapshot):
+        the skeleton's pose at sim_time is taken now (bone poses are never written after they are made; the next
+        step's constraints use the same)."""
+        poses = self._poses(self.sim_time) if self.driver is not None else None
+        return lambda u, v: self.problem_of(u, v, poses)
+
+    def placement_problem(self) -> str | None:
+        """Why no state is to be shown yet whatever its values, or None: physics not started, or the body not yet
+        (or not again) standing on its skeleton's pose."""
         if self.sim_time is None:
             return "physics has not started"
         if not self.placed:
             return ("the body is waiting to be put on its skeleton's new pose" if self._placed else
                     "the body is not yet placed on its skeleton (no joint state used yet)")
-        return self.state_problem()
+        return None
+
+    def output_problem(self) -> str | None:
+        """Why the current state must not be published or recorded, or None: ``placement_problem``, or
+        ``state_problem``. Call it before taking a state for the outputs."""
+        return self.placement_problem() or self.state_problem()
 
     # -- outputs ---------------------------------------------------------------------------------
     def positions(self) -> np.ndarray:

@@ -3,7 +3,7 @@
     loop = SimLoop(scene, now=ros_seconds, timer_hz=100.0, max_catchup_steps=250, log=log)
     loop.start()
     loop.take_input(lambda: scene.take_joint_state(...))   # from the subscription callback: queued
-    snap = loop.snapshot                                    # from the output timers: never half written
+    snap = loop.shown()                                     # from the output timers: never half written
     loop.stop()                                             # joins the thread
 
 The step kernel releases the GIL, so a step runs while the executor thread builds markers, computes stress
@@ -12,7 +12,9 @@ changed by this thread only: the subscription callback queues each joint-state s
 this thread pushes it into the scene, so no callback waits for a step and no lock is held across one. The
 outputs never read the scene's state: finished states are handed over as a ``Snapshot``, a fresh, read-only
 copy of the state, put in place by one reference assignment (atomic in Python); the copy being read stays whole
-while the next is made.
+while the next is made. The physics thread only copies: the output side checks each snapshot once before it shows
+it (``shown``, ``Snapshot.problem``: Scene.problem_of), so the checks of states nobody shows cost nothing and the
+thread's time goes to steps. The step loop's own divergence checks (Scene.advance_to) stay on this thread.
 
 The clock is the scene's physics.clock. Clock "input": each sample is taken by Scene.take_joint_state, which
 steps up to its stamp, as a replay of the recorded joint states (replay.py) does, so the replay reproduces
@@ -43,42 +45,55 @@ from .fem.stress import compute_stress
 MAX_CRASHES_IN_A_ROW = 5
 GIL_SWITCH_INTERVAL = 2e-4     # s: see SimLoop.start
 INPUT_QUEUE = 1024          # samples waiting for the physics thread (~8 s of a 120 Hz stream)
-STAGES = ("inputs", "skeleton", "physics", "checks", "snapshot", "stress", "markers", "cloud", "diagnostics",
-          "recording")
+STAGES = ("inputs", "skeleton", "physics", "checks", "snapshot", "output_checks", "stress", "markers", "cloud",
+          "diagnostics", "recording")
 THREAD_STAGES = ("inputs", "skeleton", "physics", "checks", "snapshot")     # the physics thread's own work
 
 
-def output_problem(scene) -> str | None:
-    """Why the scene's current state must not be published, or None. The one place the snapshot asks: the
-    scene's own check (``Scene.output_problem``) where it has one, else the finite check of the state."""
-    check = getattr(scene, "output_problem", None)
-    if check is not None:
-        return check()
-    if scene.sim_time is None:
-        return "the body has not been placed on its skeleton yet"
-    if not (np.isfinite(scene.state.u).all() and np.isfinite(scene.state.v).all()):
-        return "the state is not finite"
-    return None
+_UNCHECKED = object()
 
 
 @dataclass(eq=False)
 class Snapshot:
-    """A finished state, copied: what every output of one tick shows. ``inputs_used``: how many accepted
-    joint states the steps that made it had seen (the latency's reference)."""
+    """A finished state, copied: what every output of one tick shows, once ``problem()`` has passed it.
+    ``inputs_used``: how many accepted joint states the steps that made it had seen (the latency's reference).
+    ``u`` and ``v`` are read-only views of private copies; the compiled checks and the stress read the copies (a
+    read-only array is another type to numba, compiled once more for nothing)."""
     sim_time: float
     u: np.ndarray
     v: np.ndarray
     steps: int
     inputs_used: int
     taken_at: float                      # time.perf_counter()
+    _check: Callable | None = field(default=None, repr=False)     # (u, v) -> problem (Scene.output_check)
+    _own: tuple = field(default=(), repr=False)                   # the writable copies behind u and v
+    _problem: object = field(default=_UNCHECKED, repr=False)
     _stress: object = field(default=None, repr=False)
+
+    @classmethod
+    def of(cls, u: np.ndarray, v: np.ndarray, check: Callable | None, **fields) -> "Snapshot":
+        """A snapshot of copies of u and v (their read-only views as ``u``, ``v``); ``check(u, v)``: why such a
+        state must not be shown, or None (no check: always shown)."""
+        u, v = u.copy(), v.copy()
+        snap = cls(u=u.view(), v=v.view(), _check=check, _own=(u, v), **fields)
+        snap.u.flags.writeable = snap.v.flags.writeable = False      # handed over: nobody writes it again
+        return snap
+
+    def problem(self, stages: "StageClock | None" = None) -> str | None:
+        """Why this state must not be published or recorded, or None: its check, run once, by the first output
+        that asks (on the output side: the physics thread only copies)."""
+        if self._problem is _UNCHECKED:
+            t0 = time.perf_counter()
+            self._problem = None if self._check is None else self._check(*self._own)
+            if stages is not None:
+                stages.add("output_checks", time.perf_counter() - t0)
+        return self._problem
 
     def stress(self, model, corotated: bool, stages: "StageClock | None" = None):
         """The stress field of this state, computed once (the surface colours and the cloud share it)."""
         if self._stress is None:
             t0 = time.perf_counter()
-            # a writable copy: a read-only array is another type to numba, compiled once more for nothing
-            self._stress = compute_stress(model, self.u.copy(), corotated=corotated)
+            self._stress = compute_stress(model, self._own[0], corotated=corotated)
             if stages is not None:
                 stages.add("stress", time.perf_counter() - t0)
         return self._stress
@@ -191,7 +206,11 @@ class SimLoop:
         self.error: str | None = None                    # the last crash, for the diagnostics
         self.error_at = float("-inf")                    # and when (time.perf_counter())
         self.stopped = False                             # the thread gave up (MAX_CRASHES_IN_A_ROW)
-        self.unpublishable = 0                           # batches whose end state failed output_problem
+        self.unplaced = 0                                # states not handed over: Scene.placement_problem
+        self.refused = 0                                 # states handed over that failed Snapshot.problem
+        self._shown: Snapshot | None = None              # the newest snapshot that passed (output side)
+        self._refused_last: Snapshot | None = None
+        self._shown_lock = threading.Lock()              # shown(): the executor's outputs and any other reader
         self.queue_full = 0                              # samples refused: INPUT_QUEUE of them waiting
         self._accepted = 0                               # accepted inputs pushed so far (the latency's numbering)
         self._seen = 0                                   # of them, those a step has seen
@@ -356,21 +375,38 @@ class SimLoop:
         return n
 
     def _take_snapshot(self, used: int) -> None:
+        """Hand the scene's state over (a copy, checked by the output side: Snapshot.problem), unless the body
+        is not placed on its skeleton (Scene.placement_problem)."""
         t = time.perf_counter()
         s = self.scene
         self._taken = (s.steps_done, t)
-        check0 = getattr(s, "check_wall_s", 0.0)
-        problem = output_problem(s)
-        checks = getattr(s, "check_wall_s", 0.0) - check0
-        if problem is None:
-            u, v = s.state.u.copy(), s.state.v.copy()
-            u.flags.writeable = v.flags.writeable = False      # handed over: nobody writes it again
-            self.snapshot = Snapshot(s.sim_time, u, v, s.steps_done, used, t)
+        if s.placement_problem() is None:
+            self.snapshot = Snapshot.of(s.state.u, s.state.v, s.output_check(), sim_time=s.sim_time,
+                                        steps=s.steps_done, inputs_used=used, taken_at=t)
             self.latency.handed_over(used, time.perf_counter())
-        if problem is not None and s.sim_time is not None:
-            self.unpublishable += 1
-        self.stages.add("checks", checks)
-        self.stages.add("snapshot", time.perf_counter() - t - checks)
+        elif s.sim_time is not None:
+            self.unplaced += 1
+        self.stages.add("snapshot", time.perf_counter() - t)
+
+    def shown(self) -> Snapshot | None:
+        """The state the outputs show: the newest snapshot if it passes its check (Snapshot.problem, run here
+        once per snapshot), else the last one that passed (None before any). A snapshot that fails is counted
+        once in ``refused``. Called from the output side, not from the physics thread."""
+        with self._shown_lock:
+            snap = self.snapshot
+            if snap is None or snap is self._shown or snap is self._refused_last:
+                return self._shown
+            if snap.problem(self.stages) is None:
+                self._shown = snap
+            else:
+                self._refused_last = snap
+                self.refused += 1
+            return self._shown
+
+    @property
+    def unpublishable(self) -> int:
+        """States the outputs did not get: not placed on the skeleton, or handed over and refused by its check."""
+        return self.unplaced + self.refused
 
     def _reset(self) -> None:
         self.scene.reset()

@@ -261,6 +261,32 @@ def test_a_streamed_body_hands_over_about_one_state_per_input():
     assert late < 0.1                                   # stale by more than this only if the host stalled the run
 
 
+def test_the_outputs_check_a_snapshot_once_and_never_show_one_that_fails():
+    """The physics thread hands a state over as copies, checks it not (its time goes to steps); the output side
+    checks each snapshot once (SimLoop.shown): a state torn from its bones is never shown, the last good one
+    stays shown, and the refusal is counted once."""
+    scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
+    loop, log = _loop(scene)                                      # not started: the test is the physics thread
+    samples = _samples(0.1)
+    for _ in range(3):
+        stamp, names, q, v = next(samples)
+        scene.take_joint_state(stamp, names, q, v, received=stamp)
+    scene.advance_to(scene.stream.newest)
+    loop._take_snapshot(3)
+    good = loop.snapshot
+    assert loop.stages.totals["checks"] == 0.0 and loop.stages.totals["output_checks"] == 0.0
+    assert loop.shown() is good and loop.refused == 0 and loop.stages.totals["output_checks"] > 0
+    i = int(scene.surface_vertices[0])
+    scene.state.u[i] += np.array([0.0, 0.0, 0.5])                # torn 0.5 m from its bone
+    loop._take_snapshot(3)
+    torn = loop.snapshot
+    assert torn is not good and loop.shown() is good and loop.shown() is good and loop.refused == 1
+    assert f"surface vertex {i} is" in torn.problem() and loop.unpublishable == 1
+    scene.state.u[i] -= np.array([0.0, 0.0, 0.5])
+    loop._take_snapshot(3)
+    assert loop.shown() is loop.snapshot and loop.snapshot is not good and loop.refused == 1 and log == []
+
+
 def test_the_input_queue_is_bounded_and_counts_what_it_drops():
     """A physics thread that cannot keep up (here: not started) holds at most INPUT_QUEUE samples; the callback
     never waits: the samples beyond are dropped, counted and reported, and the queued ones are still taken."""

@@ -158,8 +158,8 @@ class ClusterFemNode(Node):
 
     @property
     def withheld(self) -> int:
-        """States the physics thread did not hand to the outputs (Scene.output_problem: not yet placed, or a
-        failed check)."""
+        """States the outputs did not show (SimLoop.unpublishable: not yet placed on the skeleton, or a failed
+        output check)."""
         return self.physics.unpublishable if self.physics is not None else 0
 
     @property
@@ -263,10 +263,9 @@ class ClusterFemNode(Node):
     # -- outputs ---------------------------------------------------------------------------------
     def _snapshot_for(self, pub) -> Snapshot | None:
         """The state to publish on ``pub``, if anybody consumes it and physics has handed one over."""
-        snap = self.physics.snapshot if self.physics is not None else None
-        if snap is None or not (pub.get_subscription_count() > 0 or self.recorder is not None):
+        if self.physics is None or not (pub.get_subscription_count() > 0 or self.recorder is not None):
             return None
-        return snap
+        return self.physics.shown()
 
     def _stamp(self):
         return self.get_clock().now().nanoseconds
@@ -327,7 +326,7 @@ class ClusterFemNode(Node):
         values (energy, volume) are those of the latest snapshot; the stage shares and the headroom cover
         the time since the previous call."""
         s, loop = self.scene, self.physics
-        snap = loop.snapshot if loop is not None else None
+        snap = loop.shown() if loop is not None else None
         now = time.perf_counter()
         if s is not None and now - self._stats["t_wall"] >= 0.5:   # simulated (not dropped) time per wall time
             self._rtf = (s.steps_done - self._stats["steps"]) * s.h / (now - self._stats["t_wall"])
