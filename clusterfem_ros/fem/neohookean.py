@@ -74,8 +74,8 @@ from ..numba_config import HOLDS_GIL, SERIAL, compiled, serial_and_parallel
 SQRT2 = math.sqrt(2.0)
 THIRD = 1.0 / 3.0
 # The lane arithmetic with FMA contraction: a product and the sum it feeds in one rounding, no reassociation, so
-# the source's order holds and the serial and threaded builds give the same bits (tests/test_neohookean.py). A
-# fifteenth of the force pass on the jelly man (benchmarks/core_benchmark.py --warping-only times the step).
+# the source's order holds and the serial and threaded builds give the same bits (tests/test_neohookean.py); the
+# pass is shorter for it (benchmarks/core_benchmark.py --warping-only times the step).
 CONTRACTED = dict(SERIAL, fastmath={"contract"})
 
 

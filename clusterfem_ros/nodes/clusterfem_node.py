@@ -323,7 +323,7 @@ class ClusterFemNode(Node):
 
     def diagnostics(self) -> dict:
         """The values /diagnostics carries (also read by the demo's progress lines and summary). The state's
-        values (energy, volume) are those of the latest snapshot; the stage shares and the headroom cover
+        values (energy, volume) are those of the snapshot shown (SimLoop.shown); the stage shares and the headroom cover
         the time since the previous call."""
         s, loop = self.scene, self.physics
         snap = loop.shown() if loop is not None else None

@@ -49,7 +49,7 @@ def tree_forward(parent, place_R, place_p, axis, prismatic, q, qd, frame_joint, 
                 for k in range(3):
                     acc += (oR[par, r, k] if par >= 0 else (1.0 if r == k else 0.0)) * place_R[i, k, c]
                 base[r, c] = acc
-        # world axis oR_par Rpl a (scalars: an array allocated per joint was a third of the call)
+        # world axis oR_par Rpl a, as scalars (not an array allocated per joint)
         wa0 = base[0, 0] * axis[i, 0] + base[0, 1] * axis[i, 1] + base[0, 2] * axis[i, 2]
         wa1 = base[1, 0] * axis[i, 0] + base[1, 1] * axis[i, 1] + base[1, 2] * axis[i, 2]
         wa2 = base[2, 0] * axis[i, 0] + base[2, 1] * axis[i, 1] + base[2, 2] * axis[i, 2]
