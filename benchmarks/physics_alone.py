@@ -65,9 +65,7 @@ def run(scene, walk, duration: float, rate: float, paced: bool) -> dict:
         t_sim += h
         scene.advance_to(1.0 + t_sim + 1e-3 * h, 10, deadline=0.0)
         if fresh:
-            if scene.placement_problem() is None:
-                Snapshot.of(scene.state.u, scene.state.v, scene.output_check(), sim_time=scene.sim_time,
-                            steps=scene.steps_done, inputs_used=0, taken_at=0.0)
+            Snapshot.of_scene(scene, 0, 0.0)
     cpu, wall = time.thread_time() - cpu0, time.perf_counter() - wall0
     n = scene.steps_done - steps0
     threaded = (getattr(scene.integrator, "threaded_steps", 0) - threaded0) / n

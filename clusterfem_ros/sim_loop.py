@@ -71,11 +71,15 @@ class Snapshot:
     _stress: object = field(default=None, repr=False)
 
     @classmethod
-    def of(cls, u: np.ndarray, v: np.ndarray, check: Callable | None, **fields) -> "Snapshot":
-        """A snapshot of copies of u and v (their read-only views as ``u``, ``v``); ``check(u, v)``: why such a
-        state must not be shown, or None (no check: always shown)."""
-        u, v = u.copy(), v.copy()
-        snap = cls(u=u.view(), v=v.view(), _check=check, _own=(u, v), **fields)
+    def of_scene(cls, scene, inputs_used: int, taken_at: float) -> "Snapshot | None":
+        """The hand-over of the scene's current state: copies of u and v (their read-only views as ``u``, ``v``)
+        with the check of ``Scene.output_check``; None while the body is not placed (Scene.placement_problem).
+        What SimLoop gives its outputs, and what benchmarks/physics_alone.py times."""
+        if scene.placement_problem() is not None:
+            return None
+        u, v = scene.state.u.copy(), scene.state.v.copy()
+        snap = cls(scene.sim_time, u.view(), v.view(), scene.steps_done, inputs_used, taken_at,
+                   _check=scene.output_check(), _own=(u, v))
         snap.u.flags.writeable = snap.v.flags.writeable = False      # handed over: nobody writes it again
         return snap
 
@@ -380,9 +384,9 @@ class SimLoop:
         t = time.perf_counter()
         s = self.scene
         self._taken = (s.steps_done, t)
-        if s.placement_problem() is None:
-            self.snapshot = Snapshot.of(s.state.u, s.state.v, s.output_check(), sim_time=s.sim_time,
-                                        steps=s.steps_done, inputs_used=used, taken_at=t)
+        snap = Snapshot.of_scene(s, used, t)
+        if snap is not None:
+            self.snapshot = snap
             self.latency.handed_over(used, time.perf_counter())
         elif s.sim_time is not None:
             self.unplaced += 1
