@@ -49,7 +49,7 @@ class StepReport:
 class InputCounters:
     accepted: int = 0
     rejected: dict = field(default_factory=dict)      # kind -> count
-    reached_stream: bool = False      # the last sample passed the joint map (accepted or judged by the stream)
+    taken_in: bool = False            # the joint stream took the last sample in: what the node records
 
     def count(self, kind: str) -> None:
         self.rejected[kind] = self.rejected.get(kind, 0) + 1
@@ -122,22 +122,30 @@ class Scene:
 
     # -- inputs ----------------------------------------------------------------------------------
     def push_joint_state(self, stamp: float, names, positions, velocities=None,
-                         now: float | None = None) -> list[tuple[str, str]]:
+                         now: float | None = None, taken: bool = False) -> list[tuple[str, str]]:
         """Take one joint-state sample. Returns the problems found as (kind, message); a sample with
         a fatal problem is dropped, one with repairable problems is repaired (see skeleton.joint_map).
-        ``now`` [s] is the receiver's clock on the stamps' time base (None: check against the newest)."""
+        ``now`` [s] is the receiver's clock on the stamps' time base (None: check against the newest).
+        ``inputs.taken_in`` says whether the joint stream took it in; a sample it refuses changes no state but
+        the counters (the joint map keeps only the values of samples taken in), so the samples taken in, given
+        again in order with ``taken=True`` (a recording read back), give the same states (JointStreamInterpolator).
+        """
+        self.inputs.taken_in = False
         if self.joints is None:
             self.inputs.count("no_skeleton")
             return [("no_skeleton", "joint state received but this scene has no skeleton (skeleton.source = none)")]
-        result = self.joints.update(names, positions, velocities)
-        self.inputs.reached_stream = result.accepted      # the stream's state may change: a replay needs it
+        result = self.joints.merge(names, positions, velocities)
         problems = list(result.problems)
         first = result.accepted and not self.stream.ready
         held = result.accepted and self._holding()
-        if held and self._late_from is None:            # the pose the last step left the body on
-            self._late_from = self._bone_ends(self.sim_time)
         if result.accepted:
-            problems += self.stream.push(stamp, result.q, result.v, now=now)
+            late_from = self._bone_ends(self.sim_time) if held and self._late_from is None else None
+            problems += self.stream.push(stamp, result.q, result.v, now=now, taken=taken)
+            if self.stream.took_last:
+                self.joints.commit(result.q)
+                self.inputs.taken_in = True
+                if late_from is not None:               # the pose the last step left the body on
+                    self._late_from = late_from
         if first and self.stream.ready:
             self._replace = True              # first sample: the body moves onto it instead of being yanked
             if self.first_stamp is None:
@@ -169,20 +177,21 @@ class Scene:
 
     def take_joint_state(self, stamp: float, names, positions, velocities, received: float,
                          on_judged: Callable[[list], None] | None = None,
-                         on_step: Callable[[], None] | None = None) -> list[tuple[str, str]]:
+                         on_step: Callable[[], None] | None = None, taken: bool = False) -> list[tuple[str, str]]:
         """One joint-state sample with the whole input-clock policy: the node's physics thread (through
         sim_loop.SimLoop) and a replay (replay.py) both take their samples here, so the same samples give the
         same states.
 
         An unstamped sample (stamp 0) takes its receive time ``received`` [s, the stamps' time base]; the sample
-        is judged and pushed (push_joint_state, checked against ``received``); ``on_judged(problems)`` runs next
-        (the node records what reached the joint stream, a replay's input); then with physics.clock = input the
+        is judged and pushed (push_joint_state, checked against ``received``; ``taken``: a recorded sample, as
+        there); ``on_judged(problems)`` runs next (the node records what the joint stream took in: a replay's
+        input, and nothing refused); then with physics.clock = input the
         body steps up to the newest stamp (follow_inputs: at most physics.max_catchup_steps behind,
         ``on_step()`` after each step). With physics.clock = wall the caller steps (advance_to). Returns the
         problems found; DivergenceError / StabilityError from the steps reach the caller, which resets."""
         if stamp == 0.0:
             stamp = received
-        problems = self.push_joint_state(stamp, names, positions, velocities, now=received)
+        problems = self.push_joint_state(stamp, names, positions, velocities, now=received, taken=taken)
         if on_judged is not None:
             on_judged(problems)
         if self.config.physics.clock == "input":

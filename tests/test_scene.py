@@ -216,6 +216,50 @@ def test_take_joint_state_is_push_then_follow_on_the_input_clock_and_push_alone_
     assert wall.steps_done == 0 and wall.sim_time is None and wall.inputs.accepted == 2
 
 
+
+def test_the_samples_taken_in_replayed_as_taken_give_every_state_bit_for_bit():
+    """What the node records and a replay gives back: on the input clock, a scene that also saw refused samples
+    (a root 1e9 m away, a reported velocity of 1e12, a thigh flipping in one frame, stale and future stamps, a
+    split publisher's halves, three old stamps in a row that restart the stream) and a scene given only the
+    samples the first took in (taken=True) step through the same states, equal bit for bit after every sample."""
+    m = load_motion()
+    names = m.trajectory.names
+    config = SceneConfig().with_values(physics__clock="input", **SMALL)
+    live, again = Scene.build(config), Scene.build(config)
+    legs = [n for n in names if n[2:].startswith(("hip", "knee", "ankle", "toe"))]
+    assert 8 <= len(legs) < len(names)
+    root_x = names.index("root_x")
+    kept = refused = 0
+    for k in range(240):
+        t = 1000.0 + k / 120.0
+        q, v = m.trajectory.sample(k / 120.0, loop=True)
+        samples = [(t, names, q, v)]
+        if k % 40 == 5:
+            samples.append((t + 0.001, names, np.where(np.arange(len(q)) == root_x, 1e9, q), None))
+        if k % 40 == 10:
+            samples.append((t + 0.001, names, q, np.full(len(q), 1e12)))
+        if k % 40 == 15:
+            samples.append((t + 0.001, names, q + 3.0 * (np.arange(len(q)) == names.index("l_knee_pitch")), None))
+        if k % 40 == 20:
+            samples += [(t - 60.0, names, q, v), (t + 60.0, names, q, v)]
+        if k % 40 == 25:                              # a split publisher: the legs alone, 1 ms later
+            idx = [names.index(n) for n in legs]
+            samples.append((t + 0.001, legs, q[idx] + 0.01, None))
+        if k == 120:                                  # the stream played again from an older stamp
+            samples += [(t - 30.0 + j / 120.0, names, q, v) for j in range(3)]
+        for stamp, n, qq, vv in samples:
+            live.take_joint_state(stamp, n, qq, vv, received=t)
+            if not live.inputs.taken_in:
+                refused += 1
+                continue
+            kept += 1
+            again.take_joint_state(stamp, n, qq, vv, received=t, taken=True)
+            assert again.inputs.taken_in and again.steps_done == live.steps_done and again.sim_time == live.sim_time
+            assert np.array_equal(again.state.u, live.state.u) and np.array_equal(again.state.v, live.state.v)
+    assert refused >= 20 and kept >= 240 and live.steps_done > 1000
+    assert {"root_range", "joint_speed", "stale", "future", "restart"} <= set(live.inputs.rejected)
+    assert live.inputs.rejected["restart"] == again.inputs.rejected["restart"] >= 1
+
 def test_replay_refuses_a_scene_on_the_wall_clock():
     from clusterfem_ros.replay import replay
     scene = Scene.build(SceneConfig().with_values(body__kind="sphere", skeleton__source="none", warping=False))

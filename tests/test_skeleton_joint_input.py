@@ -127,8 +127,8 @@ def test_a_restarted_stream_is_not_locked_out():
     out = [s.push(t, np.full(4, t)) for t in (0.0, 0.1, 0.2)]
     assert out[0][0][0] == "stale" and out[1][0][0] == "stale"
     assert [k for k, _ in out[2]] == ["stale", "restart"]
-    assert s.newest == 0.2 and len(s) == 3
-    np.testing.assert_allclose(s.sample(0.15)[0][0], 0.15)
+    assert s.newest == 0.2 and len(s) == 1                    # from the last of them: the one it stored
+    np.testing.assert_allclose(s.sample(0.15)[0][0], 0.2)     # held before its first sample
 
 
 def test_teleport_is_reported_and_not_interpolated_across():
@@ -151,3 +151,83 @@ def test_buffer_is_bounded_and_bad_samples_are_refused():
     assert s.push(1.0, np.zeros(3))[0][0] == "bad_sample"
     with pytest.raises(RuntimeError, match="no joint sample yet"):
         stream().sample(0.0)
+
+
+def _hostile_sequence(seed: int):
+    """(stamp, q, v, now) of a 100 Hz stream with every kind of trouble mixed in: stale, out-of-order and future
+    stamps, a run of stale stamps that restarts the stream backwards, a root far away, reported and measured
+    speeds above the limit, a run of fast motion long enough to restart the stream, teleports, pauses."""
+    rng = np.random.default_rng(seed)
+    t, q, out = 100.0, np.zeros(4), []
+    for k in range(400):
+        t += 0.01 * (1 + (rng.random() < 0.05) * rng.integers(1, 80))       # now and then a pause
+        q = q + rng.normal(0, 0.02, 4)
+        what = rng.choice(["good"] * 12 + ["stale", "old", "future", "far", "v", "glitch", "teleport", "fast",
+                                           "backwards"])
+        if what == "stale":
+            out.append((t - 5.0, q, None, t))
+        elif what == "old":
+            out.append((t - 0.02, q, None, t))
+        elif what == "future":
+            out.append((t + 5.0, q, None, t))
+        elif what == "far":
+            out.append((t, q + np.array([2e3, 0, 0, 0]), None, t))
+        elif what == "v":
+            out.append((t, q, np.array([0, 0, 0, 1e12]), t))
+        elif what == "glitch":
+            out.append((t, q + np.array([0, 0, 3.0, 0]), None, t))
+        elif what == "teleport":
+            q = q + np.array([0, 3.0, 0, 0])
+            out.append((t, q, None, t))
+        elif what == "fast":                           # 40 rad/s for 0.7 s: refused, then restarted on
+            for _ in range(70):
+                t += 0.01
+                q = q + np.array([0, 0, 0, 0.4])
+                out.append((t, q.copy(), None, t))
+        else:                                          # a bag played again from its start: 4 old stamps in a row
+            for j in range(4):
+                out.append((t - 30.0 + 0.01 * j, q, None, t + 0.001 * j))
+            t += 0.01
+        if what != "teleport":
+            out.append((t + 0.001, q.copy(), rng.normal(0, 1.0, 4) if rng.random() < 0.5 else None, t + 0.001))
+            t += 0.001
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_samples_taken_in_pushed_again_as_taken_give_the_same_stream(seed):
+    """What a recording replays: the node records only the samples its stream took in. Pushing those alone, in
+    order and marked taken, must give after each one the same problems, the same stored samples and the same
+    interpolated pose as the stream that also saw (and refused) the others."""
+    kw = dict(max_age=0.5, max_future=0.5, teleport_distance=0.5, max_root_distance=1000.0, max_joint_speed=30.0)
+    live, again = stream(**kw), stream(**kw)
+    taken = refused = restarts = 0
+    for stamp, q, v, now in _hostile_sequence(seed):
+        problems = live.push(stamp, q, v, now=now)
+        if not live.took_last:
+            refused += 1
+            continue
+        taken += 1
+        restarts += any(k == "restart" for k, _ in problems)
+        again_problems = again.push(stamp, q, v, now=now, taken=True)
+        assert again.took_last and [k for k, _ in again_problems] == [k for k, _ in problems], (stamp, problems)
+        assert list(again._t) == list(live._t)
+        assert all(np.array_equal(a, b) for a, b in zip(again._q, live._q))
+        for t in (stamp - 0.013, stamp, stamp + 0.004):
+            ql, vl = live.sample(t)
+            qa, va = again.sample(t)
+            assert np.array_equal(ql, qa) and np.array_equal(vl, va)
+    assert taken > 300 and refused > 40 and restarts >= 2           # every path was taken, not just the easy one
+
+
+def test_a_refused_sample_leaves_the_joint_map_as_it_was():
+    """A joint map keeps the values of the samples taken in only (merge, then commit): a split publisher's next
+    partial message is merged into the last sample taken in, never into one the stream refused."""
+    jm = JointMap(NAMES)
+    r = jm.merge(["root_x", "yaw"], [1e9, 0.3])                      # a root 1e9 m away: the stream refuses it
+    assert r.accepted and r.q[0] == 1e9
+    np.testing.assert_array_equal(jm.q, np.zeros(4))
+    r = jm.merge(["knee"], [0.4])                                     # the other publisher's half
+    np.testing.assert_array_equal(r.q, [0.0, 0.0, 0.0, 0.4])
+    jm.commit(r.q)
+    np.testing.assert_array_equal(jm.merge(["yaw"], [0.1]).q, [0.0, 0.0, 0.1, 0.4])

@@ -60,7 +60,20 @@ class JointMap:
         self._last_names: tuple | None = None     # (names, at, to) of the last message (_known)
 
     def update(self, names: Sequence[str], positions, velocities=None) -> JointMapResult:
-        """Merge one message; see the module docstring for what is kept, repaired or rejected."""
+        """Merge one message and keep its q; see the module docstring for what is kept, repaired or rejected."""
+        result = self.merge(names, positions, velocities)
+        if result.accepted:
+            self.commit(result.q)
+        return result
+
+    def commit(self, q: np.ndarray) -> None:
+        """Keep ``q`` (a ``merge`` result's) as the last known values: what the next message is merged into. A
+        scene commits a sample only once its joint stream took it in, so a refused sample leaves no trace."""
+        self.q = np.array(q, dtype=np.float64)
+
+    def merge(self, names: Sequence[str], positions, velocities=None) -> JointMapResult:
+        """The message merged into the last known values, which stay as they are (``commit`` keeps the result);
+        see the module docstring for what is kept, repaired or rejected."""
         names = names if isinstance(names, list) else list(names)
         if len(names) > self.max_names:
             return self._rejected("too_many_names", f"joint state has {len(names)} names (max_names "
@@ -117,8 +130,7 @@ class JointMap:
         if vel is not None and updated.all():
             v = np.zeros(n)
             v[to] = vel[at]
-        self.q = q
-        return JointMapResult(True, q.copy(), v, updated, problems, new_unknown)
+        return JointMapResult(True, q, v, updated, problems, new_unknown)
 
     def _known(self, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
         """(positions in the message, indices in the skeleton) of the skeleton's joints a message names. A

@@ -13,7 +13,8 @@ No wild extrapolation: after the newest sample the pose moves on with the newest
 newer than the newest (``out_of_order``), older than newest - ``max_age`` (``stale``), newer than newest
 + ``max_future`` (``future``; or than ``now`` + max_future when the caller passes its clock), of the wrong shape or non-finite (``bad_sample``). A stream that really
 restarted (a replayed bag, a clock jump) is not locked out: ``restart_after`` consecutive rejected
-samples with increasing stamps restart the stream from them (reported as ``restart``). A prismatic jump
+samples with increasing stamps restart the stream from the last of them, if it passes the range checks
+(reported as ``restart``). A prismatic jump
 larger than ``teleport_distance`` between consecutive samples is accepted but reported (``teleport``)
 and interpolation does not sweep across it: the older samples are dropped.
 
@@ -28,6 +29,12 @@ Range checks (rejected, counted by the caller; both limits are optional):
   real motion faster than the limit can never lock the stream out, a sample still rejected for speed
   ``max_age`` seconds after the first rejection of that run restarts the stream from it (``restart``; the
   body is re-placed on the skeleton).
+
+What the stream took in decides alone what it does with the next sample: every push stores the sample it was
+given or nothing (``took_last``), and a refused sample changes only the bookkeeping that may later restart the
+stream. So the samples taken in, pushed again in order with ``taken=True`` (a recording read back: refused here,
+a sample was one the stream restarted on), give the same stored samples, the same problems and the same
+``sample(t)``, without the refused samples (which a recording does not keep).
 
 Arrays: q, v (n,) float64 [rad, m, rad/s, m/s]; stamps float seconds. The buffer holds at most
 ``capacity`` samples.
@@ -124,7 +131,8 @@ class JointStreamInterpolator:
         self._t: deque[float] = deque(maxlen=capacity)
         self._q: deque[np.ndarray] = deque(maxlen=capacity)
         self._v: deque[np.ndarray | None] = deque(maxlen=capacity)
-        self._rejected: list[tuple[float, np.ndarray, np.ndarray | None]] = []
+        self._rejected: list[float] = []              # stamps of the consecutive samples refused for their time
+        self.took_last = False                        # the last push stored its sample
         self.teleports = 0
         self.revision = 0                             # changes whenever the samples held change (sample's input)
 
@@ -165,19 +173,36 @@ class JointStreamInterpolator:
         self._q.append(q)
         self._v.append(v)
         self.revision += 1
+        self.took_last = True
 
     def push(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None,
-             now: float | None = None) -> list[tuple[str, str]]:
+             now: float | None = None, taken: bool = False) -> list[tuple[str, str]]:
         """Offer one sample; returns the problems found as (kind, message), empty when all is well.
+        ``took_last`` says whether it was stored.
 
         ``now`` [s], the receiver's clock on the stamps' time base, makes the future check absolute
         (stamp > now + max_future); without it the check is relative to the newest sample, which also
         rejects the first sample after a pause longer than max_future (until ``restart_after`` agree).
+        ``taken``: the sample is known to have been taken in by a stream that saw the same samples taken in
+        (a recording's, whose refused samples were left out): if this stream refuses it, the other one had
+        restarted on it, and so does this one.
         """
-        n = len(self.joint_names)
         stamp = float(stamp_s)
         q = np.asarray(q, dtype=np.float64).reshape(-1)
         v = None if v is None else np.asarray(v, dtype=np.float64).reshape(-1)
+        self.took_last = False
+        problems = self._judge_and_store(stamp, q, v, now)
+        if taken and not self.took_last and not any(k == "bad_sample" for k, _ in problems):
+            self._rejected, self._speeding_since = [], None
+            self._clear()
+            self._store(stamp, q, v, problems)
+            problems.append(("restart", "a sample taken in by the recorded stream is refused here: the recorded "
+                                        "stream restarted on it, so this one does"))
+        return problems
+
+    def _judge_and_store(self, stamp: float, q: np.ndarray, v: np.ndarray | None,
+                         now: float | None) -> list[tuple[str, str]]:
+        n = len(self.joint_names)
         if q.shape != (n,) or (v is not None and v.shape != (n,)):
             return [("bad_sample", f"sample has {q.size} positions / {None if v is None else v.size} velocities, "
                                    f"expected {n}: map it through JointMap first")]
@@ -202,19 +227,20 @@ class JointStreamInterpolator:
                 kind, text = "future", f"stamp {stamp:.6f} s is {stamp - newest:.3g} s ahead of the newest " \
                                        f"(max_future {self.max_future:g} s): sample dropped"
             if kind is not None:
-                if self._rejected and stamp <= self._rejected[-1][0]:
+                if self._rejected and stamp <= self._rejected[-1]:
                     self._rejected.clear()
-                self._rejected.append((stamp, q, v))
+                self._rejected.append(stamp)
                 if len(self._rejected) < self.restart_after:
                     return [(kind, text)]
-                kept = self._rejected
-                self._rejected = []
+                limit = self._range_problem(stamp, q, v, alone=True)
+                if limit is not None:                  # the restart waits for a sample in range
+                    return [(kind, text), limit]
+                count, first = len(self._rejected), self._rejected[0]
+                self._rejected, self._speeding_since = [], None
                 self._clear()
-                for s, qq, vv in kept:
-                    if self._range_problem(s, qq, vv) is None or self._t:   # the first must be in range
-                        self._store(s, qq, vv, problems)
-                return [(kind, text), ("restart", f"{len(kept)} consecutive samples from {kept[0][0]:.6f} s agree "
-                                                  "with each other: the stream restarts from them")]
+                self._store(stamp, q, v, problems)
+                return [(kind, text), ("restart", f"{count} consecutive samples from {first:.6f} s agree with each "
+                                                  "other: the stream restarts from the last of them")]
         self._rejected.clear()
         limit = self._range_problem(stamp, q, v)
         if limit is not None:
@@ -231,9 +257,11 @@ class JointStreamInterpolator:
         self._store(stamp, q, v, problems)
         return problems
 
-    def _range_problem(self, stamp: float, q: np.ndarray, v: np.ndarray | None) -> tuple[str, str] | None:
-        """The ``root_range`` or ``joint_speed`` problem of a sample that passed the time checks, or None."""
-        prev = self._q[-1] if self._t else q
+    def _range_problem(self, stamp: float, q: np.ndarray, v: np.ndarray | None,
+                       alone: bool = False) -> tuple[str, str] | None:
+        """The ``root_range`` or ``joint_speed`` problem of a sample that passed the time checks, or None
+        (``alone``: as the first of an empty stream, only its root and its reported velocities)."""
+        prev = self._q[-1] if self._t and not alone else q
         root, fastest, jump, k, step, dt = _range_measures(q, np.zeros(0) if v is None else v, prev,
                                                            self.revolute, self.prismatic, self._moved_at, stamp,
                                                            self.max_joint_speed)
@@ -244,7 +272,7 @@ class JointStreamInterpolator:
         if v is not None and abs(v[fastest]) > self.max_joint_speed:
             return ("joint_speed", f"joint {self.joint_names[fastest]!r} reports velocity {v[fastest]:.4g} "
                                    f"(max_joint_speed {self.max_joint_speed:g}): sample dropped")
-        if self._t and np.isfinite(self.max_joint_speed):
+        if self._t and not alone and np.isfinite(self.max_joint_speed):
             if jump > self.teleport_distance:
                 return None                      # a teleport: reported by _store, the body is re-placed
             # per joint, the time since the sample that last moved it: split publishers (arms and legs in
