@@ -303,7 +303,7 @@ def test_replaying_a_bag_with_an_undecodable_joint_state_is_one_error_line(tmp_p
         w.add_topic(TOPIC, "sensor_msgs/msg/JointState")
         w.write(TOPIC, 1_000_000_000, joint_cdr(0))
         w.write(TOPIC, 1_000_000_001, b"\x00\x01\x00\x00" + b"\xff" * 40)
-    (tmp_path / "b" / PARAMS_FILE).write_text(scene_file_text(SceneConfig()))
+    (tmp_path / "b" / PARAMS_FILE).write_text(scene_file_text(SceneConfig().with_values(physics__clock="input")))
     with pytest.raises(BagReadError, match=r"/joint_states record 1 \(log time 1000000001 ns, 44 bytes\) does not"):
         read_joint_states(tmp_path / "b")
     assert main([str(tmp_path / "b")]) == 2

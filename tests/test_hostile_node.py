@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +101,106 @@ def test_garbage_huge_and_absurd_joint_states_are_counted_never_recorded_and_nev
     assert len(samples) == recorded and max(len(x.names) for x in samples) <= 30_000
     assert sim.received >= recorded + 3       # garbage, headed garbage and the oversized one were not recorded
 
+
+
+def _bag_joint_states(folder) -> list[tuple[int, np.ndarray, np.ndarray, list]]:
+    """(stamp ns, exact as sent; positions; velocities; names) of every recorded joint state."""
+    from rosbags.highlevel import AnyReader
+    out = []
+    with AnyReader([Path(folder)]) as r:
+        for c, _, raw in r.messages(connections=[c for c in r.connections if c.topic == "/joint_states"]):
+            m = r.deserialize(raw, c.msgtype)
+            out.append((m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec, np.asarray(m.position),
+                        np.asarray(m.velocity), list(m.name)))
+    return out
+
+
+def test_refused_joint_states_are_counted_never_recorded_and_the_bag_replays_bit_for_bit(world, tmp_path):
+    """The README's promise on a running node: samples that decode and name the skeleton's joints but that the
+    joint stream refuses (a root 1e9 m away, a reported velocity of 1e12, a knee turning 3 rad in 1 ms,
+    stale, future and out-of-order stamps) are counted per kind on /diagnostics and none reaches the bag; what
+    the bag keeps (the samples taken in) replays every recorded surface bit for bit."""
+    from clusterfem_ros.config import load_scene_file
+    from clusterfem_ros.motion import load_motion
+    from clusterfem_ros.recording.bag_reader import PARAMS_FILE, read_joint_states, read_surfaces
+    from clusterfem_ros.replay import main as replay_main
+    from clusterfem_ros.replay import replay
+    from clusterfem_ros.scene import Scene
+    from msg_adapters.diagnostics import diagnostic_values
+    sim = _sim(world, **{"recording.enabled": True, "recording.dir": str(tmp_path), "physics.clock": "input",
+                         "warping": True, "output.diagnostics_rate_hz": 10.0})
+    s = Sender(world, sim)
+    walk = load_motion().trajectory
+    names, t0 = walk.names, s.now_ns()
+    sent_refused: list[int] = []
+    last_good = [t0]
+
+    def pose(stamp_ns):
+        return walk.sample((stamp_ns - t0) * 1e-9, loop=True)[0]
+
+    def good(n):
+        for _ in range(n):
+            last_good[0] = stamp = s.now_ns()
+            s.pub.publish(joint_state_cdr(names, pose(stamp), stamp=stamp))
+            time.sleep(0.01)
+
+    def refused(offset_s=0.0, change=lambda q: q, v=None, after_good=False):
+        """Stamped now + offset_s, or offset_s after the last good sample (after_good)."""
+        def make():
+            stamp = (last_good[0] if after_good else s.now_ns()) + int(offset_s * 1e9)
+            sent_refused.append(stamp)
+            return joint_state_cdr(names, change(pose(stamp).copy()), v, stamp=stamp)
+        return make
+
+    def set_to(k, value):
+        def change(q):
+            q[k] = value
+            return q
+        return change
+
+    knee = names.index("l_knee_pitch")                    # a joint the walk moves in every frame
+    good(60)
+    world.wait_for(lambda: sim.scene.inputs.accepted >= 20, 20, "good samples")
+    s.rejected("root_range", refused(change=set_to(names.index("root_x"), 1e9)))
+    good(10)
+    s.rejected("joint_speed", refused(v=np.full(len(names), 1e12)))
+    good(10)
+    s.rejected("joint_speed", refused(0.001, change=lambda q: q + 3.0 * (np.arange(len(q)) == knee),
+                                      after_good=True))              # 3 rad in 1 ms
+    good(3)                             # between time refusals: three in a row would restart the stream on them
+    s.rejected("stale", refused(offset_s=-100.0))
+    good(3)
+    s.rejected("future", refused(offset_s=+100.0))
+    good(3)
+    s.rejected("out_of_order", refused(-0.005, after_good=True))
+    good(60)
+    world.wait_for(lambda: sim.counts.get("clusterfem/surface", 0) >= 15 and sim.counts.get("/diagnostics", 0) >= 3,
+                   40, "recorded surfaces and diagnostics")
+    rejected = dict(sim.scene.inputs.rejected)
+    time.sleep(0.3)                                   # a diagnostics message carrying the last counts
+    world.executor.shutdown(timeout_sec=5.0)
+    sim.close()
+    bag = sim.recording_path
+    recorded = _bag_joint_states(bag)
+    assert len(recorded) == sim.counts["joint_states"] >= 60
+    assert not set(sent_refused) & {stamp for stamp, *_ in recorded}, "a refused joint state was recorded"
+    stamps = [stamp for stamp, *_ in recorded]
+    assert stamps == sorted(set(stamps))                               # no stale or out-of-order stamp
+    assert max(np.abs(q[names.index("root_x")]).max() for _, q, _, n in recorded if n == names) < 1000.0
+    assert max((np.abs(v).max() for _, _, v, _ in recorded if v.size), default=0.0) <= 300.0
+    from rosbags.highlevel import AnyReader
+    with AnyReader([Path(bag)]) as r:
+        last = [r.deserialize(raw, c.msgtype) for c, _, raw in
+                r.messages(connections=[c for c in r.connections if c.topic == "/diagnostics"])][-1]
+    values = {kv.key: kv.value for kv in last.status[0].values}
+    for kind in ("root_range", "joint_speed", "stale", "future", "out_of_order"):
+        assert int(values[f"rejected_{kind}"]) >= 1 and rejected[kind] >= 1, (kind, values)
+    surfaces = read_surfaces(bag)
+    got = replay(Scene.build(load_scene_file(bag / PARAMS_FILE)), read_joint_states(bag), [t for t, _ in surfaces])
+    assert len(surfaces) >= 15 and all(t in got for t, _ in surfaces)
+    assert all(np.array_equal(got[t], p) for t, p in surfaces), "the replay differs from the recording"
+    assert np.abs(surfaces[-1][1] - surfaces[0][1]).max() > 0.1        # the body walked: not one picture
+    assert replay_main([str(bag)]) == 0
 
 def test_a_full_disk_stops_recording_with_an_error_and_the_simulation_goes_on(world, tmp_path, monkeypatch):
     from diagnostic_msgs.msg import DiagnosticArray

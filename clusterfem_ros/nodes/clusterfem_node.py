@@ -7,7 +7,9 @@ recording). Bad input is counted, warned about (throttled) and never stops the n
 reset, never published; a failing step is reported on the log and the diagnostics (ERROR).
 
 A joint state is size-checked and decoded in the callback, judged on the physics thread
-(Scene.take_joint_state), and recorded only once judged; the recording never raises into a callback: a full
+(Scene.take_joint_state), and recorded only if the joint stream took it in: a refused sample is counted per kind
+in the diagnostics and never reaches the bag (a replay needs only the samples taken in). The recording never
+raises into a callback: a full
 queue drops and counts (recording.max_queue_mb), a write failure stops the recording with an ERROR log and an
 ERROR diagnostic while the simulation goes on.
 
@@ -225,7 +227,7 @@ class ClusterFemNode(Node):
 
     def _on_joint_state(self, data: bytes) -> None:
         """Check the size and decode here; the physics thread judges it (Scene.take_joint_state) and records what
-        reached the joint stream: the samples a replay needs to take the same decisions. Refused messages are
+        the joint stream took in: the samples a replay needs to take the same decisions. Refused messages are
         counted, not recorded."""
         now_ns = self.get_clock().now().nanoseconds
         self.received += 1
@@ -254,7 +256,7 @@ class ClusterFemNode(Node):
 
     def _take_sample(self, scene: Scene, stamp: float, names, q, v, now_ns: int, exact: bytes) -> None:
         def judged(problems: list) -> None:
-            if scene.inputs.reached_stream:           # the receive time is what a replay passes as 'received'
+            if scene.inputs.taken_in:                 # the receive time is what a replay passes as 'received'
                 self._record(JOINTS_TOPIC, exact, now_ns)
             for kind, message in problems:
                 self._warn_input(kind, message, scene.inputs.rejected.get(kind, 0))

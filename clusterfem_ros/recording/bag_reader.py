@@ -71,11 +71,13 @@ def read_joint_states(folder: str | Path, topic: str = "/joint_states") -> list[
 
 
 def read_surfaces(folder: str | Path, topic: str = "/clusterfem/surface") -> list[tuple[int, np.ndarray]]:
-    """(stamp in ns, triangle-list points (3t, 3)) of every recorded surface Marker."""
+    """(stamp in ns, triangle-list points (3t, 3)) of every recorded surface Marker (none without the topic)."""
     out = []
     with _reader(Path(folder)) as r:
         found = topic_in((c.topic for c in r.connections), topic)
         conns = [c for c in r.connections if c.topic == found]
+        if not conns:                          # rosbags reads every topic when given no connection
+            return out
         for c, _, raw in r.messages(connections=conns):
             m = r.deserialize(raw, c.msgtype)
             pts = np.array([[p.x, p.y, p.z] for p in m.points], dtype=np.float64).reshape(-1, 3)
