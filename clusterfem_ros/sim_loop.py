@@ -192,7 +192,8 @@ class SimLoop:
     _started = 0                # loops started in this process (see start)
 
     def __init__(self, scene, now: Callable[[], float], timer_hz: float, max_catchup_steps: int,
-                 log: Callable[[str, str], None], name: str = "physics"):
+                 log: Callable[[str, str], None], name: str = "physics",
+                 timer: Callable[[], float] = time.perf_counter):
         clock = scene.config.physics.clock
         if clock not in ("wall", "input"):
             raise ValueError(f"physics.clock {clock!r} is not 'wall' or 'input'")
@@ -202,6 +203,8 @@ class SimLoop:
         self.period = 1.0 / float(timer_hz)
         self.max_steps = int(max_catchup_steps)
         self.log = log                                   # log(level, text), level "error" | "warning" | "info"
+        self.timer = timer                               # seconds: what the wall clock's batches and hand-overs
+                                                         # are timed by (a test passes a fake clock)
         self.stages = StageClock()
         self.latency = LatencyMeter()
         self.snapshot: Snapshot | None = None
@@ -221,7 +224,7 @@ class SimLoop:
         self._queue: deque = deque()
         self._wake = threading.Condition()
         self._pending = False                            # an input arrived since the thread last looked
-        self._taken = (-1, float("-inf"))                # (steps_done, perf_counter) of the last state looked at
+        self._taken = (-1, float("-inf"))                # (steps_done, timer()) of the last state looked at
                                                          # for a snapshot (handed over or refused)
         self._stop = threading.Event()
         self._in_a_row = 0
@@ -338,7 +341,7 @@ class SimLoop:
         next input's state comes first, or a later batch's end (the thread wakes at least once a period), so
         the outputs never show a state more than about a period and a batch older than physics. A streamed
         body hands over a state per input, not two: half the snapshots and their checks."""
-        deadline = time.perf_counter() + 0.7 * self.period
+        deadline = self.timer() + 0.7 * self.period
         stepped, due_in = 0, None
         scene = self.scene
         while not self._stop.is_set():
@@ -355,11 +358,11 @@ class SimLoop:
             stepped += self._timed(lambda: scene.advance_to(target, self.max_steps, deadline=0.0)) or 1
             if fresh:
                 self._take_snapshot(used)
-            if time.perf_counter() > deadline:
+            if self.timer() > deadline:
                 break
-        if self._taken[0] != scene.steps_done and time.perf_counter() - self._taken[1] >= self.period:
+        if self._taken[0] != scene.steps_done and self.timer() - self._taken[1] >= self.period:
             self._take_snapshot(self._seen)
-        if stepped == 0 or time.perf_counter() <= deadline:
+        if stepped == 0 or self.timer() <= deadline:
             self._wait(due_in)
 
     def _timed(self, advance: Callable[[], object]) -> int:
@@ -383,7 +386,7 @@ class SimLoop:
         is not placed on its skeleton (Scene.placement_problem)."""
         t = time.perf_counter()
         s = self.scene
-        self._taken = (s.steps_done, t)
+        self._taken = (s.steps_done, self.timer())
         snap = Snapshot.of_scene(s, used, t)
         if snap is not None:
             self.snapshot = snap
