@@ -70,3 +70,26 @@ def stress(rest: np.ndarray, tets: np.ndarray, u: np.ndarray, lam: float, mu: fl
         np.add.at(vs, tets[:, c], vol[:, None, None] * sigma)
         np.add.at(w, tets[:, c], vol)
     return sigma, vs / w[:, None, None]
+
+
+def tet_quality(x: np.ndarray) -> tuple[float, float]:
+    """(smallest dihedral angle [deg], radius ratio 3 r_in / r_circ) of one tet (4, 3), written out another way
+    than fem.tetrahedralize.tet_quality: each dihedral angle between the two faces along an edge, from the other
+    two vertices projected onto the plane across the edge; the circumradius from the edge lengths (Crelle:
+    6 V R = sqrt of the Heron product of the opposite-edge products)."""
+    angles = []
+    for i, j in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)):
+        k, m = [c for c in range(4) if c not in (i, j)]
+        e = (x[j] - x[i]) / np.linalg.norm(x[j] - x[i])
+        a = x[k] - x[i] - ((x[k] - x[i]) @ e) * e
+        b = x[m] - x[i] - ((x[m] - x[i]) @ e) * e
+        angles.append(np.degrees(np.arccos(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1.0, 1.0))))
+    volume = abs(np.linalg.det(x[1:] - x[0])) / 6.0
+    area = sum(0.5 * np.linalg.norm(np.cross(x[b] - x[a], x[c] - x[a]))
+               for a, b, c in ((1, 2, 3), (0, 2, 3), (0, 1, 3), (0, 1, 2)))
+    r_in = 3.0 * volume / area
+    L = lambda a, b: np.linalg.norm(x[a] - x[b])          # noqa: E731
+    p, q, r = L(0, 1) * L(2, 3), L(0, 2) * L(1, 3), L(0, 3) * L(1, 2)
+    s = 0.5 * (p + q + r)
+    r_circ = np.sqrt(s * (s - p) * (s - q) * (s - r)) / (6.0 * volume)
+    return float(min(angles)), float(3.0 * r_in / r_circ)

@@ -11,6 +11,7 @@ from clusterfem_ros.config import ConfigError, SceneConfig
 from clusterfem_ros.fem.tetrahedralize import MAX_ATTEMPTS, SurfaceError, _steer_edge, surface_to_tets, tet_quality
 from clusterfem_ros.skeleton.trajectory import JointTrajectory
 from clusterfem_ros.skeleton.urdf_builder import UrdfBuilder
+from tests import naive
 
 trimesh = pytest.importorskip("trimesh")
 
@@ -69,7 +70,8 @@ def test_tet_count_is_within_20_percent_and_quality_is_reported(surface, cache):
     enclosed = trimesh.load(surface).volume
     assert enclosed == pytest.approx(np.pi * 10.0 ** 2 * 60.0 + 4.0 / 3.0 * np.pi * 10.0 ** 3, rel=0.04)
     assert r.mesh.volumes().sum() == pytest.approx(enclosed, rel=0.04)
-    assert (r.min_dihedral_deg, r.min_radius_ratio) == pytest.approx(tet_quality(r.mesh.vertices, r.mesh.tets))
+    each = np.array([naive.tet_quality(r.mesh.vertices[t]) for t in r.mesh.tets])      # written out per tet
+    assert (r.min_dihedral_deg, r.min_radius_ratio) == pytest.approx(tuple(each.min(axis=0)), rel=1e-9)
     assert 0.0 < r.min_dihedral_deg < 70.6 and 0.0 < r.min_radius_ratio <= 1.0
 
 
@@ -106,6 +108,18 @@ def test_a_count_the_surface_cannot_come_down_to_gives_the_nearest_after_all_att
     best, n_attempts = _steer_edge(floor_of_900, 1.0, 400, 0.2)
     assert n_attempts == MAX_ATTEMPTS == len(runs) and best.n_tets == 901
     assert all(b > a for a, b in zip(runs, runs[1:]))    # each miss asks for a longer edge
+
+
+def test_the_naive_quality_of_hand_made_tets():
+    """The twin itself, on tets whose answer is known: the regular tet (arccos 1/3, ratio 1) and the corner of
+    a cube (three right angles at the corner and arctan(sqrt 2) at the other edges; r_in = (3 - sqrt 3) / 6,
+    r_circ = sqrt 3 / 2)."""
+    regular = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float)
+    assert naive.tet_quality(regular) == pytest.approx((np.degrees(np.arccos(1 / 3)), 1.0), rel=1e-12)
+    corner = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    ratio = 3 * (3 - np.sqrt(3)) / 6 / (np.sqrt(3) / 2)
+    assert naive.tet_quality(corner) == pytest.approx((np.degrees(np.arctan(np.sqrt(2))), ratio), rel=1e-12)
+    assert tet_quality(corner, np.array([[0, 1, 2, 3]])) == pytest.approx(naive.tet_quality(corner), rel=1e-12)
 
 
 def test_tet_quality_of_a_regular_tet_is_ideal():

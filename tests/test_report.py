@@ -22,12 +22,21 @@ def small():
     return sc, R.reference_data(sc, ref, corotated=False)
 
 
-def test_reference_against_itself_is_zero(small):
+def test_a_rigidly_translated_run_has_its_shift_as_error_and_no_stress_or_volume_error(small):
+    """Every vertex shifted by (0.3, 0.4, 0) mm at every sample: the position error is that shift (0.5 mm at every
+    vertex, so rel_l2 = 0.5 mm sqrt(samples x vertices) / the reference's norm, written out here), while a
+    translation changes neither the stress nor the volume (round-off only)."""
     sc, ref = small
-    e = R.errors(sc, ref.run.u, ref, corotated=False)
+    u = ref.run.u + np.array([3e-4, 4e-4, 0.0])
+    e = R.errors(sc, u, ref, corotated=False)
     assert set(e) == set(METRICS)
-    assert all(v == 0.0 for v in e.values()), e
-    assert ref.norm > 0 and np.isfinite(ref.run.u).all()
+    samples, n = ref.run.u.shape[:2]
+    norm = math.sqrt(sum(float(x) ** 2 for x in ref.run.u.ravel()))
+    assert ref.norm == pytest.approx(norm, rel=1e-12) and norm > 0
+    assert e["max_mm"] == pytest.approx(0.5, rel=1e-9)
+    assert e["rel_l2"] == pytest.approx(5e-4 * math.sqrt(samples * n) / norm, rel=1e-9)
+    assert e["von_mises_rel"] < 1e-8 and e["volume_pct"] < 1e-9, e
+    assert np.isfinite(ref.run.u).all()
 
 
 def test_a_perturbed_run_has_the_expected_errors(small):
