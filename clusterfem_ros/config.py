@@ -179,6 +179,25 @@ def unknown_name_error(name: str) -> ConfigError:
     return ConfigError(f"unknown scene parameter {name!r}{hint}")
 
 
+# YAML 1.1 (rcl's params-file and -p parser; PyYAML for yes/on/true) reads these unquoted words as booleans
+_YAML_BOOL_WORDS = {True: ("y", "yes", "on", "true"), False: ("n", "no", "off", "false")}
+
+
+def _text_value(p: Param, value: Any) -> str:
+    """A text parameter's value: a choice in any case ('Y' or 'y' for an axis), or the choice a YAML 1.1
+    boolean was spelt as (``fit_up: Y`` arrives as True); TypeError for anything else that is not text."""
+    if isinstance(value, bool) and p.choices:
+        spelt = [c for c in p.choices if c.lower() in _YAML_BOOL_WORDS[value]]
+        if len(spelt) == 1:
+            return spelt[0]
+    if not isinstance(value, str):
+        raise TypeError
+    if p.choices and value not in p.choices:
+        same = [c for c in p.choices if c.lower() == value.lower()]
+        return same[0] if len(same) == 1 else value
+    return value
+
+
 def check_value(name: str, value: Any) -> Any:
     """Validate one parameter; returns the value coerced to the default's type."""
     if name not in _BY_NAME:
@@ -206,11 +225,13 @@ def check_value(name: str, value: Any) -> Any:
                 if isinstance(value, str) or any(isinstance(x, (bool, str)) for x in value):
                     raise TypeError
                 value = [float(x) for x in value]
-        elif isinstance(d, str) and not isinstance(value, str):
-            raise TypeError
+        elif isinstance(d, str):
+            value = _text_value(p, value)
     except (TypeError, ValueError):
         want = f"a list of {p.item.__name__}" if isinstance(d, list) else f"{type(d).__name__} like {d!r}"
-        raise ConfigError(f"{name} = {value!r}: expected {want}") from None
+        hint = (": YAML reads an unquoted y, yes, on, true (n, no, off, false) as a boolean; quote the value"
+                if isinstance(d, str) and isinstance(value, bool) else "")
+        raise ConfigError(f"{name} = {value!r}: expected {want}{hint}") from None
     if p.choices is not None and value not in p.choices:
         raise ConfigError(f"{name} = {value!r}: choose one of {', '.join(p.choices)}")
     if p.lo is not None and not (p.lo <= value <= p.hi):

@@ -271,40 +271,23 @@ def test_start_up_errors_are_one_line_and_exit_2_with_the_traceback_on_debug(tmp
     assert run.returncode != 0 and "Traceback" in run.stderr and "physics.step" in run.stderr
 
 
-def test_a_bare_start_keeps_dds_on_this_machine_unless_told_otherwise():
-    from clusterfem_ros.nodes.spinning import default_transport
+def test_a_bare_start_keeps_dds_discovery_on_this_host_unless_told_otherwise():
+    from clusterfem_ros.nodes.spinning import default_discovery
     env: dict = {}
-    assert "FASTDDS_BUILTIN_TRANSPORTS=DEFAULT" in default_transport(env) and env["FASTDDS_BUILTIN_TRANSPORTS"] == "SHM"
-    env = {"FASTDDS_BUILTIN_TRANSPORTS": "DEFAULT"}
-    assert default_transport(env) is None and env == {"FASTDDS_BUILTIN_TRANSPORTS": "DEFAULT"}
-    env = {"FASTDDS_DEFAULT_PROFILES_FILE": "/etc/my_profile.xml"}
-    assert default_transport(env) is None and "FASTDDS_BUILTIN_TRANSPORTS" not in env
+    note = default_discovery(env)
+    assert env == {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"} and "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET" in note
+    for chosen in ({"ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"}, {"FASTDDS_BUILTIN_TRANSPORTS": "SHM"},
+                   {"FASTDDS_DEFAULT_PROFILES_FILE": "/etc/my_profile.xml"}, {"ROS_DISCOVERY_SERVER": "127.0.0.1:11811"}):
+        env = dict(chosen)
+        assert default_discovery(env) is None and env == chosen
+    env = {"ROS_STATIC_PEERS": "192.0.2.7"}              # static peers add to the range: LOCALHOST keeps them
+    assert default_discovery(env) and env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
 
 
-def _udp_inodes() -> set[str]:
-    inodes = set()
-    for table in ("/proc/net/udp", "/proc/net/udp6"):
-        with open(table) as f:
-            inodes |= {line.split()[9] for line in f.readlines()[1:]}
-    return inodes
-
-
-def _socket_inodes(pid: int) -> set[str]:
-    out = set()
-    for fd in Path(f"/proc/{pid}/fd").iterdir():
-        try:
-            target = os.readlink(fd)
-        except OSError:
-            continue
-        if target.startswith("socket:["):
-            out.add(target[8:-1])
-    return out
-
-
-@pytest.mark.skipif(not Path("/proc/net/udp").exists(), reason="needs Linux /proc")
-def test_a_bare_node_opens_no_udp_socket_and_says_how_to_reach_a_network(tmp_path):
-    """Started without scripts/env.sh (FASTDDS_BUILTIN_TRANSPORTS unset), as a console script would be."""
-    environ = {k: v for k, v in os.environ.items() if k != "FASTDDS_BUILTIN_TRANSPORTS"}
+def test_a_bare_node_says_its_discovery_stays_on_this_host_and_how_to_reach_a_network(tmp_path):
+    """Started without scripts/env.sh (no DDS variable set), as a console script would be; what it then sends where
+    is measured by tests/test_dds_default_tools.py (and docs/usage.md, Network)."""
+    environ = {k: v for k, v in os.environ.items() if k not in ("FASTDDS_BUILTIN_TRANSPORTS", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
     environ.update(PYTHONPATH=str(ROOT), ROS_DOMAIN_ID=str(190 + os.getpid() % 10))
     proc = subprocess.Popen([sys.executable, "-m", "clusterfem_ros.nodes.clusterfem_node", "--ros-args",
                              "-p", "body.kind:=sphere", "-p", "skeleton.source:=none"],
@@ -313,10 +296,10 @@ def test_a_bare_node_opens_no_udp_socket_and_says_how_to_reach_a_network(tmp_pat
         lines = []
         for line in proc.stdout:
             lines.append(line)
-            if "DDS: shared memory only" in line:
+            if "DDS: discovery on this host only" in line:
                 break
-        assert "FASTDDS_BUILTIN_TRANSPORTS=DEFAULT" in lines[-1], "".join(lines)
-        assert not _socket_inodes(proc.pid) & _udp_inodes()
+        assert "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST" in lines[-1], "".join(lines)
+        assert "ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET" in lines[-1], "".join(lines)
     finally:
         proc.terminate()
         proc.wait(timeout=30)

@@ -413,7 +413,7 @@ class ClusterFemNode(Node):
 
 
 def main(args=None) -> None:
-    run_node(ClusterFemNode, args)
+    run_node(ClusterFemNode, args, help_text=__doc__)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,8 @@
     scripts/run --bodies 2 [--process-per-body] [--scene a.yaml --scene b.yaml]
 
 The mocap player runs as its own process, the simulation in this one on a single-threaded executor
-(rclpy's multi-threaded one is slower here; shared-memory DDS only). The player plays the built-in walk,
+(rclpy's multi-threaded one is slower here; DDS discovery on this host only, nodes.spinning.default_discovery:
+``ros2 topic echo`` and other ROS tools started with their defaults on this host see the topics). The player plays the built-in walk,
 or what the scene file's ``mocap_player: ros__parameters:`` section says (source, file, ...: see
 nodes/player_node.py; its file a path or a name under $CLUSTERFEM_DATA or ../shared/data), or the ``--bvh`` file. A
 BVH brings its own skeleton: the node takes it from robot_description (``--bvh`` sets that). A scene
@@ -32,7 +33,9 @@ import threading
 import time
 from pathlib import Path
 
-os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "SHM")
+from .spinning import PARAMETERS_DOC, default_discovery   # before rclpy starts; the player's process inherits it
+
+DDS_NOTE = default_discovery()
 
 
 PLAYER_START_TIMEOUT_S = 60.0
@@ -60,10 +63,18 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
                                  "player latches it at its start; run `python -m clusterfem_ros.nodes.player_node` "
                                  "to see why it did not")
             raise SystemExit(f"[demo] no joint state from the player within {PLAYER_START_TIMEOUT_S:g} s: check that "
-                             "both processes share ROS_DOMAIN_ID and FASTDDS_BUILTIN_TRANSPORTS (scripts/env.sh)")
+                             "both processes share ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE (scripts/env.sh)")
         time.sleep(0.05)
     print(f"[demo] first joint state from the player after {time.perf_counter() - t0:.1f} s: the timed run starts",
           flush=True)
+
+
+def _dds_setting() -> str:
+    """The DDS variables this run goes by, as a user would repeat them in another shell."""
+    shown = [f"{k}={os.environ[k]}" for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS",
+                                             "FASTDDS_BUILTIN_TRANSPORTS", "FASTDDS_DEFAULT_PROFILES_FILE")
+             if os.environ.get(k)]
+    return "DDS " + (" ".join(shown) or "defaults")
 
 
 def _player_plan(args, scene_file: Path, config):
@@ -93,7 +104,8 @@ def _player_plan(args, scene_file: Path, config):
 
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=f"Scene and player parameters (what --scene files hold): {PARAMETERS_DOC}.")
     ap.add_argument("--duration", type=float, default=8.0, help="seconds of wall time to run (default 8)")
     ap.add_argument("--scene", default=None, action="append",
                     help="scene parameter file (default: config/default_scene.yaml); once for every body, or once "
@@ -158,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     for ns, f, (player_params, config) in zip(names, scenes, plans):
         print(f"[demo] {ns or 'scene'} {f}: body {config.body.kind}, method {config.method}, "
               f"warping {config.warping}, h = {config.physics.step:g} s; ROS_DOMAIN_ID="
-              f"{os.environ.get('ROS_DOMAIN_ID', '0')}, DDS transport {os.environ['FASTDDS_BUILTIN_TRANSPORTS']}",
+              f"{os.environ.get('ROS_DOMAIN_ID', '0')}, {_dds_setting()}",
               flush=True)
         if config.skeleton.source != "none":
             print(f"[demo] player: {', '.join(f'{k} {v}' for k, v in player_params.items())}; skeleton from "

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from ..config import PARAMS, ConfigError, SceneConfig, check_value, from_mapping, unknown_name_error
 
@@ -28,10 +29,15 @@ LIVE_BOUNDS = {"output.diagnostics_rate_hz": (0.1, 10.0), "output.marker_rate_hz
 ROS_NAMES = {"use_sim_time", "start_type_description_service"}
 
 
+def _typed_by_us(p) -> bool:
+    """Parameters whose type check_value makes, not rclpy: lists (rclpy types an empty default as a byte array and
+    would refuse the doubles or strings a file gives), floats (a params file's ``30000`` is an integer) and text
+    (YAML 1.1 reads an unquoted ``Y`` or ``on`` as a boolean)."""
+    return isinstance(p.default, (list, float, str))
+
+
 def descriptor(p) -> ParameterDescriptor:
-    # lists: rclpy types an empty default as a byte array and would refuse the doubles or strings a file gives;
-    # the type is checked by check_value instead
-    d = ParameterDescriptor(description=p.description, dynamic_typing=isinstance(p.default, list))
+    d = ParameterDescriptor(description=p.description, dynamic_typing=_typed_by_us(p))
     if p.choices:
         d.additional_constraints = "one of: " + ", ".join(p.choices)
     if p.lo is not None:
@@ -71,5 +77,12 @@ def declare_scene_parameters(node: Node, on_live_change) -> SceneConfig:
             raise unknown_name_error(name)
     node.declare_parameters("", [(p.name, p.default, descriptor(p)) for p in PARAMS])
     values = {p.name: _value(p.name, node.get_parameter(p.name).value) for p in PARAMS}
+    # what a file or -p gave as an integer for a float, a boolean or another case for a choice: stored as the value
+    # the node runs with, so that `ros2 param get` shows it
+    typed = {p.name: check_value(p.name, values[p.name]) for p in PARAMS if not isinstance(p.default, list)}
+    retyped = [Parameter(n, value=v) for n, v in typed.items()
+               if type(v) is not type(values[n]) or v != values[n]]
+    if retyped:
+        node.set_parameters(retyped)
     started["done"] = True
     return from_mapping(values)

@@ -1,7 +1,14 @@
 """The mocap player: plays a BVH file, a key-frame file or the built-in walk as sensor_msgs/JointState,
-and latches the matching URDF on robot_description, so the simulation needs no separate file."""
+and latches the matching URDF on robot_description, so the simulation needs no separate file.
+
+    mocap_player --ros-args -p source:=bvh -p file:=mocap/cmu_06_01_walk.bvh
+
+Its parameters: source (builtin_walk, bvh or keyframes), file, rate_hz, speed, start_offset, loop, loop_blend;
+an unknown name is refused, naming the nearest known one.
+"""
 from __future__ import annotations
 
+import difflib
 from dataclasses import replace
 
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
@@ -13,6 +20,7 @@ from std_msgs.msg import String
 from msg_adapters.joint_state import joint_state_cdr
 
 from ..motion import PLAYER_PARAMS, load_motion
+from .params import ROS_NAMES
 from .spinning import run_node
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -22,9 +30,19 @@ def _range(lo: float, hi: float, text: str) -> ParameterDescriptor:
     return ParameterDescriptor(description=text, floating_point_range=[FloatingPointRange(from_value=lo, to_value=hi)])
 
 
+def unknown_player_parameter(name: str) -> ValueError:
+    """The error for a parameter the player does not have, naming the nearest one it has."""
+    close = difflib.get_close_matches(name, PLAYER_PARAMS, n=1, cutoff=0.6)
+    hint = f"did you mean {close[0]!r}?" if close else f"its parameters are {', '.join(PLAYER_PARAMS)}"
+    return ValueError(f"unknown mocap_player parameter {name!r}: {hint}")
+
+
 class MocapPlayer(Node):
     def __init__(self, **node_kwargs):
         super().__init__("mocap_player", **node_kwargs)
+        for name in self._parameter_overrides:          # a misspelt name is refused, as the simulation node does
+            if name not in PLAYER_PARAMS and name not in ROS_NAMES and not name.startswith("qos_overrides."):
+                raise unknown_player_parameter(name)
         self.declare_parameter("source", "builtin_walk", ParameterDescriptor(
             description="builtin_walk, bvh or keyframes", additional_constraints="one of: builtin_walk, bvh, keyframes"))
         self.declare_parameter("file", "", ParameterDescriptor(description=(
@@ -75,7 +93,7 @@ class MocapPlayer(Node):
 
 
 def main(args=None) -> None:
-    run_node(MocapPlayer, args)
+    run_node(MocapPlayer, args, help_text=__doc__)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,74 @@
+"""scripts/env.sh is sourced into the user's shell: it must leave that shell's options as they were, whether it
+succeeds or fails, and a failure must return, not close the shell."""
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV_SH = ROOT / "scripts" / "env.sh"
+
+pytestmark = pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
+
+# the caller's options, every way it may have set them; the script prints them before and after sourcing
+PROBE = r'''
+{options}
+before="$(set +o; shopt -p)"
+. "{env_sh}"
+status=$?
+after="$(set +o; shopt -p)"
+[ "$before" = "$after" ] && echo "options kept" || diff <(echo "$before") <(echo "$after")
+echo "status $status"
+false
+echo "shell alive"
+'''
+
+
+def _source(options: str, **env) -> subprocess.CompletedProcess:
+    script = PROBE.format(options=options, env_sh=ENV_SH)
+    environ = {"PATH": "/usr/bin:/bin", "HOME": str(Path.home()), **env}
+    return subprocess.run(["bash", "-c", script], capture_output=True, text=True, timeout=120, env=environ)
+
+
+def _made_by_env_sh(venv: Path) -> bool:
+    return any(venv.glob(".lock-*"))
+
+
+@pytest.mark.parametrize("options", ["", "set -u", "set -o pipefail; shopt -s nullglob", "set -x"])
+def test_sourcing_env_sh_keeps_the_callers_options(options):
+    venv = Path(sys.prefix)
+    if not _made_by_env_sh(venv):
+        pytest.skip(f"{venv} was not made by scripts/env.sh (no .lock-* stamp): sourcing it would build a new one")
+    run = _source(options, CLUSTERFEM_VENV=str(venv))
+    assert "options kept" in run.stdout, run.stdout + run.stderr
+    if "status 0" not in run.stdout:          # the stamp is of another requirements.lock: it tried to rebuild
+        pytest.skip(f"env.sh did not find this lock's venv: {run.stderr[-500:]}")
+    assert "shell alive" in run.stdout
+
+
+def test_a_failing_env_sh_returns_1_and_keeps_the_shell_and_its_options(tmp_path):
+    """A venv that cannot be made (no such interpreter) fails fast: status 1, the caller's shell goes on with
+    its own options, `set -e` not left behind."""
+    for options in ("", "set -u"):
+        run = _source(options, CLUSTERFEM_VENV=str(tmp_path / "venv"), PYTHON=str(tmp_path / "no_python"))
+        assert "options kept" in run.stdout and "status 1" in run.stdout, run.stdout + run.stderr
+        assert "shell alive" in run.stdout, run.stdout + run.stderr
+
+
+def test_env_sh_keeps_dds_discovery_on_this_host_unless_set():
+    venv = Path(sys.prefix)
+    if not _made_by_env_sh(venv):
+        pytest.skip(f"{venv} was not made by scripts/env.sh")
+    script = f'. "{ENV_SH}" && echo "range=$ROS_AUTOMATIC_DISCOVERY_RANGE transports=${{FASTDDS_BUILTIN_TRANSPORTS-unset}}"'
+    for given, want in ((None, "LOCALHOST"), ("SUBNET", "SUBNET")):
+        env = {"PATH": "/usr/bin:/bin", "HOME": str(Path.home()), "CLUSTERFEM_VENV": str(venv)}
+        if given:
+            env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = given
+        run = subprocess.run(["bash", "-c", script], capture_output=True, text=True, timeout=120, env=env)
+        if run.returncode:
+            pytest.skip(f"env.sh did not find this lock's venv: {run.stderr[-500:]}")
+        assert f"range={want} transports=unset" in run.stdout, run.stdout
