@@ -5,7 +5,9 @@ scalar joints from J's parent link, one per channel, named ``J_Xpos``/``J_Ypos``
 and ``J_Xrot``/``J_Yrot``/``J_Zrot`` (revolute), with massless helper links between them. The letters
 are the *file's* axes; the joint axes are those axes expressed in ROS coordinates (``BvhMotion.to_ros``,
 default file (x, y, z) -> ROS (z, x, y)), and offsets are scaled by ``BvhMotion.unit_m``, so the URDF is
-in metres, Z up, X forward. The chain runs position channels first (BVH positions are in the parent
+in metres, Z up, X forward. The root's OFFSET is dropped along the axes it has a position channel for (the
+channels are its position, as the format defines them) and its origin is moved by ``BvhMotion.root_shift``
+(the floor under the feet). The chain runs position channels first (BVH positions are in the parent
 frame), then rotations in file order: "Zrotation Yrotation Xrotation" gives R = Rz Ry Rx. The root joint's
 chain starts at the helper link ``bvh_world``; a 6-channel root is the 3 prismatic + 3 revolute floating
 base. Each End Site becomes the tip link ``J_tip``, so leaf bones have a length.
@@ -75,7 +77,11 @@ def bvh_urdf(motion: BvhMotion, robot_name: str = "bvh_skeleton") -> str:
         for c in _chain_order(j.channels):
             axis = C[:, "XYZ".index(c[0])]
             chain.append((channel_joint_name(j.name, c), "prismatic" if c.endswith("position") else "revolute", axis))
-        b.chain(parent, j.name, chain, xyz=C @ j.offset * u, limit=(-1e4, 1e4))
+        offset = j.offset
+        if j.parent < 0:                      # the root's position channels are its position (bvh.py)
+            offset = np.array([0.0 if f"{a}position" in j.channels else x for a, x in zip("XYZ", j.offset)])
+        xyz = C @ offset * u + (motion.root_shift if j.parent < 0 else 0.0)
+        b.chain(parent, j.name, chain, xyz=xyz, limit=(-1e4, 1e4))
         if j.end_site is not None:
             b.tip(j.name, C @ j.end_site * u)
     return b.to_string()
@@ -171,6 +177,80 @@ def limit_rotation_speed(motion: BvhMotion, frames: np.ndarray, frame_time: floa
     return changed
 
 
+def _rotation_columns(motion: BvhMotion, ji: int) -> tuple[list[int], str]:
+    """(frame columns, axes in order) of joint ``ji``'s rotation channels."""
+    j = motion.joints[ji]
+    rot = [k for k, c in enumerate(j.channels) if c.endswith("rotation")]
+    return [j.channel_start + k for k in rot], "".join(j.channels[k][0] for k in rot)
+
+
+def continuous_euler(angles: np.ndarray) -> np.ndarray:
+    """(F, 3) Euler angles [rad] about three different axes made continuous along F: each frame's triple becomes,
+    of the two triples of its rotation, (a, b, c) and (a + pi, pi - b, c + pi), each shifted by whole turns per
+    channel, the one nearest (least summed change) the previous frame's. A representation flip is no jump."""
+    a = np.asarray(angles, dtype=np.float64)
+    out = a.copy()
+    if a.shape[0] < 2:
+        return out
+    twin = a + np.array([np.pi, 0.0, np.pi])
+    twin[:, 1] = np.pi - a[:, 1]
+    two_pi = 2.0 * np.pi
+    prev = out[0].tolist()
+    rows_a, rows_t = a.tolist(), twin.tolist()
+    for f in range(1, a.shape[0]):
+        best, best_cost = None, np.inf
+        for cand in (rows_a[f], rows_t[f]):
+            shifted = [x + two_pi * round((p - x) / two_pi) for x, p in zip(cand, prev)]
+            cost = sum(abs(x - p) for x, p in zip(shifted, prev))
+            if cost < best_cost:
+                best, best_cost = shifted, cost
+        out[f] = best
+        prev = best
+    return out
+
+
+def make_continuous(motion: BvhMotion, frames: np.ndarray) -> None:
+    """Every joint's rotation channels in ``frames`` (F, C) [deg] made continuous in place: ``continuous_euler`` for
+    a joint with three rotation axes, whole turns unwrapped per channel otherwise. The rotations are unchanged."""
+    for ji in range(len(motion.joints)):
+        cols, order = _rotation_columns(motion, ji)
+        if not cols:
+            continue
+        rad = np.deg2rad(frames[:, cols])
+        if len(cols) == 3 and len(set(order)) == 3:
+            frames[:, cols] = np.rad2deg(continuous_euler(rad))
+        else:
+            frames[:, cols] = np.rad2deg(np.unwrap(rad, axis=0))
+
+
+def _frame_rotations(frames: np.ndarray, cols: list[int], order: str) -> np.ndarray:
+    R = np.broadcast_to(np.eye(3), (frames.shape[0], 3, 3)).copy()
+    for c, axis in zip(cols, order):
+        R = R @ elementary_rotations(axis, frames[:, c])
+    return R
+
+
+def _bridge(motion: BvhMotion, ji: int, frames: np.ndarray, a: int, b: int) -> None:
+    """Frames a+1 .. b-1 of joint ``ji`` replaced in place by the rotation slerped from frame a's to frame b's
+    (the channels linearly for a joint without three rotation axes)."""
+    from scipy.spatial.transform import Rotation
+    cols, order = _rotation_columns(motion, ji)
+    inner = np.arange(a + 1, b)
+    if not cols or inner.size == 0:
+        return
+    w = (inner - a) / (b - a)
+    if len(cols) != 3 or len(set(order)) != 3:
+        for c in cols:
+            frames[inner, c] = (1 - w) * frames[a, c] + w * frames[b, c]
+        return
+    Ra, Rb = _frame_rotations(frames[[a, b]], cols, order)
+    rel = Rotation.from_matrix(Ra.T @ Rb).as_rotvec()
+    for f, wf in zip(inner, w):
+        R = Ra @ Rotation.from_rotvec(wf * rel).as_matrix()
+        frames[f, cols] = np.rad2deg(_euler_nearest(R, order, np.deg2rad(frames[f - 1, cols])))
+    frames[b:, cols] = np.rad2deg(continuous_euler(np.deg2rad(frames[b - 1:, cols]))[1:])
+
+
 def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: str = "catmull_rom",
                    despike: bool = True, spike_deg: float = 90.0, max_spike_frames: int = 5,
                    max_rotation_speed: float | None = MAX_ROTATION_SPEED) -> JointTrajectory:
@@ -184,17 +264,11 @@ def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: st
     if motion.n_frames <= first:
         raise ValueError(f"{motion.source}: only the T-pose frame is present: pass skip_tpose=False to keep it")
     frames = motion.frames[first:].copy()
-    rot_cols = [j.channel_start + k for j in motion.joints for k, c in enumerate(j.channels) if c.endswith("rotation")]
-    frames[:, rot_cols] = np.rad2deg(np.unwrap(np.deg2rad(frames[:, rot_cols]), axis=0))
+    make_continuous(motion, frames)
     if despike:
         for name, f, n, _ in find_spikes(motion, first, spike_deg, max_spike_frames):
-            j = next(jj for jj in motion.joints if jj.name == name)
-            a, b = f - 1 - first, f + n - first                    # good frames around the spike
-            for k, c in enumerate(j.channels):
-                if c.endswith("rotation"):
-                    col = j.channel_start + k
-                    w = (np.arange(a + 1, b) - a) / (b - a)
-                    frames[a + 1:b, col] = (1 - w) * frames[a, col] + w * frames[b, col]
+            ji = motion.joint_names.index(name)
+            _bridge(motion, ji, frames, f - 1 - first, f + n - first)    # good frames around the spike
     if max_rotation_speed is not None:
         limit_rotation_speed(motion, frames, motion.frame_time, max_rotation_speed)
     rev = np.array(revolute, dtype=bool)
