@@ -277,3 +277,25 @@ def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: st
     q[:, ~rev] *= motion.unit_m
     times = np.arange(frames.shape[0]) * motion.frame_time
     return JointTrajectory(times, bvh_joint_names(motion), q, revolute=rev, interpolation=interpolation)
+
+
+def bvh_loop(motion: BvhMotion, trajectory: JointTrajectory, blend_s: float) -> JointTrajectory:
+    """``trajectory`` (``bvh_trajectory(motion)``) made to loop (``capture_loop.CaptureLoop``): every joint with
+    three rotation channels blended as a rotation over the last ``blend_s`` seconds (at most half the clip), the
+    root's heading about the file's up axis and its horizontal position carried from one loop to the next."""
+    from .capture_loop import Ball, CaptureLoop
+    if trajectory.times.size < 3:
+        return trajectory
+    names = trajectory.names
+    balls, root_ball = [], None
+    for ji, j in enumerate(motion.joints):
+        rot = [c for c in j.channels if c.endswith("rotation")]
+        order = "".join(c[0] for c in rot)
+        if len(rot) == 3 and len(set(order)) == 3 and all(channel_joint_name(j.name, c) in names for c in rot):
+            root_ball = len(balls) if j.parent < 0 else root_ball
+            balls.append(Ball(tuple(names.index(channel_joint_name(j.name, c)) for c in rot), order))
+    root = motion.joints[0]
+    pos = [c for c in root.channels if c.endswith("position") and channel_joint_name(root.name, c) in names]
+    position = ([names.index(channel_joint_name(root.name, c)) for c in pos], "".join(c[0] for c in pos))
+    return CaptureLoop(trajectory, balls, root_ball, position, motion.to_ros[2],
+                       min(blend_s, 0.5 * trajectory.duration))
