@@ -116,15 +116,14 @@ def find_spikes(motion: BvhMotion, first_frame: int = 1, spike_deg: float = 90.0
 
 def _euler_nearest(R: np.ndarray, order: str, previous: np.ndarray) -> np.ndarray:
     """Angles [rad] (3,) about the file axes ``order`` (e.g. "ZYX": R = Rz(a) Ry(b) Rx(c)) of rotation R, in the
-    representation (of the two, each shifted by whole turns) nearest to ``previous`` (3,)."""
+    representation (of the two, each shifted by whole turns) nearest to ``previous`` (3,): ``continuous_euler``."""
+    import warnings
+
     from scipy.spatial.transform import Rotation
-    a, b, c = Rotation.from_matrix(R).as_euler(order.upper(), degrees=False)
-    best = None
-    for cand in (np.array([a, b, c]), np.array([a + np.pi, np.pi - b, c + np.pi])):
-        cand = cand + 2 * np.pi * np.round((previous - cand) / (2 * np.pi))
-        if best is None or np.abs(cand - previous).sum() < np.abs(best - previous).sum():
-            best = cand
-    return best
+    with warnings.catch_warnings():          # gimbal lock: continuous_euler splits a and c as the frame before
+        warnings.simplefilter("ignore", UserWarning)
+        raw = Rotation.from_matrix(R).as_euler(order.upper(), degrees=False)
+    return continuous_euler(np.vstack([previous, raw]), order)[1]
 
 
 def joint_reach(motion: BvhMotion) -> np.ndarray:
@@ -184,10 +183,15 @@ def _rotation_columns(motion: BvhMotion, ji: int) -> tuple[list[int], str]:
     return [j.channel_start + k for k in rot], "".join(j.channels[k][0] for k in rot)
 
 
-def continuous_euler(angles: np.ndarray) -> np.ndarray:
+LOCK_COS = 1e-6        # |cos b| below this: gimbal lock, only a +- c is defined by the rotation
+
+
+def continuous_euler(angles: np.ndarray, order: str = "") -> np.ndarray:
     """(F, 3) Euler angles [rad] about three different axes made continuous along F: each frame's triple becomes,
     of the two triples of its rotation, (a, b, c) and (a + pi, pi - b, c + pi), each shifted by whole turns per
-    channel, the one nearest (least summed change) the previous frame's. A representation flip is no jump."""
+    channel, the one nearest (least summed change) the previous frame's. A representation flip is no jump. At
+    gimbal lock (|cos b| < LOCK_COS) the rotation fixes only a combination of a and c: with the axes ``order``
+    given, a keeps the previous frame's value and c is solved for."""
     a = np.asarray(angles, dtype=np.float64)
     out = a.copy()
     if a.shape[0] < 2:
@@ -204,9 +208,24 @@ def continuous_euler(angles: np.ndarray) -> np.ndarray:
             cost = sum(abs(x - p) for x, p in zip(shifted, prev))
             if cost < best_cost:
                 best, best_cost = shifted, cost
+        if order and abs(np.cos(best[1])) < LOCK_COS:
+            best[0], best[2] = prev[0], _third_angle(rows_a[f], order, prev[0], best[1], prev[2])
         out[f] = best
         prev = best
     return out
+
+
+def _third_angle(triple, order: str, a: float, b: float, near: float) -> float:
+    """The angle c [rad] about ``order[2]`` with R1(a) R2(b) R3(c) equal to the rotation of ``triple``, nearest
+    ``near`` by whole turns."""
+    deg = np.rad2deg
+    R = elementary_rotations(order[0], deg(triple[0])) @ elementary_rotations(order[1], deg(triple[1])) @ \
+        elementary_rotations(order[2], deg(triple[2]))
+    M = (elementary_rotations(order[0], deg(a)) @ elementary_rotations(order[1], deg(b))).T @ R
+    k = "XYZ".index(order[2])
+    i, j = [(1, 2), (2, 0), (0, 1)][k]
+    c = float(np.arctan2(M[j, i], M[i, i]))
+    return c + 2 * np.pi * round((near - c) / (2 * np.pi))
 
 
 def make_continuous(motion: BvhMotion, frames: np.ndarray) -> None:
@@ -218,7 +237,7 @@ def make_continuous(motion: BvhMotion, frames: np.ndarray) -> None:
             continue
         rad = np.deg2rad(frames[:, cols])
         if len(cols) == 3 and len(set(order)) == 3:
-            frames[:, cols] = np.rad2deg(continuous_euler(rad))
+            frames[:, cols] = np.rad2deg(continuous_euler(rad, order))
         else:
             frames[:, cols] = np.rad2deg(np.unwrap(rad, axis=0))
 
@@ -248,7 +267,7 @@ def _bridge(motion: BvhMotion, ji: int, frames: np.ndarray, a: int, b: int) -> N
     for f, wf in zip(inner, w):
         R = Ra @ Rotation.from_rotvec(wf * rel).as_matrix()
         frames[f, cols] = np.rad2deg(_euler_nearest(R, order, np.deg2rad(frames[f - 1, cols])))
-    frames[b:, cols] = np.rad2deg(continuous_euler(np.deg2rad(frames[b - 1:, cols]))[1:])
+    frames[b:, cols] = np.rad2deg(continuous_euler(np.deg2rad(frames[b - 1:, cols]), order)[1:])
 
 
 def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: str = "catmull_rom",

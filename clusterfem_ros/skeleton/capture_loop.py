@@ -21,6 +21,7 @@ file's frame; positions in metres.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,8 +44,10 @@ def _nearest_triples(R: Rotation, order: str, previous: np.ndarray) -> np.ndarra
     """(F, 3) Euler triples of R (F rotations) about ``order``, each the representation nearest the one before
     (the first nearest ``previous``)."""
     from .bvh_to_urdf import continuous_euler
-    raw = R.as_euler(order)
-    return continuous_euler(np.vstack([previous, raw]))[1:]
+    with warnings.catch_warnings():          # gimbal lock: continuous_euler splits a and c as the frame before
+        warnings.simplefilter("ignore", UserWarning)
+        raw = R.as_euler(order)
+    return continuous_euler(np.vstack([previous, raw]), order)[1:]
 
 
 def twist(R: Rotation, axis: np.ndarray) -> np.ndarray:
