@@ -141,6 +141,13 @@ def test_a_flip_between_equivalent_euler_triples_is_no_jump_and_no_glitch():
     cols = [j.channel_start + c for j in flipped.joints for c in range(len(j.channels))]
     written = np.where(rev, np.deg2rad(flipped.frames[:, cols]), flipped.frames[:, cols] * 0.01)
     assert any(kind == "joint_speed" for k in range(60) for kind, _ in raw.push(k / 120, written[k]))
+    # the node's stream knows the skeleton's ball joints: it compares rotations and stores the nearest triple
+    sk = Skeleton.from_urdf_string(bvh_urdf(flipped))
+    order = [tf.names.index(n) for n in sk.joint_names]
+    node = JointStreamInterpolator(sk.joint_names, sk.revolute_mask(), max_joint_speed=300.0, balls=sk.ball_joints())
+    assert len(sk.ball_joints()[0]) == len(flipped.joints)
+    assert [kind for k in range(60) for kind, _ in node.push(k / 120, written[k][order])] == []
+    np.testing.assert_allclose(node.sample(59 / 120)[0], tf.positions[59][order], atol=1e-9)
 
 
 def test_a_real_spike_is_still_found_by_its_rotation():
@@ -200,3 +207,17 @@ def test_a_clip_that_ends_facing_away_loops_on_facing_away_upright_and_walking()
     assert (steps <= 1.5 * own + 1e-4).all(), (steps, own)
     tilt = [np.rad2deg(np.arccos(_root_frame(tr, m, t)[1].apply(up) @ up)) for t in np.arange(0, 3 * T, 0.02)]
     assert max(tilt) < 10.0                                  # the clip's hips rock by 5 deg; never lying down
+
+
+def test_the_node_stream_still_drops_a_real_turn_too_fast_for_a_limb():
+    """A thigh turned 170 deg in one 120 Hz frame (a rotation, not another triple of it): dropped, named."""
+    m = _flipping_clip(False)
+    tr = bvh_trajectory(m, skip_tpose=False)
+    sk = Skeleton.from_urdf_string(bvh_urdf(m))
+    q0 = np.array([tr.positions[0][tr.names.index(n)] for n in sk.joint_names])
+    stream = JointStreamInterpolator(sk.joint_names, sk.revolute_mask(), max_joint_speed=300.0, balls=sk.ball_joints())
+    assert stream.push(0.0, q0) == []
+    q1 = q0.copy()
+    q1[sk.joint_names.index("LeftUpLeg_Xrot")] += np.deg2rad(170.0)
+    (kind, text), = stream.push(1 / 120, q1)
+    assert kind == "joint_speed" and "ball joint LeftUpLeg_Zrot/LeftUpLeg_Yrot/LeftUpLeg_Xrot turned 2.967" in text
