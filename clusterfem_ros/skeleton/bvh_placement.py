@@ -217,7 +217,7 @@ def place(motion: BvhMotion, unit="auto", up="auto", forward="auto", floor: bool
     extent, stature = stature_file_units(motion, up_axis)
     if given_unit is None:
         name, metres = choose_unit(stature)
-        why = f"from the skeleton (stature {stature * metres:.2f} m in it)"
+        why = "found from the skeleton"
     else:
         name, metres = given_unit
         why = "given"
@@ -229,12 +229,12 @@ def place(motion: BvhMotion, unit="auto", up="auto", forward="auto", floor: bool
                        "inch, cmu or metres per unit) or 'up' (skeleton.bvh_up) to its up axis")
     motion.unit_m = float(metres)
     motion.root_shift = np.zeros(3)
-    text = (f"{motion.source}: unit {name} ({metres:g} m per unit, {why}), skeleton {height:.2f} m tall, up "
-            f"{up_axis} forward {fwd_axis} ({how})")
+    text = (f"{motion.source}: unit {name} ({metres:g} m per file unit, {why}), skeleton {height:.2f} m tall "
+            f"(rest pose, feet to head), up {up_axis} forward {fwd_axis} ({how})")
     if floor:
         z = (world_points(motion) @ motion.to_ros.T)[..., 2] * metres
         lowest = float(np.percentile(z.min(axis=1), FLOOR_PERCENTILE))
         motion.root_shift = np.array([0.0, 0.0, -lowest])
-        text += f", floor at the feet ({-lowest:+.3f} m)"
+        text += f", floor under the feet (root moved {-lowest:+.3f} m)"
     motion.placement = text
     return text

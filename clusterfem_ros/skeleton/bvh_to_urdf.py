@@ -12,16 +12,21 @@ frame), then rotations in file order: "Zrotation Yrotation Xrotation" gives R = 
 chain starts at the helper link ``bvh_world``; a 6-channel root is the 3 prismatic + 3 revolute floating
 base. Each End Site becomes the tip link ``J_tip``, so leaf bones have a length.
 
-Trajectory (``bvh_trajectory``): one column per URDF joint, positions in metres, angles in radians,
-unwrapped per channel over time (Euler angles in the file wrap at +-180 deg). ``skip_tpose=True``
+Trajectory (``bvh_trajectory``): one column per URDF joint, positions in metres, angles in radians. A
+joint's three Euler angles are continuous over time (``continuous_euler``): of the two triples of each
+frame's rotation, (a, b, c) and (a + 180, 180 - b, c + 180) deg, each shifted by whole turns, the one
+nearest the previous frame's is kept, so a file wrapping at +-180 deg or flipping to the other triple of the
+same rotation makes no jump (at gimbal lock a keeps its previous value); the rotations are the file's
+exactly. Joints with fewer rotation channels are unwrapped per channel. ``skip_tpose=True``
 (default, right for the CMU cgspeed conversions) drops frame 0, the T-pose the converter prepends,
 and starts the time at 0 on frame 1; ``skip_tpose=False`` keeps every frame.
 
 Glitches (``find_spikes``, ``despike=True`` by default): real captures have single- or few-frame
 spikes, e.g. a joint flipping by ~170 deg for 3 frames near Euler gimbal lock and flipping back. A run of
 at most ``max_spike_frames`` frames whose joint rotation is more than ``spike_deg`` away from the
-previous good frame, followed by a frame close to it again, is replaced by linear interpolation of the
-unwrapped channels between the good frames on either side. A jump that does not come back is kept.
+previous good frame (the geodesic angle of R_good^T R_f: rotations compared, never channel values),
+followed by a frame close to it again, is replaced by the slerp between the good frames on either side.
+A jump that does not come back is kept.
 
 Speed limit (``max_rotation_speed``, rad/s, default ``MAX_ROTATION_SPEED``, and ``max_end_speed``, m/s,
 default ``MAX_END_SPEED``): glitches that last (a thumb or thigh flipping ~180 deg in one frame and staying
@@ -33,6 +38,9 @@ leap clip (fastest joint 41 deg per frame at 120 Hz = 86 rad/s, a toe) 3 arm fra
 within the limit are untouched. Joints with a limited frame get Euler channels re-extracted from their
 rotations, the representation nearest to the previous frame chosen each time (no 360 deg jumps; the
 twin (a + 180, 180 - b, c + 180) when nearer), so interpolating the channels never takes the long way.
+
+Loops (``bvh_loop``): the trajectory as a ``capture_loop.CaptureLoop``: the seam blended as rotations, the
+root's heading and horizontal position carried from one loop to the next.
 """
 from __future__ import annotations
 
