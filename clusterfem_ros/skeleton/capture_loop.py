@@ -100,13 +100,16 @@ class CaptureLoop(JointTrajectory):
                 gap = (R[-1].inv() * goal).as_rotvec()
                 Rw = R[window] * Rotation.from_rotvec(ramp[window, None] * gap)
                 p[window[:, None], list(b.columns)] = _nearest_triples(Rw, b.order, p[window[0] - 1, list(b.columns)])
-        # non-root joints end on their start rotation: each loop adds the whole turns their triples gained
+        # non-root joints end on their start rotation: each loop adds the whole turns their triples gained; a ball
+        # whose end triple is the other representation of its start rotation is re-extracted in each loop instead
         self._offset = np.zeros(p.shape[1])
         for c in range(p.shape[1]):
-            if c in self.root_cols or (root_ball is not None and c in balls[root_ball].columns):
-                continue
-            if trajectory.revolute[c]:
+            if trajectory.revolute[c] and c not in self.root_cols:
                 self._offset[c] = 2 * np.pi * np.round((p[-1, c] - p[0, c]) / (2 * np.pi))
+        self._reextract = [k for k, b in enumerate(balls) if k == root_ball or not np.allclose(
+            p[-1, list(b.columns)], p[0, list(b.columns)] + self._offset[list(b.columns)], rtol=0, atol=1e-9)]
+        for k in self._reextract:
+            self._offset[list(balls[k].columns)] = 0.0
         super().__init__(t, trajectory.names, p, revolute=trajectory.revolute, interpolation=trajectory.interpolation)
         self._loops: dict[int, JointTrajectory] = {}      # the latest loops built
         # per loop: the row the next loop continues from (its last; its first for loops before the clip)
@@ -150,10 +153,11 @@ class CaptureLoop(JointTrajectory):
         if self.root_cols:
             x = A.apply(self._root_xyz(self.positions) - self.start) + Q
             p[:, self.root_cols] = x @ self.root_axes.T
-        if self.root_ball is not None:
-            b = self.balls[self.root_ball]
+        for kb in self._reextract:
+            b = self.balls[kb]
             cols = list(b.columns)
-            R = A * _rotations(self.positions, b)
+            R = _rotations(self.positions, b)
+            R = A * R if kb == self.root_ball else R
             if k > 0:                                            # on from the previous loop's end
                 p[:, cols] = _nearest_triples(R, b.order, join[cols])
             else:                                                # back from the next loop's start
