@@ -221,3 +221,42 @@ def test_the_node_stream_still_drops_a_real_turn_too_fast_for_a_limb():
     q1[sk.joint_names.index("LeftUpLeg_Xrot")] += np.deg2rad(170.0)
     (kind, text), = stream.push(1 / 120, q1)
     assert kind == "joint_speed" and "ball joint LeftUpLeg_Zrot/LeftUpLeg_Yrot/LeftUpLeg_Xrot turned 2.967" in text
+
+
+def test_a_sender_flipping_euler_triples_neither_loses_samples_nor_tears_the_body():
+    """The node's path (Scene): joint states carrying the file's flipping channels as they are (a publisher that
+    does not make them continuous) are all taken, and the jelly body on the capture's skeleton never resets."""
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.fem.stability import DivergenceError
+    from clusterfem_ros.scene import Scene
+    m = _flipping_clip(True)
+    tr = bvh_trajectory(m, skip_tpose=False)
+    cols = [j.channel_start + c for j in m.joints for c in range(len(j.channels))]
+    written = np.where(tr.revolute, np.deg2rad(m.frames[:, cols]), m.frames[:, cols] * m.unit_m)
+    scene = Scene.build(SceneConfig().with_values({"skeleton.source": "robot_description", "body.target_tets": 1500}),
+                        urdf_xml=bvh_urdf(m))
+    kinds, resets = [], 0
+    for k in range(60):
+        kinds += [kind for kind, _ in scene.push_joint_state(10.0 + k / 120, tr.names, written[k])]
+        try:
+            scene.advance_to(10.0 + k / 120)
+        except DivergenceError:
+            resets += 1
+            scene.reset()
+    assert kinds == [] and resets == 0
+
+
+def test_the_scenes_bvh_unit_reaches_the_player_and_the_player_says_it_was_given(tmp_path):
+    from clusterfem_ros.config import SceneConfig, load_scene_file, scene_file_text
+    from clusterfem_ros.motion import load_motion
+    from clusterfem_ros.nodes.demo import _arguments, _player_plan
+    clip = tmp_path / "clip.bvh"
+    clip.write_text(human_bvh(unit_m=0.0254))
+    scene = tmp_path / "s.yaml"
+    scene.write_text(scene_file_text(SceneConfig().with_values({"skeleton.bvh_unit": "mm"})))
+    player, _ = _player_plan(_arguments(["--bvh", str(clip), "--scene", str(scene)]), scene, load_scene_file(scene))
+    assert player["unit"] == "mm" and player["up"] == "auto"
+    with pytest.raises(BvhError, match="0.0685 m tall in unit mm"):      # an inch file read as mm: refused
+        load_motion("bvh", player["file"], unit=player["unit"], up=player["up"])
+    m = load_motion("bvh", clip, unit="inch")
+    assert "unit inch (0.0254 m per file unit, given)" in m.placement and m.capture.unit_m == 0.0254
