@@ -96,6 +96,12 @@ PARAMS: tuple[Param, ...] = (
           "skeleton.bind_bvh (the capture the player plays)", choices=("neutral", "first_frame")),
     Param("skeleton.bind_bvh", "", "BVH file whose frame 0 is the bind pose when skeleton.bind_pose is 'first_frame': "
           "a path, or a name under $CLUSTERFEM_DATA or ../shared/data"),
+    Param("skeleton.bvh_unit", "auto", "length unit of the BVH file played (the player's 'unit' unless its own section "
+          "sets it) and of skeleton.bind_bvh: auto (found from the skeleton: a standing human), m, cm, mm, inch, cmu "
+          "(0.056444 m) or metres per file unit as a number"),
+    Param("skeleton.bvh_up", "auto", "up axis of the BVH file played (the player's 'up' unless its own section sets "
+          "it) and of skeleton.bind_bvh: auto (found from the legs of the rest pose) or X, Y, Z, -X, -Y, -Z",
+          choices=("auto", "X", "Y", "Z", "-X", "-Y", "-Z")),
     Param("skeleton.bind_joints", [], "joints set to skeleton.bind_angles on top of skeleton.bind_pose (e.g. the arms "
           "of an A-pose mesh on a T-pose skeleton)", item=str),
     Param("skeleton.bind_angles", [], "per joint of skeleton.bind_joints, its bind angle [rad] (or position [m])"),
@@ -307,6 +313,8 @@ class SkeletonSection:
     root_joint: str
     bind_pose: str                  # 'neutral' or 'first_frame'
     bind_bvh: str
+    bvh_unit: str                   # 'auto', a unit name or metres per unit (skeleton/bvh_placement.py)
+    bvh_up: str                     # 'auto' or a signed file axis
     bind_joints: list
     bind_angles: list
     fit: str

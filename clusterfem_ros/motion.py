@@ -2,7 +2,8 @@
 
     load_motion("builtin_walk")                     # default humanoid walking, loops without a jump
     load_motion("bvh", "walk.bvh")                  # a capture's own skeleton and its joint angles
-                                                    # (files: a path, or a name under $CLUSTERFEM_DATA / ../shared/data)
+                                                    # (files: a path, or a name under $CLUSTERFEM_DATA / ../shared/data;
+                                                    # unit / up: 'auto' finds them from the skeleton)
     load_motion("keyframes", "wave.yaml")           # timed targets for the default humanoid's joints
 """
 from __future__ import annotations
@@ -16,7 +17,7 @@ from .skeleton.trajectory import JointTrajectory
 
 SOURCES = ("builtin_walk", "bvh", "keyframes")
 PLAYER_NODE = "mocap_player"
-PLAYER_PARAMS = ("source", "file", "rate_hz", "speed", "start_offset", "loop", "loop_blend")
+PLAYER_PARAMS = ("source", "file", "rate_hz", "speed", "start_offset", "loop", "loop_blend", "unit", "up")
 WALK_CYCLES = 4          # the built-in walk is this many whole gait periods, so looping is seamless
 
 
@@ -27,10 +28,23 @@ class Motion:
     description: str
     builtin_skeleton: bool         # True: the default humanoid (skeleton.source 'builtin' fits it)
     carry: np.ndarray | None = None    # (n,) bool: columns that continue across a loop (root's horizontal position)
+    placement: str = ""                # a capture's unit, axes and floor as decided (bvh_placement), one line
+    capture: object | None = None      # the BvhMotion a BVH trajectory was made from
+
+    def looping(self, blend_s: float) -> JointTrajectory:
+        """The trajectory made to loop without a jump: a capture's joints blended as rotations with its root's
+        heading and position carried on (skeleton/capture_loop.py), any other trajectory's seam blended
+        (``JointTrajectory.with_seam``, the ``carry`` columns carried on)."""
+        if self.capture is not None:
+            from .skeleton.bvh_to_urdf import bvh_loop
+            return bvh_loop(self.capture, self.trajectory, blend_s)
+        return self.trajectory.with_seam(blend_s, self.carry)
 
 
-def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: float = 1.0) -> Motion:
-    """The named motion; raises ValueError naming the source or file and the way out."""
+def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: float = 1.0, unit="auto",
+                up: str = "auto") -> Motion:
+    """The named motion; raises ValueError naming the source or file and the way out. ``unit`` and ``up`` are a
+    BVH file's length unit and up axis ('auto': found from its skeleton; skeleton/bvh_placement.py)."""
     from .skeleton.humanoid import default_humanoid
     if source == "builtin_walk":
         from .skeleton.procedural_walk import gait_period, procedural_walk
@@ -48,12 +62,12 @@ def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: 
     if source == "bvh":
         from .skeleton.bvh import load_bvh
         from .skeleton.bvh_to_urdf import bvh_trajectory, bvh_urdf
-        capture = load_bvh(path)
+        capture = load_bvh(path, unit, up)
         traj = bvh_trajectory(capture)
         # a position channel is horizontal when its file axis maps to a ROS axis without a vertical part
         carry = np.array([n.endswith("pos") and abs(capture.to_ros[2, "XYZ".index(n[-4])]) < 0.5 for n in traj.names])
         return Motion(bvh_urdf(capture), traj, f"BVH {path.name} ({capture.n_frames} frames, "
-                      f"{traj.duration:.2f} s)", False, carry)
+                      f"{traj.duration:.2f} s)", False, carry, capture.placement, capture)
     from .skeleton.keyframes import load_keyframes
     spec = default_humanoid()
     traj = load_keyframes(path, joint_names=spec.joint_names)

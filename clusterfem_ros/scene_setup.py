@@ -175,7 +175,8 @@ def joint_inputs(config: SceneConfig, skeleton: Skeleton, q0: np.ndarray) -> tup
     stream = JointStreamInterpolator(skeleton.joint_names, revolute=skeleton.revolute_mask(),
                                      max_age=c.max_age, max_future=c.max_future,
                                      teleport_distance=c.teleport_distance, prismatic=~skeleton.revolute_mask(),
-                                     max_root_distance=c.max_root_distance, max_joint_speed=c.max_joint_speed)
+                                     max_root_distance=c.max_root_distance, max_joint_speed=c.max_joint_speed,
+                                     balls=skeleton.ball_joints())
     return joints, stream
 
 

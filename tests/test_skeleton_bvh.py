@@ -53,6 +53,8 @@ def q_at(skeleton, traj, k):
 
 def test_file_facts(cmu):
     motion, sk = cmu
+    assert motion.unit_m == UNIT and "unit cmu" in motion.placement          # found from the skeleton
+    np.testing.assert_allclose(motion.to_ros, [[0, 0, 1], [1, 0, 0], [0, 1, 0]])   # Y up, walking along +Z
     assert (len(motion.joints), motion.n_channels, motion.n_frames) == (31, 96, 495)
     assert abs(1.0 / motion.frame_time - 120.0) < 0.01
     assert motion.joints[0].channels == ["Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation"]
@@ -66,7 +68,7 @@ def test_urdf_fk_reproduces_bvh_fk_on_real_frames(cmu):
     C = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]])              # file (x, y, z) -> ROS (z, x, y)
     order = [sk.bone_names.index(n) for n in motion.joint_names]
     for k in (0, 1, 137, 300, 458, 494):                          # incl. the T-pose and a glitch frame
-        ref = reference_fk(motion, k) @ C.T * UNIT
+        ref = reference_fk(motion, k) @ C.T * UNIT + motion.root_shift     # the floor under the feet
         got = sk.forward(q_at(sk, traj, k)).translation[order]
         np.testing.assert_allclose(got, ref, atol=1e-9, err_msg=f"frame {k}")
 
@@ -102,7 +104,7 @@ MINI = """HIERARCHY\r\nROOT Hips\r\n{\r\n OFFSET 0 0 0\r\n CHANNELS 6 Xposition 
 
 
 def test_mini_file_crlf_and_malformed_files_name_the_line():
-    m = parse_bvh(MINI)
+    m = parse_bvh(MINI, unit_m=0.2, floor=False)                 # 5 units: a 1 m skeleton
     assert m.joint_names == ["Hips", "Leg"] and m.n_frames == 2 and m.joints[1].end_site[1] == -3
     with pytest.raises(BvhError, match=r":9: .*'Leg'.*unknown channel 'Zrot'"):
         parse_bvh(MINI.replace("CHANNELS 3 Zrotation", "CHANNELS 3 Zrot"))
@@ -120,5 +122,5 @@ def test_mini_file_crlf_and_malformed_files_name_the_line():
     s, e = sk.bone_segments(q_at(sk, traj, 1))
     # leg origin: file (1, 10, 0) + (0, -2, 0) -> ROS (0, 1, 8); its end site (0, -3, 0) turned 90 deg about
     # file X is file (0, 0, -3) -> ROS (-3, 0, 0)
-    np.testing.assert_allclose(s[leg], np.array([0, 1, 8]) * UNIT, atol=1e-12)
-    np.testing.assert_allclose(e[leg] - s[leg], np.array([-3, 0, 0]) * UNIT, atol=1e-12)
+    np.testing.assert_allclose(s[leg], np.array([0, 1, 8]) * 0.2, atol=1e-12)
+    np.testing.assert_allclose(e[leg] - s[leg], np.array([-3, 0, 0]) * 0.2, atol=1e-12)

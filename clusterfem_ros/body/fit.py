@@ -62,11 +62,12 @@ def _unknown_names(kind: str, names: Sequence[str], known: Sequence[str], where:
 
 
 def bind_configuration(skeleton, pose: str = "neutral", joints: Sequence[str] = (), angles: Sequence[float] = (),
-                       bvh_file: str = "") -> np.ndarray:
+                       bvh_file: str = "", bvh_unit="auto", bvh_up: str = "auto") -> np.ndarray:
     """The skeleton's configuration q (nq,) in the pose the mesh was modelled in.
 
     ``pose``: 'neutral' (the URDF's zero pose) or 'first_frame' (frame 0 of ``bvh_file``, a capture of
-    this skeleton: its T-pose for the CMU files); then each of ``joints`` is set to its entry of
+    this skeleton: its T-pose for the CMU files; read in ``bvh_unit`` with up axis ``bvh_up``, 'auto' as the
+    player finds them); then each of ``joints`` is set to its entry of
     ``angles`` [rad, or m for a prismatic joint].
     """
     if len(joints) != len(angles):
@@ -79,8 +80,8 @@ def bind_configuration(skeleton, pose: str = "neutral", joints: Sequence[str] = 
                            "plays (its frame 0 is the pose the mesh was modelled in)")
         from ..skeleton.bvh import load_bvh
         from ..skeleton.bvh_to_urdf import bvh_trajectory
-        traj = bvh_trajectory(load_bvh(find_data_file(str(bvh_file), what="skeleton.bind_bvh")), skip_tpose=False,
-                              despike=False)
+        traj = bvh_trajectory(load_bvh(find_data_file(str(bvh_file), what="skeleton.bind_bvh"), bvh_unit, bvh_up),
+                              skip_tpose=False, despike=False)
         missing = [n for n in skeleton.joint_names if n not in traj.names]
         if missing:
             raise FitError(f"skeleton.bind_bvh {str(bvh_file)!r} is a capture of another skeleton: it has no joint "

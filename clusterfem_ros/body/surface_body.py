@@ -35,7 +35,7 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     say = progress or (lambda _: None)
     b, s = config.body, config.skeleton
     path = find_data_file(b.surface_file, MANIFEST)
-    q = bind_configuration(skeleton, s.bind_pose, s.bind_joints, s.bind_angles, s.bind_bvh)
+    q = bind_configuration(skeleton, s.bind_pose, s.bind_joints, s.bind_angles, s.bind_bvh, s.bvh_unit, s.bvh_up)
     starts, ends = skeleton.bone_segments(q)
     tets = surface_to_tets(path, b.target_tets, group=b.surface_group, progress=progress)
     triangles = boundary_triangles(tets.mesh)

@@ -95,6 +95,9 @@ def _player_plan(args, scene_file: Path, config):
     if fits == "robot_description" and config.skeleton.source in ("builtin", "urdf_file"):
         raise SystemExit(f"[demo] the player plays {source!r} but the scene's skeleton.source is "
                          f"{config.skeleton.source!r}: set skeleton.source to {fits!r} (or run with --bvh FILE)")
+    if source == "bvh":                         # the scene's unit and up axis of its capture, unless the player's own
+        player.setdefault("unit", config.skeleton.bvh_unit)
+        player.setdefault("up", config.skeleton.bvh_up)
     if not args.bvh and player.get("file"):     # looked up as motion.load_motion does, here so that a missing
         try:                                    # file stops the run before the player starts
             player["file"] = str(find_data_file(str(player["file"]), what="the player's file"))

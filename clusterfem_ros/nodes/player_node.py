@@ -53,14 +53,21 @@ class MocapPlayer(Node):
         self.declare_parameter("loop", True, ParameterDescriptor(description="loop the motion at its end"))
         self.declare_parameter("loop_blend", 0.5, _range(0.0, 60.0, (
             "looping a motion that does not end where it starts: its last seconds are blended into its start "
-            "over this time, the root's horizontal position carried on (0 = jump back to the start, which the "
-            "node takes as a teleport and re-places the body) [s]")))
+            "over this time (a capture's joints as rotations), the root's horizontal position and heading carried "
+            "on (0 = jump back to the start, which the node takes as a teleport and re-places the body) [s]")))
+        self.declare_parameter("unit", "auto", ParameterDescriptor(dynamic_typing=True, description=(
+            "a BVH file's length unit: auto (found from the skeleton: a standing human), m, cm, mm, inch, cmu "
+            "(0.056444 m) or metres per file unit as a number")))
+        self.declare_parameter("up", "auto", ParameterDescriptor(description=(
+            "a BVH file's up axis: auto (found from the legs of the rest pose), X, Y, Z, -X, -Y or -Z")))
         p = {n: self.get_parameter(n).value for n in PLAYER_PARAMS}
         self.params = p
-        self.motion = load_motion(p["source"], p["file"])
+        self.motion = load_motion(p["source"], p["file"], unit=p["unit"], up=p["up"])
+        if self.motion.placement:
+            self.get_logger().info(self.motion.placement)
         if p["loop"] and p["loop_blend"] > 0:
-            self.motion = replace(self.motion, trajectory=self.motion.trajectory.with_seam(
-                min(p["loop_blend"], 0.5 * self.motion.trajectory.duration), self.motion.carry))
+            self.motion = replace(self.motion, trajectory=self.motion.looping(
+                min(p["loop_blend"], 0.5 * self.motion.trajectory.duration)))
         self.names = list(self.motion.trajectory.names)
         self._pub = self.create_publisher(JointState, "joint_states", 10)
         self._urdf_pub = self.create_publisher(String, "robot_description", LATCHED)

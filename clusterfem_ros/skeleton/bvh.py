@@ -6,9 +6,15 @@ Xrotation" means R = Rz(z) Ry(y) Rx(x) from the parent), end sites, the frame ti
 (F, C) in file units and degrees. Line endings may be LF or CRLF. A malformed file raises ``BvhError``
 naming the line.
 
-Units and axes are recorded, not applied: ``unit_m`` metres per file unit (default 0.056444, the CMU
-value) and ``to_ros`` (3, 3), the rotation taking file axes to ROS axes (Z up, X forward). The default
-``up="Y", forward="Z"`` (CMU: Y up, walking along +Z) maps file (x, y, z) to ROS (z, x, y).
+Units and axes are recorded, not applied to the frames: ``unit_m`` metres per file unit, ``to_ros`` (3, 3),
+the rotation taking file axes to ROS axes (Z up, X forward), and ``root_shift`` (3,) [m, ROS], where the
+root's origin is moved (the floor under the feet). ``unit``, ``up`` and ``forward`` are found from the
+skeleton unless given (``bvh_placement``: a standing human; ``unit="auto"``, ``"cm"``, ``"cmu"`` or metres
+per unit, axes such as ``"Y"`` or ``"-Z"``); ``placement`` is the line that says what was decided. Y up
+and Z forward (CMU: walking along +Z) map file (x, y, z) to ROS (z, x, y).
+
+The root's position channels are its position (its OFFSET counts only along axes without a position
+channel), as the BVH format and mature readers (Blender's importer) define it.
 """
 from __future__ import annotations
 
@@ -46,6 +52,8 @@ class BvhMotion:
     unit_m: float = CMU_UNIT_M
     to_ros: np.ndarray = field(default_factory=lambda: axes_to_ros("Y", "Z"))
     source: str = ""
+    root_shift: np.ndarray = field(default_factory=lambda: np.zeros(3))     # [m, ROS] added to the root's origin
+    placement: str = ""                       # what unit, axes and floor were decided, one line
 
     @property
     def joint_names(self) -> list[str]:
@@ -99,13 +107,19 @@ def joint_rotations(motion: "BvhMotion", joint: int) -> np.ndarray:
     return R
 
 
+def _signed_unit(axis: str) -> np.ndarray | None:
+    a = axis.upper().lstrip("+")
+    if a.lstrip("-") not in _AXIS or a.count("-") > 1:
+        return None
+    return np.eye(3)[_AXIS[a[-1]]] * (-1.0 if a.startswith("-") else 1.0)
+
+
 def axes_to_ros(up: str = "Y", forward: str = "Z") -> np.ndarray:
-    """Rotation (3, 3) taking a file whose ``up``/``forward`` axes are given to ROS (X forward, Z up, Y left)."""
-    up, forward = up.upper(), forward.upper()
-    if up not in _AXIS or forward not in _AXIS or up == forward:
-        raise ValueError(f"up = {up!r}, forward = {forward!r}: give two different axes among X, Y, Z")
-    e = np.eye(3)
-    f, u = e[_AXIS[forward]], e[_AXIS[up]]
+    """Rotation (3, 3) taking a file whose ``up``/``forward`` axes are given ("Y", "-Z", ...) to ROS (X forward,
+    Z up, Y left)."""
+    u, f = _signed_unit(up), _signed_unit(forward)
+    if u is None or f is None or abs(u @ f) > 0:
+        raise ValueError(f"up = {up!r}, forward = {forward!r}: give two different axes among X, Y, Z (signed: -Z)")
     left = np.cross(u, f)
     return np.array([f, left, u])                # rows: file coordinates of ROS X, Y, Z
 
@@ -178,11 +192,11 @@ def _parse_joint(tk: _Tokens, name: str, parent: int, joints: list[BvhJoint], co
             raise tk.error(f"in joint {name!r}: expected JOINT, End Site or '}}', found {tok!r}", line)
 
 
-def parse_bvh(text: str, source: str = "<bvh>", unit_m: float = CMU_UNIT_M, up: str = "Y",
-              forward: str = "Z") -> BvhMotion:
+def parse_bvh(text: str, source: str = "<bvh>", unit_m: float | str = "auto", up: str = "auto",
+              forward: str = "auto", floor: bool = True) -> BvhMotion:
     """Parse BVH text (see ``load_bvh``)."""
-    if not (np.isfinite(unit_m) and unit_m > 0):
-        raise ValueError(f"unit_m = {unit_m!r} must be a positive length in metres per file unit")
+    from .bvh_placement import parse_unit
+    parse_unit(unit_m)                           # a bad unit is refused before the file is read
     lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
     motion_line = next((k for k, line in enumerate(lines) if line.strip().upper() == "MOTION"), None)
     if motion_line is None:
@@ -232,13 +246,19 @@ def parse_bvh(text: str, source: str = "<bvh>", unit_m: float = CMU_UNIT_M, up: 
             raise BvhError(f"{source}:{k + 1}: frame {f} has a non-finite value")
         frames[f] = row
         k += 1
-    return BvhMotion(joints, frame_time, frames, float(unit_m), axes_to_ros(up, forward), source)
+    from .bvh_placement import place
+    motion = BvhMotion(joints, frame_time, frames, source=source)
+    place(motion, unit_m, up, forward, floor)
+    return motion
 
 
-def load_bvh(path: str | Path, unit_m: float = CMU_UNIT_M, up: str = "Y", forward: str = "Z") -> BvhMotion:
-    """Read a BVH file; ``unit_m`` metres per file unit, ``up``/``forward`` the file's axes (see module docstring)."""
+def load_bvh(path: str | Path, unit_m: float | str = "auto", up: str = "auto", forward: str = "auto",
+             floor: bool = True) -> BvhMotion:
+    """Read a BVH file; ``unit_m`` metres per file unit or a unit name, ``up``/``forward`` the file's axes,
+    ``floor`` puts the lowest point of the body at z = 0 (each 'auto' or default: found from the skeleton, see
+    the module docstring)."""
     try:
         text = Path(path).read_text(encoding="latin-1")
     except OSError as e:
         raise BvhError(f"cannot read BVH file {str(path)!r}: {e.strerror}") from e
-    return parse_bvh(text, str(path), unit_m, up, forward)
+    return parse_bvh(text, str(path), unit_m, up, forward, floor)

@@ -5,21 +5,28 @@ scalar joints from J's parent link, one per channel, named ``J_Xpos``/``J_Ypos``
 and ``J_Xrot``/``J_Yrot``/``J_Zrot`` (revolute), with massless helper links between them. The letters
 are the *file's* axes; the joint axes are those axes expressed in ROS coordinates (``BvhMotion.to_ros``,
 default file (x, y, z) -> ROS (z, x, y)), and offsets are scaled by ``BvhMotion.unit_m``, so the URDF is
-in metres, Z up, X forward. The chain runs position channels first (BVH positions are in the parent
+in metres, Z up, X forward. The root's OFFSET is dropped along the axes it has a position channel for (the
+channels are its position, as the format defines them) and its origin is moved by ``BvhMotion.root_shift``
+(the floor under the feet). The chain runs position channels first (BVH positions are in the parent
 frame), then rotations in file order: "Zrotation Yrotation Xrotation" gives R = Rz Ry Rx. The root joint's
 chain starts at the helper link ``bvh_world``; a 6-channel root is the 3 prismatic + 3 revolute floating
 base. Each End Site becomes the tip link ``J_tip``, so leaf bones have a length.
 
-Trajectory (``bvh_trajectory``): one column per URDF joint, positions in metres, angles in radians,
-unwrapped per channel over time (Euler angles in the file wrap at +-180 deg). ``skip_tpose=True``
+Trajectory (``bvh_trajectory``): one column per URDF joint, positions in metres, angles in radians. A
+joint's three Euler angles are continuous over time (``continuous_euler``): of the two triples of each
+frame's rotation, (a, b, c) and (a + 180, 180 - b, c + 180) deg, each shifted by whole turns, the one
+nearest the previous frame's is kept, so a file wrapping at +-180 deg or flipping to the other triple of the
+same rotation makes no jump (at gimbal lock a keeps its previous value); the rotations are the file's
+exactly. Joints with fewer rotation channels are unwrapped per channel. ``skip_tpose=True``
 (default, right for the CMU cgspeed conversions) drops frame 0, the T-pose the converter prepends,
 and starts the time at 0 on frame 1; ``skip_tpose=False`` keeps every frame.
 
 Glitches (``find_spikes``, ``despike=True`` by default): real captures have single- or few-frame
 spikes, e.g. a joint flipping by ~170 deg for 3 frames near Euler gimbal lock and flipping back. A run of
 at most ``max_spike_frames`` frames whose joint rotation is more than ``spike_deg`` away from the
-previous good frame, followed by a frame close to it again, is replaced by linear interpolation of the
-unwrapped channels between the good frames on either side. A jump that does not come back is kept.
+previous good frame (the geodesic angle of R_good^T R_f: rotations compared, never channel values),
+followed by a frame close to it again, is replaced by the slerp between the good frames on either side.
+A jump that does not come back is kept.
 
 Speed limit (``max_rotation_speed``, rad/s, default ``MAX_ROTATION_SPEED``, and ``max_end_speed``, m/s,
 default ``MAX_END_SPEED``): glitches that last (a thumb or thigh flipping ~180 deg in one frame and staying
@@ -31,6 +38,9 @@ leap clip (fastest joint 41 deg per frame at 120 Hz = 86 rad/s, a toe) 3 arm fra
 within the limit are untouched. Joints with a limited frame get Euler channels re-extracted from their
 rotations, the representation nearest to the previous frame chosen each time (no 360 deg jumps; the
 twin (a + 180, 180 - b, c + 180) when nearer), so interpolating the channels never takes the long way.
+
+Loops (``bvh_loop``): the trajectory as a ``capture_loop.CaptureLoop``: the seam blended as rotations, the
+root's heading and horizontal position carried from one loop to the next.
 """
 from __future__ import annotations
 
@@ -75,7 +85,11 @@ def bvh_urdf(motion: BvhMotion, robot_name: str = "bvh_skeleton") -> str:
         for c in _chain_order(j.channels):
             axis = C[:, "XYZ".index(c[0])]
             chain.append((channel_joint_name(j.name, c), "prismatic" if c.endswith("position") else "revolute", axis))
-        b.chain(parent, j.name, chain, xyz=C @ j.offset * u, limit=(-1e4, 1e4))
+        offset = j.offset
+        if j.parent < 0:                      # the root's position channels are its position (bvh.py)
+            offset = np.array([0.0 if f"{a}position" in j.channels else x for a, x in zip("XYZ", j.offset)])
+        xyz = C @ offset * u + (motion.root_shift if j.parent < 0 else 0.0)
+        b.chain(parent, j.name, chain, xyz=xyz, limit=(-1e4, 1e4))
         if j.end_site is not None:
             b.tip(j.name, C @ j.end_site * u)
     return b.to_string()
@@ -110,15 +124,14 @@ def find_spikes(motion: BvhMotion, first_frame: int = 1, spike_deg: float = 90.0
 
 def _euler_nearest(R: np.ndarray, order: str, previous: np.ndarray) -> np.ndarray:
     """Angles [rad] (3,) about the file axes ``order`` (e.g. "ZYX": R = Rz(a) Ry(b) Rx(c)) of rotation R, in the
-    representation (of the two, each shifted by whole turns) nearest to ``previous`` (3,)."""
+    representation (of the two, each shifted by whole turns) nearest to ``previous`` (3,): ``continuous_euler``."""
+    import warnings
+
     from scipy.spatial.transform import Rotation
-    a, b, c = Rotation.from_matrix(R).as_euler(order.upper(), degrees=False)
-    best = None
-    for cand in (np.array([a, b, c]), np.array([a + np.pi, np.pi - b, c + np.pi])):
-        cand = cand + 2 * np.pi * np.round((previous - cand) / (2 * np.pi))
-        if best is None or np.abs(cand - previous).sum() < np.abs(best - previous).sum():
-            best = cand
-    return best
+    with warnings.catch_warnings():          # gimbal lock: continuous_euler splits a and c as the frame before
+        warnings.simplefilter("ignore", UserWarning)
+        raw = Rotation.from_matrix(R).as_euler(order.upper(), degrees=False)
+    return continuous_euler(np.vstack([previous, raw]), order)[1]
 
 
 def joint_reach(motion: BvhMotion) -> np.ndarray:
@@ -171,6 +184,100 @@ def limit_rotation_speed(motion: BvhMotion, frames: np.ndarray, frame_time: floa
     return changed
 
 
+def _rotation_columns(motion: BvhMotion, ji: int) -> tuple[list[int], str]:
+    """(frame columns, axes in order) of joint ``ji``'s rotation channels."""
+    j = motion.joints[ji]
+    rot = [k for k, c in enumerate(j.channels) if c.endswith("rotation")]
+    return [j.channel_start + k for k in rot], "".join(j.channels[k][0] for k in rot)
+
+
+LOCK_COS = 1e-6        # |cos b| below this: gimbal lock, only a +- c is defined by the rotation
+
+
+def continuous_euler(angles: np.ndarray, order: str = "") -> np.ndarray:
+    """(F, 3) Euler angles [rad] about three different axes made continuous along F: each frame's triple becomes,
+    of the two triples of its rotation, (a, b, c) and (a + pi, pi - b, c + pi), each shifted by whole turns per
+    channel, the one nearest (least summed change) the previous frame's. A representation flip is no jump. At
+    gimbal lock (|cos b| < LOCK_COS) the rotation fixes only a combination of a and c: with the axes ``order``
+    given, a keeps the previous frame's value and c is solved for."""
+    a = np.asarray(angles, dtype=np.float64)
+    out = a.copy()
+    if a.shape[0] < 2:
+        return out
+    twin = a + np.array([np.pi, 0.0, np.pi])
+    twin[:, 1] = np.pi - a[:, 1]
+    two_pi = 2.0 * np.pi
+    prev = out[0].tolist()
+    rows_a, rows_t = a.tolist(), twin.tolist()
+    for f in range(1, a.shape[0]):
+        best, best_cost = None, np.inf
+        for cand in (rows_a[f], rows_t[f]):
+            shifted = [x + two_pi * round((p - x) / two_pi) for x, p in zip(cand, prev)]
+            cost = sum(abs(x - p) for x, p in zip(shifted, prev))
+            if cost < best_cost:
+                best, best_cost = shifted, cost
+        if order and abs(np.cos(best[1])) < LOCK_COS:
+            best[0], best[2] = prev[0], _third_angle(rows_a[f], order, prev[0], best[1], prev[2])
+        out[f] = best
+        prev = best
+    return out
+
+
+def _third_angle(triple, order: str, a: float, b: float, near: float) -> float:
+    """The angle c [rad] about ``order[2]`` with R1(a) R2(b) R3(c) equal to the rotation of ``triple``, nearest
+    ``near`` by whole turns."""
+    deg = np.rad2deg
+    R = elementary_rotations(order[0], deg(triple[0])) @ elementary_rotations(order[1], deg(triple[1])) @ \
+        elementary_rotations(order[2], deg(triple[2]))
+    M = (elementary_rotations(order[0], deg(a)) @ elementary_rotations(order[1], deg(b))).T @ R
+    k = "XYZ".index(order[2])
+    i, j = [(1, 2), (2, 0), (0, 1)][k]
+    c = float(np.arctan2(M[j, i], M[i, i]))
+    return c + 2 * np.pi * round((near - c) / (2 * np.pi))
+
+
+def make_continuous(motion: BvhMotion, frames: np.ndarray) -> None:
+    """Every joint's rotation channels in ``frames`` (F, C) [deg] made continuous in place: ``continuous_euler`` for
+    a joint with three rotation axes, whole turns unwrapped per channel otherwise. The rotations are unchanged."""
+    for ji in range(len(motion.joints)):
+        cols, order = _rotation_columns(motion, ji)
+        if not cols:
+            continue
+        rad = np.deg2rad(frames[:, cols])
+        if len(cols) == 3 and len(set(order)) == 3:
+            frames[:, cols] = np.rad2deg(continuous_euler(rad, order))
+        else:
+            frames[:, cols] = np.rad2deg(np.unwrap(rad, axis=0))
+
+
+def _frame_rotations(frames: np.ndarray, cols: list[int], order: str) -> np.ndarray:
+    R = np.broadcast_to(np.eye(3), (frames.shape[0], 3, 3)).copy()
+    for c, axis in zip(cols, order):
+        R = R @ elementary_rotations(axis, frames[:, c])
+    return R
+
+
+def _bridge(motion: BvhMotion, ji: int, frames: np.ndarray, a: int, b: int) -> None:
+    """Frames a+1 .. b-1 of joint ``ji`` replaced in place by the rotation slerped from frame a's to frame b's
+    (the channels linearly for a joint without three rotation axes)."""
+    from scipy.spatial.transform import Rotation
+    cols, order = _rotation_columns(motion, ji)
+    inner = np.arange(a + 1, b)
+    if not cols or inner.size == 0:
+        return
+    w = (inner - a) / (b - a)
+    if len(cols) != 3 or len(set(order)) != 3:
+        for c in cols:
+            frames[inner, c] = (1 - w) * frames[a, c] + w * frames[b, c]
+        return
+    Ra, Rb = _frame_rotations(frames[[a, b]], cols, order)
+    rel = Rotation.from_matrix(Ra.T @ Rb).as_rotvec()
+    for f, wf in zip(inner, w):
+        R = Ra @ Rotation.from_rotvec(wf * rel).as_matrix()
+        frames[f, cols] = np.rad2deg(_euler_nearest(R, order, np.deg2rad(frames[f - 1, cols])))
+    frames[b:, cols] = np.rad2deg(continuous_euler(np.deg2rad(frames[b - 1:, cols]), order)[1:])
+
+
 def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: str = "catmull_rom",
                    despike: bool = True, spike_deg: float = 90.0, max_spike_frames: int = 5,
                    max_rotation_speed: float | None = MAX_ROTATION_SPEED) -> JointTrajectory:
@@ -184,17 +291,11 @@ def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: st
     if motion.n_frames <= first:
         raise ValueError(f"{motion.source}: only the T-pose frame is present: pass skip_tpose=False to keep it")
     frames = motion.frames[first:].copy()
-    rot_cols = [j.channel_start + k for j in motion.joints for k, c in enumerate(j.channels) if c.endswith("rotation")]
-    frames[:, rot_cols] = np.rad2deg(np.unwrap(np.deg2rad(frames[:, rot_cols]), axis=0))
+    make_continuous(motion, frames)
     if despike:
         for name, f, n, _ in find_spikes(motion, first, spike_deg, max_spike_frames):
-            j = next(jj for jj in motion.joints if jj.name == name)
-            a, b = f - 1 - first, f + n - first                    # good frames around the spike
-            for k, c in enumerate(j.channels):
-                if c.endswith("rotation"):
-                    col = j.channel_start + k
-                    w = (np.arange(a + 1, b) - a) / (b - a)
-                    frames[a + 1:b, col] = (1 - w) * frames[a, col] + w * frames[b, col]
+            ji = motion.joint_names.index(name)
+            _bridge(motion, ji, frames, f - 1 - first, f + n - first)    # good frames around the spike
     if max_rotation_speed is not None:
         limit_rotation_speed(motion, frames, motion.frame_time, max_rotation_speed)
     rev = np.array(revolute, dtype=bool)
@@ -203,3 +304,25 @@ def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: st
     q[:, ~rev] *= motion.unit_m
     times = np.arange(frames.shape[0]) * motion.frame_time
     return JointTrajectory(times, bvh_joint_names(motion), q, revolute=rev, interpolation=interpolation)
+
+
+def bvh_loop(motion: BvhMotion, trajectory: JointTrajectory, blend_s: float) -> JointTrajectory:
+    """``trajectory`` (``bvh_trajectory(motion)``) made to loop (``capture_loop.CaptureLoop``): every joint with
+    three rotation channels blended as a rotation over the last ``blend_s`` seconds (at most half the clip), the
+    root's heading about the file's up axis and its horizontal position carried from one loop to the next."""
+    from .capture_loop import Ball, CaptureLoop
+    if trajectory.times.size < 3:
+        return trajectory
+    names = trajectory.names
+    balls, root_ball = [], None
+    for ji, j in enumerate(motion.joints):
+        rot = [c for c in j.channels if c.endswith("rotation")]
+        order = "".join(c[0] for c in rot)
+        if len(rot) == 3 and len(set(order)) == 3 and all(channel_joint_name(j.name, c) in names for c in rot):
+            root_ball = len(balls) if j.parent < 0 else root_ball
+            balls.append(Ball(tuple(names.index(channel_joint_name(j.name, c)) for c in rot), order))
+    root = motion.joints[0]
+    pos = [c for c in root.channels if c.endswith("position") and channel_joint_name(root.name, c) in names]
+    position = ([names.index(channel_joint_name(root.name, c)) for c in pos], "".join(c[0] for c in pos))
+    return CaptureLoop(trajectory, balls, root_ball, position, motion.to_ros[2],
+                       min(blend_s, 0.5 * trajectory.duration))

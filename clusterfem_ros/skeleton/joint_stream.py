@@ -3,7 +3,9 @@
 ``push(stamp_s, q, v=None)`` stores a sample; ``sample(t)`` interpolates linearly between the samples
 bracketing t. Revolute angles are unwrapped on arrival (each new angle is moved by a multiple of 2 pi
 to within pi of the previous one), so 179 deg -> -179 deg passes through 180 deg, never through 0; the
-stored angles are continuous and may leave [-pi, pi]. Without message velocities, v is the slope of the
+stored angles are continuous and may leave [-pi, pi]. The three angles of a ball joint (``balls``, below)
+are stored as the triple of their rotation nearest the previous one, (a, b, c) or (a + pi, pi - b, c + pi),
+so a sender flipping between the two never makes the interpolation swing. Without message velocities, v is the slope of the
 interpolating segment (the finite difference of the bracketing samples); with them, v is interpolated.
 
 No wild extrapolation: after the newest sample the pose moves on with the newest velocity for at most
@@ -25,7 +27,11 @@ Range checks (rejected, counted by the caller; both limits are optional):
   publisher or a scene that needs a larger limit, not motion.
 * ``joint_speed``: a joint moving faster than ``max_joint_speed`` [rad/s or m/s] since the accepted sample
   that last moved it (unwrapped angles; a prismatic jump beyond ``teleport_distance`` is a teleport instead), or a
-  reported velocity above it. Capture glitches (a thigh flipping 175 deg in one frame) are dropped. So that
+  reported velocity above it. Capture glitches (a thigh flipping 175 deg in one frame) are dropped. Three
+  revolute joints that form one ball joint (``balls``: (B, 3) joint indices, their axes (B, 3, 3), R = R(axis0,
+  q0) R(axis1, q1) R(axis2, q2); ``Skeleton.ball_joints``) are checked as a rotation: the geodesic angle of
+  R_prev^T R_new, so Euler channels trading angle near gimbal lock, or flipping to the other triple of the same
+  rotation, are no speed. So that
   real motion faster than the limit can never lock the stream out, a sample still rejected for speed
   ``max_age`` seconds after the first rejection of that run restarts the stream from it (``restart``; the
   body is re-placed on the skeleton).
@@ -97,6 +103,57 @@ def _range_measures(q, v, prev, revolute, prismatic, moved_at, stamp, max_speed)
     return np.sqrt(root), fastest, np.sqrt(jump), kw, step_k, dt_k
 
 
+def nearest_ball_triples(triples: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """(B, 3) angles of ball joints (three orthogonal axes) each re-expressed as the triple of the same rotation
+    nearest ``previous`` (B, 3): of (a, b, c) and (a + pi, pi - b, c + pi), each shifted by whole turns."""
+    twin = triples + np.array([np.pi, 0.0, np.pi])
+    twin[:, 1] = np.pi - triples[:, 1]
+    best = None
+    for cand in (triples, twin):
+        cand = cand + 2.0 * np.pi * np.round((previous - cand) / (2.0 * np.pi))
+        if best is None:
+            best = cand
+        else:
+            nearer = np.abs(cand - previous).sum(1) < np.abs(best - previous).sum(1)
+            best[nearer] = cand[nearer]
+    return best
+
+
+@numba.njit(**HOLDS_GIL)
+def _axis_rotation(axis, angle):
+    c, s_ = np.cos(angle), np.sin(angle)
+    x, y, z = axis[0], axis[1], axis[2]
+    t = 1.0 - c
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = t * x * x + c, t * x * y - s_ * z, t * x * z + s_ * y
+    R[1, 0], R[1, 1], R[1, 2] = t * x * y + s_ * z, t * y * y + c, t * y * z - s_ * x
+    R[2, 0], R[2, 1], R[2, 2] = t * x * z - s_ * y, t * y * z + s_ * x, t * z * z + c
+    return R
+
+
+@numba.njit(**HOLDS_GIL)
+def _ball_measures(q, prev, balls, axes, moved_at, stamp, max_speed):
+    """The ball joint b whose turn from ``prev`` (the geodesic angle of R_prev^T R_q) most exceeds max_speed times
+    the time since the sample that last moved it, with that angle and time (the first such ball)."""
+    worst, kb, angle_k, dt_k = -np.inf, 0, 0.0, 0.0
+    for b in range(balls.shape[0]):
+        Ra = np.eye(3)
+        Rb = np.eye(3)
+        last = moved_at[balls[b, 0]]
+        for i in range(3):
+            j = balls[b, i]
+            Ra = Ra @ _axis_rotation(axes[b, i], prev[j])
+            Rb = Rb @ _axis_rotation(axes[b, i], q[j])
+            last = max(last, moved_at[j])
+        c = (np.sum(Ra * Rb) - 1.0) / 2.0
+        angle = np.arccos(min(1.0, max(-1.0, c)))
+        dt = stamp - last
+        excess = angle - max_speed * dt
+        if excess > worst:
+            worst, kb, angle_k, dt_k = excess, b, angle, dt
+    return kb, angle_k, dt_k
+
+
 class JointStreamInterpolator:
     """Bounded buffer of joint samples with unwrapped linear interpolation (see the module docstring)."""
 
@@ -105,9 +162,19 @@ class JointStreamInterpolator:
     def __init__(self, joint_names: Sequence[str], revolute: np.ndarray | None = None, *, max_age: float = 1.0,
                  max_future: float = 0.5, teleport_distance: float = 0.5, prismatic: np.ndarray | None = None,
                  horizon: float = 0.0, capacity: int = 256, restart_after: int = 3,
-                 max_root_distance: float = float("inf"), max_joint_speed: float = float("inf")):
+                 max_root_distance: float = float("inf"), max_joint_speed: float = float("inf"),
+                 balls: tuple[np.ndarray, np.ndarray] | None = None):
         self.joint_names = list(joint_names)
         n = len(self.joint_names)
+        idx, axes = (np.zeros((0, 3), np.int64), np.zeros((0, 3, 3))) if balls is None else balls
+        self.balls = np.ascontiguousarray(idx, dtype=np.int64).reshape(-1, 3)
+        self.ball_axes = np.ascontiguousarray(axes, dtype=np.float64).reshape(-1, 3, 3)
+        if self.balls.size and (self.balls.min() < 0 or self.balls.max() >= n or
+                                self.ball_axes.shape[0] != self.balls.shape[0]):
+            raise ValueError(f"balls: {self.balls.shape[0]} joint triples within 0..{n - 1} with one axis each "
+                             f"expected, got indices up to {self.balls.max()} and {self.ball_axes.shape[0]} axes")
+        self._in_ball = np.zeros(n, bool)
+        self._in_ball[self.balls.reshape(-1)] = True
         self.revolute = np.ones(n, bool) if revolute is None else np.asarray(revolute, dtype=bool).reshape(-1)
         self.prismatic = ~self.revolute if prismatic is None else np.asarray(prismatic, dtype=bool).reshape(-1)
         for name, m in (("revolute", self.revolute), ("prismatic", self.prismatic)):
@@ -159,6 +226,8 @@ class JointStreamInterpolator:
             prev = self._q[-1]
             q = q.copy()
             q[self.revolute] = prev[self.revolute] + wrap_angle(q[self.revolute] - prev[self.revolute])
+            if self.balls.shape[0]:
+                q[self.balls] = nearest_ball_triples(q[self.balls], prev[self.balls])
             jump = float(np.linalg.norm(q[self.prismatic] - prev[self.prismatic]))
             if self.prismatic.any() and jump > self.teleport_distance:
                 self.teleports += 1
@@ -263,8 +332,8 @@ class JointStreamInterpolator:
         (``alone``: as the first of an empty stream, only its root and its reported velocities)."""
         prev = self._q[-1] if self._t and not alone else q
         root, fastest, jump, k, step, dt = _range_measures(q, np.zeros(0) if v is None else v, prev,
-                                                           self.revolute, self.prismatic, self._moved_at, stamp,
-                                                           self.max_joint_speed)
+                                                           self.revolute, self.prismatic, self._moved_at_free(),
+                                                           stamp, self.max_joint_speed)
         if root > self.max_root_distance:
             return ("root_range", f"root is {root:.4g} m from the origin (max_root_distance "
                                   f"{self.max_root_distance:g} m): sample dropped; fix the publisher or raise "
@@ -281,13 +350,30 @@ class JointStreamInterpolator:
                 return ("joint_speed", f"joint {self.joint_names[k]!r} moved {step:.4g} in {dt:.3g} s "
                                        f"({step / dt:.4g}/s > max_joint_speed {self.max_joint_speed:g}): "
                                        "sample dropped as a capture glitch")
+            if self.balls.shape[0]:
+                b, angle, dt = _ball_measures(q, prev, self.balls, self.ball_axes, self._moved_at, stamp,
+                                              self.max_joint_speed)
+                if angle > self.max_joint_speed * dt:
+                    names = "/".join(self.joint_names[j] for j in self.balls[b])
+                    return ("joint_speed", f"ball joint {names} turned {angle:.4g} rad in {dt:.3g} s "
+                                           f"({angle / dt:.4g} rad/s > max_joint_speed {self.max_joint_speed:g}): "
+                                           "sample dropped as a capture glitch")
         return None
+
+    def _moved_at_free(self) -> np.ndarray:
+        """Per joint, when it last moved; joints of ball joints are checked as rotations (-inf: never too fast)."""
+        if not self.balls.shape[0]:
+            return self._moved_at
+        out = self._moved_at.copy()
+        out[self._in_ball] = -np.inf
+        return out
 
     def load_kernels(self) -> None:
         """Load (on a machine's first start: compile) the range checks' compiled pass, so the first sample does
         not stall the step loop (scene_setup.warm_up)."""
         z = np.zeros(len(self.joint_names))
         _range_measures(z, z, z, self.revolute, self.prismatic, self._moved_at, 0.0, 1.0)
+        _ball_measures(z, z, np.zeros((1, 3), np.int64), np.ones((1, 3, 3)) / np.sqrt(3), np.zeros(3), 0.0, 1.0)
 
     def push_or_raise(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None,
                       now: float | None = None) -> list[tuple[str, str]]:

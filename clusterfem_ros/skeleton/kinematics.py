@@ -234,6 +234,33 @@ class Skeleton:
     def joint_kinds(self) -> list[str]:
         return list(self._kinds)
 
+    def ball_joints(self) -> tuple[np.ndarray, np.ndarray]:
+        """((B, 3) joint indices, (B, 3, 3) unit axes): chains of three revolute joints about orthogonal axes at one
+        point, each the only child of the one before (a BVH joint's three rotation channels, a floating root's
+        yaw/pitch/roll), so R = R(axis0, q0) R(axis1, q1) R(axis2, q2) is one ball joint's rotation."""
+        kinds, parent = self._kinds, self._k_parent
+        n_children = np.bincount(parent[parent >= 0], minlength=self.nq)
+        rotary = [k in ("revolute", "continuous") for k in kinds]
+        found, used = [], set()
+        for k1 in range(self.nq):
+            chain = [k1]
+            while len(chain) < 3 and n_children[chain[-1]] == 1:
+                nxt = int(np.flatnonzero(parent == chain[-1])[0])
+                if not rotary[nxt] or np.abs(self._k_p[nxt]).max() > 0 or \
+                        np.abs(self._k_R[nxt] - np.eye(3)).max() > 1e-12:
+                    break
+                chain.append(nxt)
+            if len(chain) < 3 or not all(rotary[k] for k in chain) or used & set(chain):
+                continue
+            axes = np.array([self._k_axis[k] / np.linalg.norm(self._k_axis[k]) for k in chain])
+            if np.abs(axes @ axes.T - np.eye(3)).max() > 1e-9:
+                continue
+            found.append((chain, axes))
+            used |= set(chain)
+        if not found:
+            return np.zeros((0, 3), np.int64), np.zeros((0, 3, 3))
+        return np.array([c for c, _ in found], dtype=np.int64), np.array([a for _, a in found])
+
     def _check(self, q: np.ndarray, v: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Contiguous float64 copies-or-views of q and v (v defaults to zeros), shapes checked (the kernel checks
         that they are finite)."""
