@@ -36,6 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import ClusterFemError
+
 LIMB_ROLES = {"leg": ("hip", "thigh", "shin", "foot", "toe"), "arm": ("clavicle", "upper_arm", "forearm", "hand",
                                                                           "finger")}
 TRUNK_ROLES = ("root", "pelvis", "spine", "neck", "head")
@@ -72,7 +74,7 @@ class BoneRoles:
                 + "; ".join(f"{k} {', '.join(groups[k])}" for k in main))
 
 
-class NotHumanoid(ValueError):
+class NotHumanoid(ClusterFemError, ValueError):
     """The tree has no two legs, two arms and a head; the message says what is missing."""
 
 
@@ -83,12 +85,13 @@ def name_side(name: str) -> str:
     words = [w for w in re.split(r"[^A-Za-z]+|(?<=[a-z])(?=[A-Z])", base) if w]
     low = [w.lower() for w in words]
     for w in low:
-        if w in ("left", "l"):
-            return "l"
-        if w in ("right", "r"):
-            return "r"
+        if w in ("l", "r"):
+            return w
+        if w.startswith(("left", "right")):     # 'Left', 'LEFTFOOT', 'leftupleg'
+            return w[0]
     for w, lw in zip(words, low):            # 'LHipJoint' -> 'LHip', 'lshldr', 'rThigh'
-        if lw[0] in "lr" and len(w) > 1 and (w[1].isupper() and w[0].isupper() or lw[1:].startswith(_SIDE_WORDS)):
+        camel = len(w) > 2 and w[0] in "LR" and w[1].isupper() and w[2].islower()
+        if lw[0] in "lr" and len(w) > 1 and (camel or lw[1:].startswith(_SIDE_WORDS)):
             return lw[0]
     return ""
 
