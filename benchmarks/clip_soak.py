@@ -19,7 +19,13 @@ capture with other joint names) is listed with the refusal. Columns:
   where the warped force is least trustworthy;
 - step: mean wall time of a physics step (measured under whatever load the machine has);
 - joint speed: the fastest revolute joint in the played trajectory (after the BVH loader's despiking) and
-  in the raw file frames [rad/s], for choosing input.max_joint_speed.
+  in the raw file frames [rad/s], for choosing input.max_joint_speed;
+- source, unit: who made the clip (the manifest's ``source``) and the unit the BVH loader chose for it
+  (``unit_found``: metres per file unit, named when it is a known unit);
+- height: of the skeleton at rest (feet to the head's end along its own up, skeleton/bone_roles.py) and of the
+  body at rest (its vertices' extent along the scene's Z) [m];
+- bare: the major bones (pelvis, spine, head, thighs, shins, feet, upper arms, forearms, hands) with no flesh,
+  or 'none'; 'not a human' when the skeleton's roles cannot be told (the flesh is then uniform).
 
 ``--node`` also plays each clip through the node (the mocap player and the clusterfem node in one process,
 physics on the input clock) and checks every published marker against the skeleton: see ``node_soak``.
@@ -62,6 +68,11 @@ class SoakResult:
     joint_speed: float = 0.0
     raw_joint_speed: float = 0.0
     first_problem: str = ""
+    source: str = ""
+    unit: str = ""
+    skeleton_height: float = 0.0     # [m], at rest, feet to the head's end
+    body_height: float = 0.0         # [m], at rest, along the scene's Z
+    bare: str = ""                   # major bones without flesh ('none'), or why they cannot be told
 
 
 def joint_speeds(path: Path) -> tuple[float, float]:
@@ -76,6 +87,44 @@ def joint_speeds(path: Path) -> tuple[float, float]:
         w = np.abs(np.diff(tr.positions[:, tr.revolute], axis=0)) / np.diff(tr.times)[:, None]
         out.append(float(w.max()))
     return out[0], out[1]
+
+
+KNOWN_UNITS = {1.0: "m", 0.01: "cm", 0.001: "mm", 0.0254: "inch", 0.056444: "cmu"}
+MAJOR_ROLES = ("pelvis", "spine", "head", "thigh", "shin", "foot", "upper_arm", "forearm", "hand")
+
+
+def unit_found(path: Path) -> tuple[str, float]:
+    """(the unit, metres per file unit) that the BVH loader (skeleton/bvh.load_bvh) chose for the clip: the one
+    place this benchmark takes the unit from, so it reports whatever rule the loader applies."""
+    from clusterfem_ros.skeleton.bvh import load_bvh
+    unit_m = float(load_bvh(path).unit_m)
+    name = next((n for u, n in KNOWN_UNITS.items() if abs(unit_m / u - 1.0) < 1e-6), "")
+    return (f"{name} ({unit_m:g} m)" if name else f"{unit_m:g} m"), unit_m
+
+
+def flesh_check(scene) -> tuple[float, str]:
+    """(the skeleton's rest height [m], the major bones of ``MAJOR_ROLES`` that no rest vertex of the body lies
+    within 1.5 of its capsule radius of ('none'), or 'not a human (...)')."""
+    from clusterfem_ros.skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
+    sk = scene.skeleton
+    try:
+        roles = label_skeleton(sk)
+    except NotHumanoid as exc:
+        return 0.0, f"not a human ({exc})"
+    radii, _ = flesh_radii(roles)
+    s, e = sk.bone_segments(sk.neutral())
+    rest = scene.model.rest
+    missing = []
+    for b, name in enumerate(sk.bone_names):
+        role = roles.roles[b]
+        if role not in MAJOR_ROLES or roles.lengths[b] <= 0:
+            continue
+        d = e[b] - s[b]
+        t = np.clip((rest - s[b]) @ d / max(d @ d, 1e-300), 0.0, 1.0)
+        near = np.linalg.norm(rest - s[b] - t[:, None] * d, axis=1) <= 1.5 * radii.get(name, 0.0)
+        if not near.any():
+            missing.append(f"{name} ({roles.role_of(name)})")
+    return roles.height, ", ".join(missing) if missing else "none"
 
 
 def inverted_elements(positions: np.ndarray, tets: np.ndarray, rest_volumes: np.ndarray) -> tuple[int, float]:
@@ -96,6 +145,9 @@ def headless_soak(path: Path, overrides: dict | None = None, seconds: float | No
     scene = Scene.build(clip_config(overrides, scene_file), urdf_xml=motion.urdf)
     length = tr.duration if seconds is None else min(seconds, tr.duration)
     res = SoakResult(path.stem, length)
+    res.unit = unit_found(path)[0]
+    res.skeleton_height, res.bare = flesh_check(scene)
+    res.body_height = float(np.ptp(scene.model.rest[:, 2]))
     tets = scene.model.mesh.tets
     rest_volumes = scene.model.mesh.volumes()
     res.joint_speed, res.raw_joint_speed = joint_speeds(path)
@@ -161,11 +213,17 @@ def main(argv: list[str] | None = None) -> int:
             r = headless_soak(path, overrides, args.seconds, args.scene)
         except ValueError as exc:            # FitError, UrdfError, ConfigError: the scene refuses this skeleton
             print(f"[clip_soak] {clip.name}: refused at start: {exc}", flush=True)
-            rows.append([clip.name, "-", "refused", "", "", "", "", "", "", ""])
+            rows.append([clip.name, clip.source or "CMU", unit_found(path)[0], "-", "", "-", "refused"] + [""] * 7)
+            continue
+        except Exception as exc:             # any other failure is a row of the table too, named
+            print(f"[clip_soak] {clip.name}: failed: {type(exc).__name__}: {exc}", flush=True)
+            rows.append([clip.name, clip.source or "CMU", unit_found(path)[0], "-", "", "-",
+                         f"failed ({type(exc).__name__})"] + [""] * 7)
             continue
         print(f"[clip_soak] {clip.name}: {r.resets} resets, {time.perf_counter() - t0:.0f} s"
               + (f"; first: {r.first_problem}" if r.first_problem else ""), flush=True)
-        rows.append([r.clip, f"{r.seconds:.1f}", r.resets, r.withheld, f"{r.worst_volume * 100:.1f} %",
+        rows.append([r.clip, clip.source or "CMU", r.unit, f"{r.skeleton_height:.2f} / {r.body_height:.2f}", r.bare,
+                     f"{r.seconds:.1f}", r.resets, r.withheld, f"{r.worst_volume * 100:.1f} %",
                      f"{r.worst_distance:.3f}", _inverted(r), f"{r.step_ms:.2f}", r.rejected,
                      f"{r.joint_speed:.0f} / {r.raw_joint_speed:.0f}"])
         if args.node:
@@ -175,7 +233,8 @@ def main(argv: list[str] | None = None) -> int:
                               f"{n.worst_distance:.3f}", n.rejected, f"{n.dropped_s:.2f}"])
     print(f"\nheadless, {args.scene or 'default scene'} on each clip's skeleton{' with ' + ', '.join(args.set) if args.set else ''} "
           "(step time measured under the machine's current load)")
-    print(table(["clip", "s", "resets", "withheld", "worst volume", "worst bone distance [m]",
+    print(table(["clip", "source", "unit found", "height skeleton / body [m]", "major bones bare", "s", "resets",
+                 "withheld", "worst volume", "worst bone distance [m]",
                  "inverted: states / most at once / min det F", "step [ms]", "inputs rejected",
                  "joint speed played / raw [rad/s]"], rows))
     if node_rows:

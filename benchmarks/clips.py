@@ -1,8 +1,9 @@
 """The fetched motion-capture clips of tests/data/mocap_clips.yaml: where each file is, checked by sha256.
 
-The clip files are not in this repository. ``find_clip(entry)`` looks for ``<name>.bvh`` in
-``../shared/data/mocap/`` beside the checkout and in ``$CLUSTERFEM_DATA/mocap/``; ``missing_message``
-names the file and the manifest entry to fetch it from.
+The small clips of other sources than CMU are in this repository (tests/data/mocap/, their licences in its
+SOURCE.md); the CMU clips are not. ``find_clip(entry)`` looks for ``<name>.bvh`` in tests/data/mocap/, in
+``../shared/data/mocap/`` beside the checkout and in ``$CLUSTERFEM_DATA/mocap/``; ``missing_message`` names the
+file and the manifest entry to fetch it from.
 """
 from __future__ import annotations
 
@@ -24,6 +25,8 @@ class Clip:
     commit: str
     path: str
     sha256: str
+    source: str = ""                # who made the capture or rig
+    licence: str = ""               # the file's terms ('' : the manifest's top-level licence)
 
 
 def load_manifest(path: Path = MANIFEST) -> list[Clip]:
@@ -34,7 +37,7 @@ def load_manifest(path: Path = MANIFEST) -> list[Clip]:
 
 def clip_dirs() -> list[Path]:
     """Where clips are looked for, in order."""
-    dirs = [REPO.parent / "shared" / "data" / "mocap"]
+    dirs = [REPO / "tests" / "data" / "mocap", REPO.parent / "shared" / "data" / "mocap"]
     if os.environ.get("CLUSTERFEM_DATA"):
         dirs.append(Path(os.environ["CLUSTERFEM_DATA"]) / "mocap")
     return dirs

@@ -52,6 +52,10 @@ PARAMS: tuple[Param, ...] = (
     Param("body.surface_group", "", "the OBJ group of body.surface_file to use ('' = the whole file)"),
     Param("body.surface_unit", 1.0, "metres per unit of body.surface_file (0.1 for decimetres, 0.01 for cm)", 1.0e-6, 1.0e3),
     Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
+    Param("body.flesh", "auto", "jelly body on a skeleton other than the built-in humanoid: 'auto' tells a human's bones "
+          "from the tree and its rest shape (skeleton/bone_roles.py) and gives each a radius in proportion to the "
+          "height (falls back to 'uniform', saying why, when the skeleton is not a human's); 'uniform' gives every "
+          "bone body.bone_radius", choices=("auto", "uniform")),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
     # the material defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
@@ -267,6 +271,7 @@ class BodySection:
     surface_group: str
     surface_unit: float             # metres per unit of surface_file
     bone_radius: float              # [m]
+    flesh: str                      # 'auto' (radii by bone role) or 'uniform' (body.bone_radius)
     scale: float
     fix_bottom: bool
 

@@ -111,6 +111,31 @@ def load_skeleton(config: SceneConfig, urdf_xml: str | None, progress: Callable[
         raise UrdfError(f"skeleton.urdf_file {sk.urdf_file!r}: {exc}") from exc
 
 
+def jelly_radii(skeleton: Skeleton, leaf_shapes: dict, body, progress: Callable[[str], None] | None = None
+                ) -> dict[str, float]:
+    """{bone: capsule radius [m]} of a jelly body on ``skeleton`` (not the built-in humanoid): with body.flesh 'auto',
+    radii by each bone's role in a human (skeleton/bone_roles.py), bare bones left out and named in one line;
+    with 'uniform', or when the skeleton is not a human's (said in one line), body.bone_radius for every bone. A
+    leaf with URDF shapes has radius 0 (its shapes are its flesh)."""
+    from .skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
+    r = float(body.bone_radius)
+    radii = {name: r for name in skeleton.bone_names}
+    if body.flesh == "auto":
+        try:
+            roles = label_skeleton(skeleton)
+        except NotHumanoid as exc:
+            say(progress, f"body.flesh 'auto': not a human skeleton ({exc}); every bone gets body.bone_radius "
+                          f"{r:g} m (set body.flesh 'uniform' to skip this test)")
+        else:
+            radii, bare = flesh_radii(roles)
+            say(progress, roles.summary() + " (body.flesh 'uniform' gives every bone body.bone_radius instead)")
+            for note in roles.notes:
+                say(progress, f"warning: {note}")
+            say(progress, f"bones left bare ({len(bare)}, covered by their neighbours' flesh): "
+                          + (", ".join(f"{n} ({roles.role_of(n)})" for n in bare) if bare else "none"))
+    return {name: 0.0 if name in leaf_shapes else radius for name, radius in radii.items()}
+
+
 def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
                 progress: Callable[[str], None] | None = None) -> SceneParts:
     """Everything the config asks for (and nothing else): the error budget's choice, the skeleton, the body."""
@@ -128,9 +153,7 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
         if source == "builtin":
             spec = default_humanoid()
         else:
-            r = float(body.bone_radius)
-            spec = HumanoidSpec(urdf_xml, {name: 0.0 if name in leaf_shapes else r for name in skeleton.bone_names},
-                                leaf_shapes=leaf_shapes)
+            spec = HumanoidSpec(urdf_xml, jelly_radii(skeleton, leaf_shapes, body, progress), leaf_shapes=leaf_shapes)
         say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
         mesh = jelly_man_mesh(spec, target_tets=body.target_tets)
     elif kind == "mesh":
