@@ -54,6 +54,8 @@ PARAMS: tuple[Param, ...] = (
     Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
+    Param("body.min_tet_quality", 1e-8, "refuse a mesh with a tet of lower shape quality (6 sqrt2 V / l_rms^3, 1 = regular; "
+          "fem/tet_quality.py): a nearly flat tet makes the explicit step take thousands of sub-steps; 0 accepts any shape", 0.0, 0.99),
     # the material defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
     Param("material.young_modulus", DEFAULT_YOUNG_MODULUS, "Young's modulus E [Pa]", 1.0, 1.0e10),
     Param("material.poisson_ratio", DEFAULT_POISSON_RATIO, "Poisson ratio nu [-]", 0.0, 0.499),
@@ -242,6 +244,7 @@ class BodySection:
     bone_radius: float              # [m]
     scale: float
     fix_bottom: bool
+    min_tet_quality: float          # fem/tet_quality.py
 
 
 @dataclass(frozen=True)
