@@ -58,6 +58,8 @@ PARAMS: tuple[Param, ...] = (
           "bone body.bone_radius", choices=("auto", "uniform")),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
+    Param("body.min_tet_quality", 1e-8, "refuse a mesh with a tet of lower shape quality (6 sqrt2 V / l_rms^3, 1 = regular; "
+          "fem/tet_quality.py): a nearly flat tet makes the explicit step take thousands of sub-steps; 0 accepts any shape", 0.0, 0.99),
     # the material defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
     Param("material.young_modulus", DEFAULT_YOUNG_MODULUS, "Young's modulus E [Pa]", 1.0, 1.0e10),
     Param("material.poisson_ratio", DEFAULT_POISSON_RATIO, "Poisson ratio nu [-]", 0.0, 0.499),
@@ -274,6 +276,7 @@ class BodySection:
     flesh: str                      # 'auto' (radii by bone role) or 'uniform' (body.bone_radius)
     scale: float
     fix_bottom: bool
+    min_tet_quality: float          # fem/tet_quality.py
 
 
 @dataclass(frozen=True)

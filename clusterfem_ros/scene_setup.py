@@ -59,7 +59,8 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     config, mesh, skeleton = parts.config, parts.mesh, parts.skeleton
     say(progress, f"assembling {mesh.n_tets} tets / {mesh.n_vertices} vertices")
     model = build_model(mesh, material_of(config), fixed=parts.fixed,
-                        gravity=(0.0, 0.0, float(config.physics.gravity)))
+                        gravity=(0.0, 0.0, float(config.physics.gravity)), min_quality=config.body.min_tet_quality)
+    say(progress, model.quality.summary())
     method, options = integrator_choice(config)
     say(progress, f"setting up method '{method}'"
                   f"{' with ' + config.warping_model + ' warping' if options.get('warp') else ''}")

@@ -1,4 +1,4 @@
-"""Meshes: voxel generation near the paper's sizes, validation errors, surface, vertex classes, I/O."""
+"""Meshes: voxel generation near the paper's sizes, validation errors, shape quality, surface, vertex classes, I/O."""
 import meshio
 import numpy as np
 import pytest
@@ -6,6 +6,9 @@ import pytest
 from clusterfem_ros.fem.mesh_io import read_mesh, write_mesh
 from clusterfem_ros.fem.tet_mesh import (MeshError, TetMesh, boundary_triangles, elements_per_vertex,
                                          vertex_classes)
+from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.model import build_model
+from clusterfem_ros.fem.tet_quality import mesh_quality, tet_quality
 from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
 
 PAPER = {"sphere": (376, 1091), "cube": (453, 1198), "torus": (609, 1823)}
@@ -126,3 +129,46 @@ def test_total_volume_equals_the_sum_of_the_signed_volumes_to_round_off():
     flipped = moved.copy()
     flipped[:, 0] *= -1.0                                       # a mirrored body: every tet inverted
     assert total_volume(flipped, np.ascontiguousarray(mesh.tets.T)) == -got
+
+
+def _sliver(height: float) -> TetMesh:
+    """A regular-based tet whose apex sits ``height`` (of the edge) above its base: flat for small heights."""
+    base = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, np.sqrt(3) / 2, 0.0]])
+    apex = np.array([[0.5, np.sqrt(3) / 6, height]])
+    return TetMesh(np.vstack([base, apex]), np.array([[0, 1, 2, 3]]))
+
+
+def test_tet_quality_is_one_for_a_regular_tet_and_falls_with_flatness():
+    regular = _sliver(np.sqrt(2.0 / 3.0))
+    assert tet_quality(regular.vertices, regular.tets)[0] == pytest.approx(1.0, rel=1e-12)
+    box = box_mesh((1.0, 1.0, 1.0), (1, 1, 1))                     # 4 corner tets and a regular one
+    q = np.sort(tet_quality(box.vertices, box.tets))
+    assert q[:4] == pytest.approx(np.full(4, 6 * np.sqrt(2) / 6 / 1.5 ** 1.5), rel=1e-12) and q[4] == pytest.approx(1.0)
+    heights = np.array([1e-2, 1e-4, 1e-6])
+    flat = np.array([tet_quality(_sliver(t).vertices, _sliver(t).tets)[0] for t in heights])
+    assert np.all(np.diff(flat) < 0) and np.allclose(flat / heights, flat[-1] / heights[-1], rtol=1e-3)   # q ~ height
+    scaled = _sliver(1e-2)
+    assert tet_quality(1e-3 * scaled.vertices, scaled.tets)[0] == pytest.approx(flat[0], rel=1e-12)       # scale free
+
+
+def test_mesh_quality_counts_slivers_and_names_the_worst():
+    mesh = box_mesh((0.4, 0.1, 0.1), (4, 1, 1))
+    x = mesh.vertices.copy()
+    q0 = mesh_quality(x, mesh.tets)
+    assert q0.slivers == 0 and q0.worst > 0.7
+    x[:, 0] = np.where(np.isclose(x[:, 0], 0.2), 0.1 + 1e-4, x[:, 0])      # squash the second layer
+    q = mesh_quality(x, mesh.tets)
+    layer = np.isclose(np.sort(x[mesh.tets][:, :, 0], axis=1)[:, -1] - np.sort(x[mesh.tets][:, :, 0], axis=1)[:, 0],
+                       1e-4)
+    assert q.slivers == int(layer.sum()) > 0 and q.worst < 1e-2 and layer[q.worst_tet]
+    assert f"tet {q.worst_tet}" in q.summary() and f"{q.slivers} slivers" in q.summary()
+
+
+def test_degenerate_tet_is_refused_at_set_up_with_the_way_out():
+    mesh = _sliver(1e-9)
+    mesh.validate()                                                 # its volume passes
+    with pytest.raises(MeshError, match=r"tet 0 has quality .* degenerate.*remesh.*body.min_tet_quality"):
+        build_model(mesh, Material())
+    model = build_model(mesh, Material(), min_quality=0.0)          # the override accepts it
+    assert model.quality.worst < 1e-8 and model.quality.slivers == 1
+    assert build_model(box_mesh(), Material()).quality.slivers == 0

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.material import Material, ParameterError
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.fem.stability import (DivergenceError, StabilityError, critical_step, max_eigenvalue,
                                          plan_substeps)
@@ -109,3 +109,21 @@ def test_a_non_finite_value_anywhere_in_a_clustered_step_is_raised(where, warp):
                                                   np.array([100.0]), np.array([10.0])))
     with pytest.raises(DivergenceError, match="non-finite"):
         integ.step(s, control, 1e-3)
+
+
+@pytest.mark.parametrize("method", ["clustered", "standard_explicit"])
+@pytest.mark.parametrize("safety", [10.0, 1.0001, 0.0, -0.5, float("nan"), "0.8", True])
+def test_safety_outside_zero_one_is_refused_by_the_integrators(method, safety):
+    """A sub-step longer than the critical one is unstable by construction: refused at set-up, naming the value."""
+    model = build_model(box_mesh((0.4, 0.1, 0.1), (4, 1, 1)), Material())
+    with pytest.raises(ParameterError, match=r"safety = .*\(0, 1\]"):
+        make_integrator(method, model, safety=safety)
+    with pytest.raises(ParameterError, match=r"safety = "):
+        plan_substeps(0.01, 1e-3, safety=safety)
+
+
+def test_safety_one_is_accepted_and_plans_at_the_critical_step():
+    model = build_model(box_mesh((0.4, 0.1, 0.1), (4, 1, 1)), Material())
+    integ = make_integrator("clustered", model, safety=1.0)
+    plan = plan_substeps(0.01, 1e-3, safety=1.0)
+    assert integ.safety == 1.0 and plan.substeps == 10 and plan.margin == pytest.approx(1.0)

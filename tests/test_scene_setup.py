@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from clusterfem_ros.config import SceneConfig
+from clusterfem_ros.fem.tet_mesh import MeshError
 from clusterfem_ros.fem.voxel_mesh import paper_mesh
 from clusterfem_ros.scene import Scene
 from clusterfem_ros.scene_build import scene_parts
@@ -74,6 +75,19 @@ def test_the_surface_the_outputs_show_is_the_boundary_renumbered():
     tris, verts, local = running.triangles, running.surface_vertices, running.surface_triangles
     np.testing.assert_array_equal(verts[local], tris)
     assert np.array_equal(verts, np.unique(tris)) and local.max() == verts.size - 1
+
+
+def test_the_set_up_says_the_tet_quality_and_refuses_a_degenerate_tet_with_the_way_out():
+    """One log line with the worst quality and the slivers; a mesh with a flat tet is refused at set-up, naming
+    the parameter that accepts it, and runs with it."""
+    said = []
+    running = set_up(scene_parts(SceneConfig().with_values(skeleton__source="none", body__kind="cube")), said.append)
+    q = running.model.quality
+    assert [line for line in said if line.startswith("tet quality") and f"worst {q.worst:.3g}" in line
+            and f"{q.slivers} sliver" in line]
+    config = SceneConfig().with_values(skeleton__source="none", body__kind="cube", body__min_tet_quality=0.9)
+    with pytest.raises(MeshError, match=r"tet \d+ has quality .*body.min_tet_quality"):
+        set_up(scene_parts(config))
 
 
 _LOOP_LOADS_NOTHING = r"""

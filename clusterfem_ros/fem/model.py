@@ -14,6 +14,7 @@ from .assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
 from .clusters import Clusters, build_clusters
 from .material import Material, ParameterError
 from .tet_mesh import TetMesh
+from .tet_quality import MIN_QUALITY, MeshQuality, check_quality
 
 
 @dataclass(frozen=True)
@@ -25,6 +26,7 @@ class FemModel:
     clusters: Clusters          # the same K as per-vertex clusters
     fixed: np.ndarray           # (n,) bool: Dirichlet vertices held at zero displacement
     gravity: np.ndarray         # (3,) [m/s^2]
+    quality: MeshQuality | None = None      # the tets' shape quality, measured by build_model (fem/tet_quality.py)
 
     @property
     def n_vertices(self) -> int:
@@ -54,9 +56,11 @@ class FemModel:
 
 
 def build_model(mesh: TetMesh, material: Material, fixed: np.ndarray | None = None,
-                gravity=(0.0, 0.0, -9.81)) -> FemModel:
-    """Validate the mesh, assemble K and M, and build the clusters."""
+                gravity=(0.0, 0.0, -9.81), min_quality: float = MIN_QUALITY) -> FemModel:
+    """Validate the mesh (a tet below ``min_quality`` is refused: fem/tet_quality.py), assemble K and M, and build
+    the clusters."""
     mesh.validate()
+    quality = check_quality(mesh.vertices, mesh.tets, min_quality)
     blocks = element_stiffness_blocks(mesh, material)
     if fixed is None:
         fixed = np.zeros(mesh.n_vertices, dtype=bool)
@@ -75,7 +79,7 @@ def build_model(mesh: TetMesh, material: Material, fixed: np.ndarray | None = No
         raise ParameterError(f"gravity must be 3 finite numbers in m/s^2, got {gravity!r}")
     return FemModel(mesh=mesh, material=material, mass=lumped_mass(mesh, material.rho),
                     K=assemble_stiffness(mesh, material, blocks), clusters=build_clusters(mesh, blocks),
-                    fixed=fixed, gravity=g)
+                    fixed=fixed, gravity=g, quality=quality)
 
 
 @dataclass

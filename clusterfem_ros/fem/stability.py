@@ -16,7 +16,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import ClusterFemError
-from .material import Material
+from .material import Material, ParameterError
 from .model import Control, FemModel
 
 
@@ -71,7 +71,18 @@ class SubStepPlan:
         return self.h_crit / self.h_sub
 
 
+def check_safety(safety) -> float:
+    """``safety`` as a float, refused (ParameterError) outside (0, 1]: a sub-step longer than the critical step is
+    unstable by construction, and 0 or less plans no step."""
+    ok = isinstance(safety, (int, float, np.integer, np.floating)) and not isinstance(safety, bool)
+    if not (ok and 0.0 < float(safety) <= 1.0):
+        raise ParameterError(f"safety = {safety!r}: the fraction of the critical step a sub-step may take must be "
+                             "in (0, 1] (0.8 is the default; smaller plans more sub-steps)")
+    return float(safety)
+
+
 def plan_substeps(h: float, h_crit: float, safety: float = 0.8, max_substeps: int = 10000) -> SubStepPlan:
+    check_safety(safety)
     if not (h > 0 and math.isfinite(h)):
         raise StabilityError(f"time step h = {h!r} s must be positive and finite")
     n = max(1, math.ceil(h / (safety * h_crit))) if math.isfinite(h_crit) else 1

@@ -360,6 +360,8 @@ class ClusterFemNode(Node):
             values.update({"physics_failures": loop.crashes, "physics_stopped": loop.stopped,
                            "physics_error": loop.error or "",
                            "inputs_waiting": loop.waiting, "inputs_dropped_queue_full": loop.queue_full})
+        if s:
+            values.update({"tet_quality_worst": s.model.quality.worst, "tet_slivers": s.model.quality.slivers})
         values["joint_states_received"] = self.received
         values["joint_states_before_scene"] = self.before_scene
         rec = self.recorder

@@ -35,7 +35,7 @@ from ..cluster_force_kernel import (cluster_args, kernel_input_serial, scratch, 
 from ..cluster_slices import host_slices
 from ..model import Control, FemModel, State
 from ...numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
-from ..stability import control_critical_step, max_eigenvalue, plan_substeps
+from ..stability import check_safety, control_critical_step, max_eigenvalue, plan_substeps
 from ..stretch import StretchPlan
 from ..element_warping import ElementFrames, check_warping_model, element_e_parallel, element_e_serial
 from ..neohookean import largest_bound, neohookean_e_parallel, neohookean_e_serial
@@ -280,7 +280,7 @@ class ClusteredExplicit:
         self.warp = bool(warp)
         self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping,
                                                  material=model.material)
-        self.safety = safety
+        self.safety = check_safety(safety)
         self.max_substeps = max_substeps
         self.lam_max = max_eigenvalue(model) if lam_max is None else lam_max
         n = model.n_vertices

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model import Control, FemModel, State
-from ..stability import control_critical_step, max_eigenvalue, plan_substeps
+from ..stability import check_safety, control_critical_step, max_eigenvalue, plan_substeps
 from ..stretch import StretchPlan
 from ..corotational import ElementCorotation
 from ..element_warping import ElementFrames, check_warping_model, element_rotations
@@ -40,7 +40,7 @@ class StandardExplicit:
             self.name = "standard_explicit_warp_vertex"
             self.frames = VertexFrames.from_model(model)
             self._assembled = AssembledWarp(model)
-        self.safety = safety
+        self.safety = check_safety(safety)
         self.max_substeps = max_substeps
         self.lam_max = max_eigenvalue(model) if lam_max is None else lam_max
         self.K = model.K
