@@ -121,7 +121,8 @@ class JointMap:
         lim = self.limits
         if lim is not None:
             with np.errstate(invalid="ignore"):
-                values = np.where(lim.wrap[to], (values + np.pi) % (2.0 * np.pi) - np.pi, values)
+                turn = np.remainder(values, 2.0 * np.pi)       # exact: no pi added to a huge angle first
+                values = np.where(lim.wrap[to], np.where(turn >= np.pi, turn - 2.0 * np.pi, turn), values)
                 taken = finite & (values >= lim.lower[to]) & (values <= lim.upper[to])
         q[to[taken]] = values[taken]
         updated[to[taken]] = True
