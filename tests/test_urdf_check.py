@@ -65,6 +65,8 @@ def test_the_default_limits_refuse_the_issue_s_classes_just_past_them():
     assert check_urdf(chain(DEFAULT_MAX_DEPTH + 1)).depth == DEFAULT_MAX_DEPTH          # the bound itself passes
     assert refusal(star(DEFAULT_MAX_LINKS + 1)).kind == "too_many_links"
     assert check_urdf(star(DEFAULT_MAX_LINKS)).n_links == DEFAULT_MAX_LINKS
+    roomy = UrdfLimits(max_bytes=10_000_000)            # the issue's 3 MB ones, past the size limit, still fail
+    assert refusal(chain(10_000), roomy).kind == refusal(star(10_000), roomy).kind == "too_many_links"
 
 
 def test_xml_tricks_are_refused_before_any_expansion():
