@@ -23,6 +23,8 @@ from .fem.warping_models import (ACKNOWLEDGEMENT, AUTO, EXPLICIT_ONLY, WARPING_M
                                  explicit_only_refusal, stretch_plan_refusal, undamped_corotation_refusal,
                                  unacknowledged_undamped, vertex_refusal)
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
+from .skeleton.urdf_check import (CEILING_BYTES, CEILING_DEPTH, CEILING_LINKS, CEILING_MESHES, DEFAULT_MAX_BYTES,
+                                  DEFAULT_MAX_DEPTH, DEFAULT_MAX_JOINTS, DEFAULT_MAX_LINKS, DEFAULT_MAX_MESHES)
 
 
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg", "modal")
@@ -119,6 +121,13 @@ PARAMS: tuple[Param, ...] = (
     Param("skeleton.fit_offset", [0.0, 0.0, 0.0], "with skeleton.fit 'manual': where the file's origin goes in the "
           "skeleton's bind-pose frame [m]"),
     Param("skeleton.fit_tolerance", 0.02, "a bone may leave the surface body by this much before the fit is refused [m]", 0.0, 1.0),
+    # the URDF check before Pinocchio (skeleton/urdf_check.py): defaults that fit every robot of
+    # example-robot-data (at most 211 KB, 130 links, 21 joints deep, 129 meshes) and BVH skeletons with margin
+    Param("skeleton.max_urdf_bytes", DEFAULT_MAX_BYTES, "a URDF larger than this is refused unread [bytes]", 1000, CEILING_BYTES),
+    Param("skeleton.max_links", DEFAULT_MAX_LINKS, "a URDF with more links than this is refused", 1, CEILING_LINKS),
+    Param("skeleton.max_joints", DEFAULT_MAX_JOINTS, "a URDF with more joints than this is refused", 0, CEILING_LINKS),
+    Param("skeleton.max_depth", DEFAULT_MAX_DEPTH, "a URDF with a link more joints than this below its root is refused", 1, CEILING_DEPTH),
+    Param("skeleton.max_meshes", DEFAULT_MAX_MESHES, "a URDF with more <mesh> references than this is refused", 0, CEILING_MESHES),
     Param("binding.level_radii", [0.035, 0.06], "nested constraint levels: distance to the bone axis [m], increasing"),
     Param("binding.relative_levels", False, "binding.level_radii are fractions (0, 1] of the local flesh thickness, "
           "bone to skin, instead of metres (surface bodies: thin fingers and thick thighs both get a core)"),
@@ -157,6 +166,10 @@ PARAMS: tuple[Param, ...] = (
           "this from the world origin is rejected (root_range) [m]", 0.1, 1.0e7),
     Param("input.max_names", 1000, "a joint state with more names than this is rejected (too_many_names) before "
           "any per-name work", 1, 1000000),
+    Param("input.joint_limit_margin", 0.05, "a revolute or prismatic joint's value is taken up to this fraction of "
+          "its URDF range (upper - lower) beyond either limit; further out it is refused (joint_range) and the joint "
+          "keeps its last value (continuous joints and revolute joints spanning a full turn are wrapped instead)",
+          0.0, 1.0e6),
     Param("output.frame_id", "world", "frame of every published message"),
     Param("output.max_bone_distance", 0.3, "a state with a surface vertex farther than this from its bone (or 1.5 "
           "times its distance at rest, if larger) is diverged: never published or recorded, the body is reset [m]",
@@ -330,6 +343,11 @@ class SkeletonSection:
     fit_forward: str
     fit_offset: list                # x, y, z [m]
     fit_tolerance: float
+    max_urdf_bytes: int             # the URDF check's limits (skeleton/urdf_check.py)
+    max_links: int
+    max_joints: int
+    max_depth: int
+    max_meshes: int
 
 
 @dataclass(frozen=True)
@@ -362,6 +380,7 @@ class InputSection:
     max_late_jump: float
     max_root_distance: float
     max_names: int
+    joint_limit_margin: float       # fraction of a joint's URDF range (skeleton/joint_limits.py)
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from .skeleton.humanoid import HumanoidSpec, default_humanoid
 from .skeleton.jelly_body import jelly_man_mesh
 from .skeleton.kinematics import Skeleton, UrdfError
 from .skeleton.link_shapes import prepare_urdf
+from .skeleton.urdf_check import UrdfLimits, UrdfRefused, check_urdf, read_urdf_file
 
 MEASURED_POINTS = SHIPPED_POINTS
 URDF_MANIFEST = "config/urdf_data.md"     # where skeleton.urdf_file data that is not in the repository comes from
@@ -91,24 +92,29 @@ def load_skeleton(config: SceneConfig, urdf_xml: str | None, progress: Callable[
     if source == "none":
         return None, urdf_xml, {}
     urdf_path = None
+    limits = UrdfLimits.of(sk)
     if source == "builtin":
         urdf_xml = default_humanoid().urdf
     elif source == "urdf_file":
         urdf_path = find_data_file(sk.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")
-        urdf_xml = urdf_path.read_text()
+        urdf_xml = read_urdf_file(urdf_path, limits)
     elif urdf_xml is None:
         raise ValueError("skeleton.source is 'robot_description': pass the URDF text received on that "
                          "topic (the node waits for it)")
-    prepared = prepare_urdf(urdf_xml, sk.up_axis, sk.root_joint, leaf_shapes=config.body.kind == "jelly_man",
-                            urdf_file=urdf_path)
-    for note in prepared.notes:
-        say(progress, note)
     try:
-        return Skeleton.from_urdf_string(prepared.urdf), prepared.urdf, prepared.leaf_shapes
+        tree = check_urdf(urdf_xml, limits)     # before anything reads it (skeleton/urdf_check.py)
+        say(progress, f"URDF checked: a tree of {tree.n_links} links and {tree.n_joints} joints from {tree.root!r}, "
+                      f"{tree.depth} deep")
+        prepared = prepare_urdf(urdf_xml, sk.up_axis, sk.root_joint, leaf_shapes=config.body.kind == "jelly_man",
+                                urdf_file=urdf_path)
+        for note in prepared.notes:
+            say(progress, note)
+        return Skeleton.from_urdf_string(prepared.urdf, limits.prepared()), prepared.urdf, prepared.leaf_shapes
     except UrdfError as exc:               # name the file the user can fix
         if source != "urdf_file":
             raise
-        raise UrdfError(f"skeleton.urdf_file {sk.urdf_file!r}: {exc}") from exc
+        text = f"skeleton.urdf_file {sk.urdf_file!r}: {exc}"
+        raise (UrdfRefused(exc.kind, text) if isinstance(exc, UrdfRefused) else UrdfError(text)) from exc
 
 
 def jelly_radii(skeleton: Skeleton, leaf_shapes: dict, body, progress: Callable[[str], None] | None = None

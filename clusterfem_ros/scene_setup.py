@@ -25,6 +25,7 @@ from .fem.stress import compute_stress
 from .fem.tet_mesh import TetMesh, boundary_triangles
 from .numba_cache import is_cached
 from .scene_build import SceneParts, integrator_choice, material_of, say
+from .skeleton.joint_limits import joint_limits
 from .skeleton.joint_map import JointMap
 from .skeleton.joint_stream import JointStreamInterpolator
 from .skeleton.kinematics import Skeleton
@@ -170,9 +171,10 @@ def refuse_islands(model: FemModel, binding: Binding, anchors: list) -> None:
 
 def joint_inputs(config: SceneConfig, skeleton: Skeleton, q0: np.ndarray) -> tuple[JointMap, JointStreamInterpolator]:
     """(joint map starting at ``q0``, joint stream): what takes the skeleton's joint states, checked as the
-    input.* parameters say."""
+    input.* parameters say (and against the URDF's joint limits: skeleton/joint_limits.py)."""
     c = config.input
-    joints = JointMap(skeleton.joint_names, q0, max_names=c.max_names)
+    limits = joint_limits(skeleton.urdf, skeleton.joint_names, c.joint_limit_margin)
+    joints = JointMap(skeleton.joint_names, q0, max_names=c.max_names, limits=limits)
     stream = JointStreamInterpolator(skeleton.joint_names, revolute=skeleton.revolute_mask(),
                                      max_age=c.max_age, max_future=c.max_future,
                                      teleport_distance=c.teleport_distance, prismatic=~skeleton.revolute_mask(),

@@ -38,6 +38,7 @@ from msg_adapters.marker import surface_marker_cdr
 from msg_adapters.pointcloud import stress_cloud_cdr
 
 from ..scene import Scene
+from ..skeleton.urdf_check import UrdfLimits, UrdfRefused, check_urdf
 from ..sim_loop import SimLoop, Snapshot
 from .params import declare_scene_parameters
 from .spinning import run_node
@@ -62,7 +63,8 @@ class ClusterFemNode(Node):
         self.counts: dict[str, int] = {}      # messages per topic published (outputs) or taken in (inputs)
         self.received = 0                     # joint states received; taken in + refused + before the scene
         self.before_scene = 0                 # joint states received before the scene was built (ignored)
-        self.build_error: str | None = None   # why the last robot_description gave no scene (the demo reports it)
+        self.build_error: str | None = None   # why the last robot_description was refused (the demo reports it)
+        self.descriptions_refused: dict[str, int] = {}    # robot_description refusals by kind
         self._warned: dict[str, float] = {}   # input problem kind -> when it was last logged
         self._stats = {"t_wall": time.perf_counter(), "steps": 0}
         self._rtf = 0.0
@@ -75,7 +77,7 @@ class ClusterFemNode(Node):
         self.create_subscription(JointState, JOINTS_TOPIC, self._on_joint_state, qos_profile_sensor_data, raw=True)
         if c.skeleton.source == "robot_description":
             self.get_logger().info("waiting for the URDF on 'robot_description' (transient local)")
-            self.create_subscription(String, URDF_TOPIC, self._on_robot_description, LATCHED)
+            self.create_subscription(String, URDF_TOPIC, self._on_robot_description, LATCHED, raw=True)
         else:
             self._build(None)
         self._output_timers = {}
@@ -98,15 +100,42 @@ class ClusterFemNode(Node):
         """The physics thread's log lines (throttled like the callbacks' own)."""
         getattr(self.get_logger(), level)(text, throttle_duration_sec=2.0)
 
-    def _on_robot_description(self, msg: String) -> None:
-        if self.scene is None:
-            try:
-                self._build(msg.data)
-            except Exception as exc:  # a bad URDF must not kill the node: say what and wait for another
-                self.build_error = f"cannot build the scene from robot_description: {exc}"
-                self.get_logger().error(self.build_error)
-                return
-            self._record(URDF_TOPIC, serialize_message(msg))    # the bag carries its skeleton (the renderer poses it)
+    def _refuse_description(self, kind: str, text: str) -> None:
+        """One line and one count (diagnostics: robot_description_refused_<kind>) per refused description."""
+        self.descriptions_refused[kind] = self.descriptions_refused.get(kind, 0) + 1
+        self.build_error = text
+        self.get_logger().error(f"{text} [{kind}: {self.descriptions_refused[kind]} so far]")
+
+    def _on_robot_description(self, data: bytes) -> None:
+        """Every description is checked as a tree under the skeleton.max_* limits (skeleton/urdf_check.py) before
+        anything else reads it; the first one that passes builds the scene. A refused one leaves the node as it
+        was (waiting, or running its body) with one line and a count; a later good one is ignored with one line."""
+        limits = UrdfLimits.of(self.config.skeleton)
+        if len(data) > limits.max_bytes + 64:         # the CDR header and length: refused before decoding
+            self._refuse_description("too_large", f"robot_description refused: {len(data)} bytes (skeleton."
+                                     f"max_urdf_bytes {limits.max_bytes}); raise it if this robot is real")
+            return
+        try:
+            text = deserialize_message(data, String).data
+            check_urdf(text, limits)
+        except UrdfRefused as exc:
+            self._refuse_description(exc.kind, f"robot_description refused: {exc}")
+            return
+        except Exception as exc:
+            self._refuse_description("malformed", f"robot_description refused: {exc}")
+            return
+        if self.scene is not None:
+            self.get_logger().warning("a new robot_description was received while the body runs on the first one: "
+                                      "ignored; restart the node to take it", throttle_duration_sec=2.0)
+            return
+        try:
+            self._build(text)
+        except Exception as exc:  # a bad URDF must not kill the node: say what and wait for another
+            self._refuse_description(getattr(exc, "kind", "build_failed"),
+                                     f"cannot build the scene from robot_description: {exc}")
+            return
+        self.build_error = None
+        self._record(URDF_TOPIC, data)    # the bag carries its skeleton (the renderer poses it)
 
     def _open_recording(self) -> None:
         from ..recording.rosbag2_mcap import Rosbag2McapWriter, default_bag_path
@@ -362,6 +391,10 @@ class ClusterFemNode(Node):
                            "inputs_waiting": loop.waiting, "inputs_dropped_queue_full": loop.queue_full})
         if s:
             values.update({"tet_quality_worst": s.model.quality.worst, "tet_slivers": s.model.quality.slivers})
+        if self.config.skeleton.source == "robot_description":
+            refused = dict(self.descriptions_refused)
+            values["robot_description_refused"] = sum(refused.values())
+            values.update({f"robot_description_refused_{k}": n for k, n in sorted(refused.items())})
         values["joint_states_received"] = self.received
         values["joint_states_before_scene"] = self.before_scene
         rec = self.recorder
@@ -397,8 +430,11 @@ class ClusterFemNode(Node):
         # ERROR while physics is stopped or for ERROR_HOLD_S after a failed step (then WARN: the count stays)
         failed = loop is not None and (loop.stopped or time.perf_counter() - loop.error_at < ERROR_HOLD_S)
         level = "ERROR" if failed else ("OK" if finite and not values["inputs_rejected"] and not self.divergences
-                                        and not values.get("physics_failures") else "WARN")
+                                        and not values.get("physics_failures")
+                                        and not values.get("robot_description_refused") else "WARN")
         message = ("physics stopped: " if loop.stopped else "physics failed: ") + loop.error if failed else ""
+        if not message and self.build_error:
+            message = self.build_error if self.scene is None else f"last {self.build_error}"
         if self.recording_error:
             level = "ERROR"
             message = (message + "; " if message else "") + f"recording stopped: {self.recording_error}"

@@ -9,8 +9,12 @@ Policy (what a node needs to warn well and keep running):
 * fatal, the message is dropped (``accepted`` False): more than ``max_names`` names (``too_many_names``,
   before any per-name work), names and positions of different length (``length_mismatch``), a name given
   twice (``duplicate_joint``), no known joint at all (``no_known_joint``);
-* repaired: a non-finite position leaves that joint at its last value (``non_finite``); velocities of
-  the wrong length or with a non-finite entry are dropped (``bad_velocity``) and v is None.
+* repaired: a non-finite position leaves that joint at its last value (``non_finite``), and so does one
+  outside the joint's URDF range widened by its margin (``joint_range``, one problem per message naming the
+  joints; ``limits``, see skeleton/joint_limits.py); velocities of the wrong length or with a non-finite entry
+  are dropped (``bad_velocity``) and v is None;
+* with ``limits``: continuous and full-turn revolute joints are wrapped to [-pi, pi) (the joint stream
+  unwraps them), and a mimic joint the message does not name follows its master when the master moves.
 
 v is returned only when the message gives a finite velocity for every skeleton joint; otherwise it is
 None and the interpolator derives velocities by finite differences. Units: radians and metres (and /s).
@@ -22,6 +26,8 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+
+from .joint_limits import JointLimits
 
 FATAL = frozenset({"too_many_names", "length_mismatch", "duplicate_joint", "no_known_joint"})
 MAX_REMEMBERED_UNKNOWN = 1000
@@ -42,7 +48,8 @@ class JointMapResult:
 class JointMap:
     """Holds the last known q of ``joint_names`` and merges JointState-like messages into it."""
 
-    def __init__(self, joint_names: Sequence[str], q0: np.ndarray | None = None, max_names: int = 100_000):
+    def __init__(self, joint_names: Sequence[str], q0: np.ndarray | None = None, max_names: int = 100_000,
+                 limits: JointLimits | None = None):
         self.joint_names = list(joint_names)
         if len(set(self.joint_names)) != len(self.joint_names):
             dup = sorted({n for n in self.joint_names if self.joint_names.count(n) > 1})
@@ -56,6 +63,9 @@ class JointMap:
         if max_names < 1:
             raise ValueError(f"max_names = {max_names} must be >= 1")
         self.max_names = int(max_names)
+        if limits is not None and not (limits.lower.shape == limits.upper.shape == limits.wrap.shape == (n,)):
+            raise ValueError(f"limits are for {limits.lower.shape} joints, expected ({n},)")
+        self.limits = limits
         self.unknown: set[str] = set()
         self._last_names: tuple | None = None     # (names, at, to) of the last message (_known)
 
@@ -118,18 +128,45 @@ class JointMap:
             vel = None
         updated = np.zeros(n, dtype=bool)
         q = self.q.copy()
-        finite = np.isfinite(pos[at])
-        q[to[finite]] = pos[at[finite]]
-        updated[to[finite]] = True
+        values = pos[at]
+        finite = np.isfinite(values)
+        taken = finite
+        lim = self.limits
+        if lim is not None:
+            with np.errstate(invalid="ignore"):
+                turn = np.remainder(values, 2.0 * np.pi)       # exact: no pi added to a huge angle first
+                values = np.where(lim.wrap[to], np.where(turn >= np.pi, turn - 2.0 * np.pi, turn), values)
+                taken = finite & (values >= lim.lower[to]) & (values <= lim.upper[to])
+        q[to[taken]] = values[taken]
+        updated[to[taken]] = True
         for k in at[~finite]:
             problems.append(("non_finite", f"joint {names[k]!r} position is {pos[k]} at index {k}: kept its "
                                            "last value; drop the sample or send a finite value"))
+        if lim is not None and (finite & ~taken).any():
+            out = np.flatnonzero(finite & ~taken)
+            more = f" and {out.size - _SHOWN} more" if out.size > _SHOWN else ""
+            shown = ", ".join(f"{names[at[i]]!r} = {values[i]:.6g} (taken in [{lim.lower[to[i]]:.6g}, "
+                              f"{lim.upper[to[i]]:.6g}])" for i in out[:_SHOWN])
+            problems.append(("joint_range", f"joint {shown}{more} outside the URDF limits and input."
+                                            "joint_limit_margin: kept the last value; fix the publisher or the "
+                                            "URDF limits"))
+        followers = []                  # mimic joints set from their master by this message
+        if lim is not None and lim.mimic:
+            named = np.zeros(n, dtype=bool)
+            named[to] = True
+            for k, master, mul, off in lim.mimic:
+                if updated[master] and not named[k]:
+                    q[k] = mul * q[master] + off
+                    updated[k] = True
+                    followers.append((k, master, mul))
         if not updated.any():
             return JointMapResult(False, self.q.copy(), None, updated, problems, new_unknown)
         v = None
         if vel is not None and updated.all():
             v = np.zeros(n)
             v[to] = vel[at]
+            for k, master, mul in followers:
+                v[k] = mul * v[master]
         return JointMapResult(True, q, v, updated, problems, new_unknown)
 
     def _known(self, names: list[str]) -> tuple[np.ndarray, np.ndarray]:

@@ -31,15 +31,11 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from ..errors import ClusterFemError
 from .fk_kernel import tree_forward
 from .urdf_builder import HELPER_MASS, TIP_SUFFIX
+from .urdf_check import SKELETON_LIMITS, UrdfError, UrdfLimits, check_urdf, read_urdf_file
 
 SCALAR_KINDS = ("revolute", "continuous", "prismatic")
-
-
-class UrdfError(ClusterFemError, ValueError):
-    """A URDF that cannot become a skeleton; the message names the element and the way out."""
 
 
 @dataclass(frozen=True)
@@ -112,7 +108,9 @@ def _numbers(text: str, where: str, count: int = 3) -> np.ndarray:
 class Skeleton:
     """Forward kinematics of a URDF skeleton by joint name (see the module docstring)."""
 
-    def __init__(self, xml: str):
+    def __init__(self, xml: str, limits: UrdfLimits = SKELETON_LIMITS):
+        check_urdf(xml, limits)         # a bounded tree: what Pinocchio's reader crashes or swells on never reaches it
+        self.urdf = xml                 # the text it was built from (joint limits and mimics: joint_limits.py)
         links, joints = _parse_tree(xml)
         for name, j in joints.items():
             if j["type"] not in SCALAR_KINDS + ("fixed",):
@@ -123,8 +121,8 @@ class Skeleton:
             self.model = pin.buildModelFromXML(xml)
         except (ValueError, RuntimeError) as e:
             raise UrdfError(f"pinocchio cannot build a model from this URDF: {e}") from e
-        self.data = self.model.createData()
-        m = self.model
+        self._data = None               # pinocchio's Data, made on first use (forward_pinocchio): its size grows
+        m = self.model                  # with the cube of the joints (0.5 GB at 200), the scene path never needs it
         self.joint_names: list[str] = []
         q_index, continuous = [], []
         for jid in range(1, m.njoints):
@@ -140,8 +138,10 @@ class Skeleton:
         self.nq = self.nv = len(self.joint_names)
 
         children: dict[str, list[str]] = {n: [] for n in links}
+        out_joints: dict[str, list[dict]] = {n: [] for n in links}
         for j in joints.values():
             children.setdefault(j["parent"], []).append(j["child"])
+            out_joints.setdefault(j["parent"], []).append(j)
 
         def is_tip(n: str) -> bool:
             pj = links[n].parent_joint
@@ -152,7 +152,7 @@ class Skeleton:
             axes of one multi-axis joint (the '*_virtual' links of biomechanical URDFs), like our helpers; or
             such a link named 'world' (the world frame a robot's base hangs on, by convention; the mounting may
             have put it under the up-axis rotation)."""
-            out = [j for j in joints.values() if j["parent"] == n]
+            out = out_joints[n]
             bare = links[n].mass is None and not links[n].shaped
             return bare and bool(out) and (n == "world" or all(not j["xyz"].any() for j in out))
 
@@ -202,21 +202,23 @@ class Skeleton:
         self._k_fR = np.array([m.frames[f].placement.rotation for f in self._frame])
         self._k_fp = np.array([m.frames[f].placement.translation for f in self._frame])
         self._scratch = (np.zeros((nj, 3, 3)), np.zeros((nj, 3)), np.zeros((nj, 3)), np.zeros((nj, 3)))
+        # the bones' end frames (tips, child bones) for bone_segments, through the same kernel
+        ends = sorted({f for fs in self._ends for f in fs})
+        self._e_row = {f: k for k, f in enumerate(ends)}
+        self._e_joint = np.array([m.frames[f].parentJoint - 1 for f in ends], dtype=np.int64)
+        self._e_R = np.array([m.frames[f].placement.rotation for f in ends]).reshape(len(ends), 3, 3)
+        self._e_p = np.array([m.frames[f].placement.translation for f in ends]).reshape(len(ends), 3)
 
     # -- construction --------------------------------------------------------------------------------
     @classmethod
-    def from_urdf_string(cls, xml: str) -> "Skeleton":
+    def from_urdf_string(cls, xml: str, limits: UrdfLimits = SKELETON_LIMITS) -> "Skeleton":
         if not isinstance(xml, str) or not xml.strip():
             raise UrdfError("the URDF text is empty: pass the robot_description string or use from_urdf_file")
-        return cls(xml)
+        return cls(xml, limits)
 
     @classmethod
-    def from_urdf_file(cls, path: str | Path) -> "Skeleton":
-        try:
-            text = Path(path).read_text()
-        except OSError as e:
-            raise UrdfError(f"cannot read URDF file {str(path)!r}: {e.strerror}; check the path") from e
-        return cls.from_urdf_string(text)
+    def from_urdf_file(cls, path: str | Path, limits: UrdfLimits = SKELETON_LIMITS) -> "Skeleton":
+        return cls.from_urdf_string(read_urdf_file(path, limits), limits)
 
     # -- configuration ---------------------------------------------------------------------------------
     @property
@@ -305,6 +307,13 @@ class Skeleton:
             self._to_pin(qs, vs)        # a value is not finite: raises naming the joint
         return BonePoses(R, p, tw)
 
+    @property
+    def data(self) -> pin.Data:
+        """Pinocchio's scratch Data (made on first use)."""
+        if self._data is None:
+            self._data = self.model.createData()
+        return self._data
+
     def forward_pinocchio(self, q: np.ndarray, v: np.ndarray | None = None) -> BonePoses:
         """``forward`` through pinocchio's ``forwardKinematics`` / ``getFrameVelocity`` (LOCAL_WORLD_ALIGNED)."""
         self._to_pin(q, v if v is not None else np.zeros(self.nv))
@@ -321,16 +330,18 @@ class Skeleton:
         return BonePoses(R, p, tw)
 
     def bone_segments(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(starts (nb, 3), ends (nb, 3)) [m]: each bone's axis at q, origin to tip / farthest child / itself."""
-        self._to_pin(q, None)
-        pin.forwardKinematics(self.model, self.data, self._q_pin)
-        pin.updateFramePlacements(self.model, self.data)
-        d = self.data
-        starts = np.array([d.oMf[f].translation for f in self._frame])
+        """(starts (nb, 3), ends (nb, 3)) [m]: each bone's axis at q, origin to tip / farthest child / itself
+        (the end frames placed by the kernel of ``forward``)."""
+        qs, vs = self._check(q, None)
+        starts = self.forward(qs).translation
+        ne = len(self._e_row)
+        R, p, tw = np.empty((ne, 3, 3)), np.empty((ne, 3)), np.empty((ne, 6))
+        tree_forward(self._k_parent, self._k_R, self._k_p, self._k_axis, self._k_prismatic, qs, vs,
+                     self._e_joint, self._e_R, self._e_p, *self._scratch, R, p, tw)
         ends = starts.copy()
         for b, fs in enumerate(self._ends):
             if fs:
-                cand = np.array([d.oMf[f].translation for f in fs])
+                cand = p[[self._e_row[f] for f in fs]]
                 ends[b] = cand[np.argmax(np.linalg.norm(cand - starts[b], axis=1))]
         return starts, ends
 
