@@ -26,7 +26,7 @@ from .skeleton.mounting import ROOT_JOINTS, UP_AXES
 
 
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg", "modal")
-BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh", "surface")
+BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh", "surface", "robot_cover")
 SKELETONS = ("builtin", "urdf_file", "robot_description", "none")
 COLORMAPS = ("turbo", "viridis", "coolwarm")
 NODE_NAME = "clusterfem"
@@ -44,14 +44,18 @@ class Param:
 
 
 PARAMS: tuple[Param, ...] = (
-    Param("body.kind", "jelly_man", "soft body: built around the skeleton, a paper shape, or a mesh file", choices=BODIES),
+    Param("body.kind", "jelly_man", "soft body: built around the skeleton (jelly_man: capsules around bones; robot_cover: the links' own shapes with a skin), a paper shape, or a mesh file", choices=BODIES),
     Param("body.mesh_file", "", "volume mesh (.msh/.vtu/.vtk/.mesh) when body.kind is 'mesh', in the skeleton's rest pose"),
-    Param("body.target_tets", 4800, "approximate tet count of the jelly man, or of a surface body (within 20 %)", 100, 400000),
+    Param("body.target_tets", 4800, "approximate tet count of the jelly man, of a robot cover, or of a surface body (within 20 %)", 100, 400000),
     Param("body.surface_file", "", "triangle surface (.obj/.stl/.ply/.glb) of a character when body.kind is 'surface': a path, "
           "or a path under $CLUSTERFEM_DATA or ../shared/data; tetrahedralized with fTetWild, cached"),
     Param("body.surface_group", "", "the OBJ group of body.surface_file to use ('' = the whole file)"),
     Param("body.surface_unit", 1.0, "metres per unit of body.surface_file (0.1 for decimetres, 0.01 for cm)", 1.0e-6, 1.0e3),
     Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
+    Param("body.cover_thickness", 0.02, "body.kind 'robot_cover': the skin around each link's own shapes (at least "
+          "0.87 voxel edges, so the skin has no gaps) [m]", 0.001, 0.5),
+    Param("body.cover_shapes", "collision", "body.kind 'robot_cover': the links' shapes it is built around, "
+          "'collision' or 'visual' (a link without the one takes the other)", choices=("collision", "visual")),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
     # the material defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
@@ -240,6 +244,8 @@ class BodySection:
     surface_group: str
     surface_unit: float             # metres per unit of surface_file
     bone_radius: float              # [m]
+    cover_thickness: float          # [m]
+    cover_shapes: str               # 'collision' or 'visual'
     scale: float
     fix_bottom: bool
 
@@ -514,8 +520,8 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
                           f"warping_model 'element', and may choose an implicit method, which warping_model "
                           f"{out['warping_model']!r} does not run: set budget.max_error_mm 0, or warping_model "
                           "'element'")
-    if out["body.kind"] == "jelly_man" and out["skeleton.source"] == "none":
-        raise ConfigError("body.kind = 'jelly_man' is built around a skeleton: set skeleton.source")
+    if out["body.kind"] in ("jelly_man", "robot_cover") and out["skeleton.source"] == "none":
+        raise ConfigError(f"body.kind = {out['body.kind']!r} is built around a skeleton: set skeleton.source")
     return SceneConfig(out)
 
 
