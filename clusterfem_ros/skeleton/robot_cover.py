@@ -184,10 +184,10 @@ def cover_parts(xml: str, skeleton, geometry: dict, spacing: float) -> tuple[lis
     owner, body = rigid_bodies(xml, skeleton.bone_names)
     parts, away = [], []
     for link, meshes in geometry.items():
-        if link not in owner or not model.existFrame(link):
+        if link not in owner or not model.existFrame(link, pin.BODY):
             away.append(link)
             continue
-        M = data.oMf[model.getFrameId(link)]
+        M = data.oMf[model.getFrameId(link, pin.BODY)]
         T = np.eye(4)
         T[:3, :3], T[:3, 3] = M.rotation, M.translation
         world = [m.copy().apply_transform(T) for m in meshes]
