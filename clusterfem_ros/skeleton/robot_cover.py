@@ -99,8 +99,11 @@ def _geometry(element: ET.Element, link: str, source: str, search: list[Path]):
             return None, f"{where} mesh {path.name!r} cannot be read ({exc})"
         if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
             return None, f"{where} mesh {path.name!r} has no triangles"
+        scale = _floats(geo.get("scale", "1 1 1"), 3, f"{where} mesh scale", signed=True)   # -1: mirrored
+        if not scale.all():
+            return None, f"{where} mesh {path.name!r} has scale {geo.get('scale')!r}: a zero flattens it"
         m = m.copy()
-        m.apply_scale(_floats(geo.get("scale", "1 1 1"), 3, f"{where} mesh scale"))
+        m.apply_transform(np.diag(np.append(scale, 1.0)))     # trimesh keeps the faces outward under a mirror
     else:
         return None, f"{where} has a <{geo.tag}>, not a mesh, box, cylinder, sphere or capsule"
     T = np.eye(4)
