@@ -27,6 +27,7 @@ from .fem.tet_mesh import TetMesh, boundary_triangles
 from .numba_cache import is_cached
 from .scene_build import SceneParts, integrator_choice, material_of, say
 from .skeleton.joint_map import JointMap
+from .skeleton.joint_sweep import swept_joints
 from .skeleton.joint_stream import JointStreamInterpolator
 from .skeleton.kinematics import Skeleton
 
@@ -72,7 +73,7 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
         binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress)
                    if parts.cover is None else bind_cover(config, model, skeleton, q0, parts.cover, progress))
         driver = skeleton_driver(config, binding, model.rest, skeleton, anchors)
-        joints, stream = joint_inputs(config, skeleton, q0)
+        joints, stream = joint_inputs(config, skeleton, q0, parts.urdf_xml)
     elif anchors:                   # world points: their targets, once
         index, x, v, a, kp, kd = point_targets(anchors, model.rest)
         anchored = Attachments(index, x - model.rest[index], v, a, kp, kd)
@@ -183,11 +184,13 @@ def refuse_islands(model: FemModel, binding: Binding, anchors: list) -> None:
                          "binding.level_radii, or hold it with anchors.points / anchors.bones")
 
 
-def joint_inputs(config: SceneConfig, skeleton: Skeleton, q0: np.ndarray) -> tuple[JointMap, JointStreamInterpolator]:
+def joint_inputs(config: SceneConfig, skeleton: Skeleton, q0: np.ndarray,
+                 urdf_xml: str | None = None) -> tuple[JointMap, JointStreamInterpolator]:
     """(joint map starting at ``q0``, joint stream): what takes the skeleton's joint states, checked as the
-    input.* parameters say."""
+    input.* parameters say; the URDF's mimic joints follow their masters."""
     c = config.input
-    joints = JointMap(skeleton.joint_names, q0, max_names=c.max_names)
+    mimic = {j.name: j.mimic for j in swept_joints(urdf_xml) if j.mimic is not None} if urdf_xml else {}
+    joints = JointMap(skeleton.joint_names, q0, max_names=c.max_names, mimic=mimic)
     stream = JointStreamInterpolator(skeleton.joint_names, revolute=skeleton.revolute_mask(),
                                      max_age=c.max_age, max_future=c.max_future,
                                      teleport_distance=c.teleport_distance, prismatic=~skeleton.revolute_mask(),

@@ -196,3 +196,16 @@ def test_robot_scene_plays_its_sweep_with_no_reset(scene_file):
             worst = max(worst, float(np.linalg.norm(scene.model.rest + scene.state.u - carried, axis=1).max()))
     thickness = scene.config.body.cover_thickness
     assert worst < thickness, f"a vertex lags {worst * 1e3:.1f} mm behind its link, more than the skin's thickness"
+
+
+def test_a_mimic_joint_left_out_follows_its_master():
+    from clusterfem_ros.skeleton.joint_map import JointMap
+    jm = JointMap(["a", "b", "c"], mimic={"b": ("a", -2.0, 0.1), "x": ("a", 1.0, 0.0)})
+    r = jm.update(["a", "c"], [0.5, 0.2], [1.0, 3.0])
+    np.testing.assert_allclose(r.q, [0.5, -0.9, 0.2])
+    np.testing.assert_allclose(r.v, [1.0, -2.0, 3.0])
+    assert r.updated.all()
+    r = jm.update(["a", "b"], [0.5, 0.3])                # a message that sets the mimic joint itself wins
+    np.testing.assert_allclose(r.q, [0.5, 0.3, 0.2])
+    r = jm.update(["c"], [0.0])                          # the master not set: the mimic keeps its value
+    np.testing.assert_allclose(r.q, [0.5, 0.3, 0.0])

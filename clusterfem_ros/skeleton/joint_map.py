@@ -10,7 +10,9 @@ Policy (what a node needs to warn well and keep running):
   before any per-name work), names and positions of different length (``length_mismatch``), a name given
   twice (``duplicate_joint``), no known joint at all (``no_known_joint``);
 * repaired: a non-finite position leaves that joint at its last value (``non_finite``); velocities of
-  the wrong length or with a non-finite entry are dropped (``bad_velocity``) and v is None.
+  the wrong length or with a non-finite entry are dropped (``bad_velocity``) and v is None;
+* a mimic joint (``mimic``: the URDF's ``<mimic>`` tags) that a message leaves out while it sets its master
+  follows the master: ``multiplier q_master + offset`` (robot drivers publish the master only).
 
 v is returned only when the message gives a finite velocity for every skeleton joint; otherwise it is
 None and the interpolator derives velocities by finite differences. Units: radians and metres (and /s).
@@ -42,7 +44,8 @@ class JointMapResult:
 class JointMap:
     """Holds the last known q of ``joint_names`` and merges JointState-like messages into it."""
 
-    def __init__(self, joint_names: Sequence[str], q0: np.ndarray | None = None, max_names: int = 100_000):
+    def __init__(self, joint_names: Sequence[str], q0: np.ndarray | None = None, max_names: int = 100_000,
+                 mimic: dict[str, tuple[str, float, float]] | None = None):
         self.joint_names = list(joint_names)
         if len(set(self.joint_names)) != len(self.joint_names):
             dup = sorted({n for n in self.joint_names if self.joint_names.count(n) > 1})
@@ -58,6 +61,9 @@ class JointMap:
         self.max_names = int(max_names)
         self.unknown: set[str] = set()
         self._last_names: tuple | None = None     # (names, at, to) of the last message (_known)
+        pairs = [(self._index[f], self._index[m], k, o) for f, (m, k, o) in (mimic or {}).items()
+                 if f in self._index and m in self._index]
+        self._mimic = tuple(np.array(c) for c in zip(*pairs)) if pairs else None    # follower, master, mult, offset
 
     def update(self, names: Sequence[str], positions, velocities=None) -> JointMapResult:
         """Merge one message; see the module docstring for what is kept, repaired or rejected."""
@@ -113,10 +119,18 @@ class JointMap:
                                            "last value; drop the sample or send a finite value"))
         if not updated.any():
             return JointMapResult(False, self.q.copy(), None, updated, problems, new_unknown)
+        follow = None
+        if self._mimic is not None:
+            f, m, k, o = self._mimic
+            follow = ~updated[f] & updated[m]
+            q[f[follow]] = k[follow] * q[m[follow]] + o[follow]
+            updated[f[follow]] = True
         v = None
         if vel is not None and updated.all():
             v = np.zeros(n)
             v[to] = vel[at]
+            if follow is not None:
+                v[f[follow]] = k[follow] * v[m[follow]]
         self.q = q
         return JointMapResult(True, q.copy(), v, updated, problems, new_unknown)
 
