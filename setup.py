@@ -20,13 +20,13 @@ setup(
     # Only what pip should really fetch: rclpy and the message packages come from the ROS install
     # (wheels or apt), and listing them here would pull a second copy.
     install_requires=["numpy", "scipy", "numba", "pin", "mcap", "meshio", "pyyaml", "matplotlib", "imageio",
-                      "imageio-ffmpeg", "trimesh", "rtree", "pytetwild", "pyvista", "fast_simplification"],
+                      "imageio-ffmpeg", "trimesh", "pycollada", "rtree", "pytetwild", "pyvista", "fast_simplification"],
     zip_safe=True,
     maintainer="clusterfem_ros maintainers",
     maintainer_email="clusterfem@example.com",
     description="Skeleton-driven soft bodies with clustered linear FEM for ROS 2.",
     license="Apache-2.0",
-    extras_require={"test": ["pytest", "rosbags"]},
+    extras_require={"test": ["pytest", "rosbags"], "robots": ["example-robot-data"]},
     entry_points={
         "console_scripts": [
             "clusterfem_demo = clusterfem_ros.nodes.demo:main",

@@ -28,7 +28,7 @@ from .skeleton.urdf_check import (CEILING_BYTES, CEILING_DEPTH, CEILING_LINKS, C
 
 
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg", "modal")
-BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh", "surface")
+BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh", "surface", "robot_cover")
 SKELETONS = ("builtin", "urdf_file", "robot_description", "none")
 COLORMAPS = ("turbo", "viridis", "coolwarm")
 NODE_NAME = "clusterfem"
@@ -46,9 +46,9 @@ class Param:
 
 
 PARAMS: tuple[Param, ...] = (
-    Param("body.kind", "jelly_man", "soft body: built around the skeleton, a paper shape, or a mesh file", choices=BODIES),
+    Param("body.kind", "jelly_man", "soft body: built around the skeleton (jelly_man: capsules around bones; robot_cover: the links' own shapes with a skin), a paper shape, or a mesh file", choices=BODIES),
     Param("body.mesh_file", "", "volume mesh (.msh/.vtu/.vtk/.mesh) when body.kind is 'mesh', in the skeleton's rest pose"),
-    Param("body.target_tets", 4800, "approximate tet count of the jelly man, or of a surface body (within 20 %)", 100, 400000),
+    Param("body.target_tets", 4800, "approximate tet count of the jelly man, of a robot cover, or of a surface body (within 20 %)", 100, 400000),
     Param("body.surface_file", "", "triangle surface (.obj/.stl/.ply/.glb) of a character when body.kind is 'surface': a path, "
           "or a path under $CLUSTERFEM_DATA or ../shared/data; tetrahedralized with fTetWild, cached"),
     Param("body.surface_group", "", "the OBJ group of body.surface_file to use ('' = the whole file)"),
@@ -58,6 +58,10 @@ PARAMS: tuple[Param, ...] = (
           "from the tree and its rest shape (skeleton/bone_roles.py) and gives each a radius in proportion to the "
           "height (falls back to 'uniform', saying why, when the skeleton is not a human's); 'uniform' gives every "
           "bone body.bone_radius", choices=("auto", "uniform")),
+    Param("body.cover_thickness", 0.02, "body.kind 'robot_cover': the skin around each link's own shapes (at least "
+          "0.87 voxel edges, so the skin has no gaps) [m]", 0.001, 0.5),
+    Param("body.cover_shapes", "collision", "body.kind 'robot_cover': the links' shapes it is built around, "
+          "'collision' or 'visual' (a link without the one takes the other)", choices=("collision", "visual")),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
     Param("body.min_tet_quality", 1e-8, "refuse a mesh with a tet of lower shape quality (6 sqrt2 V / l_rms^3, 1 = regular; "
@@ -287,6 +291,8 @@ class BodySection:
     surface_unit: float             # metres per unit of surface_file
     bone_radius: float              # [m]
     flesh: str                      # 'auto' (radii by bone role) or 'uniform' (body.bone_radius)
+    cover_thickness: float          # [m]
+    cover_shapes: str               # 'collision' or 'visual'
     scale: float
     fix_bottom: bool
     min_tet_quality: float          # fem/tet_quality.py
@@ -570,8 +576,8 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
                           f"warping_model 'element', and may choose an implicit method, which warping_model "
                           f"{out['warping_model']!r} does not run: set budget.max_error_mm 0, or warping_model "
                           "'element'")
-    if out["body.kind"] == "jelly_man" and out["skeleton.source"] == "none":
-        raise ConfigError("body.kind = 'jelly_man' is built around a skeleton: set skeleton.source")
+    if out["body.kind"] in ("jelly_man", "robot_cover") and out["skeleton.source"] == "none":
+        raise ConfigError(f"body.kind = {out['body.kind']!r} is built around a skeleton: set skeleton.source")
     return SceneConfig(out)
 
 

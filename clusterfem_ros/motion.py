@@ -5,6 +5,8 @@
                                                     # (files: a path, or a name under $CLUSTERFEM_DATA / ../shared/data;
                                                     # unit / up: 'auto' finds them from the skeleton)
     load_motion("keyframes", "wave.yaml")           # timed targets for the default humanoid's joints
+    load_motion("joint_sweep", "package://example-robot-data/robots/panda_description/urdf/panda.urdf")
+                                                    # a URDF's joints swept through their ranges (joint_sweep.py)
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ import numpy as np
 
 from .skeleton.trajectory import JointTrajectory
 
-SOURCES = ("builtin_walk", "bvh", "keyframes")
+SOURCES = ("builtin_walk", "bvh", "keyframes", "joint_sweep")
 PLAYER_NODE = "mocap_player"
 PLAYER_PARAMS = ("source", "file", "rate_hz", "speed", "start_offset", "loop", "loop_blend", "unit", "up")
 WALK_CYCLES = 4          # the built-in walk is this many whole gait periods, so looping is seamless
@@ -55,8 +57,8 @@ def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: 
     if source not in SOURCES:
         raise ValueError(f"motion source {source!r} is unknown: choose one of {', '.join(SOURCES)}")
     if not str(file):
-        raise ValueError(f"motion source {source!r} needs a file: set the 'file' parameter to a "
-                         f"{'.bvh' if source == 'bvh' else '.yaml/.csv'} path")
+        kind = {"bvh": ".bvh", "joint_sweep": ".urdf"}.get(source, ".yaml/.csv")
+        raise ValueError(f"motion source {source!r} needs a file: set the 'file' parameter to a {kind} path")
     from .body.fit import find_data_file
     path = find_data_file(str(file), what=f"motion source {source!r}: file")
     if source == "bvh":
@@ -68,6 +70,13 @@ def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: 
         carry = np.array([n.endswith("pos") and abs(capture.to_ros[2, "XYZ".index(n[-4])]) < 0.5 for n in traj.names])
         return Motion(bvh_urdf(capture), traj, f"BVH {path.name} ({capture.n_frames} frames, "
                       f"{traj.duration:.2f} s)", False, carry, capture.placement, capture)
+    if source == "joint_sweep":
+        from .skeleton.joint_sweep import joint_sweep
+        urdf = path.read_text()
+        sweep = joint_sweep(urdf)
+        tr = sweep.trajectory
+        return Motion(urdf, tr, f"joint sweep of {path.name} ({len(tr.names)} joints, {tr.duration:.2f} s)"
+                      + "".join(f"; {note}" for note in sweep.notes), False)
     from .skeleton.keyframes import load_keyframes
     spec = default_humanoid()
     traj = load_keyframes(path, joint_names=spec.joint_names)
@@ -106,5 +115,6 @@ def on_capture_skeleton(config):
 
 def skeleton_source_for(source: str) -> str:
     """The node's skeleton.source that fits a player source: the built-in humanoid for the walk and key frames,
-    the URDF the player latches on robot_description for a BVH (its own skeleton)."""
-    return "robot_description" if source == "bvh" else "builtin"
+    the URDF the player latches on robot_description for a BVH (its own skeleton), the URDF file the joint sweep
+    reads (or the same URDF latched on robot_description) for the joint sweep."""
+    return {"bvh": "robot_description", "joint_sweep": "urdf_file"}.get(source, "builtin")

@@ -25,6 +25,7 @@ from .skeleton.humanoid import HumanoidSpec, default_humanoid
 from .skeleton.jelly_body import jelly_man_mesh
 from .skeleton.kinematics import Skeleton, UrdfError
 from .skeleton.link_shapes import prepare_urdf
+from .skeleton.robot_cover import RobotCover, robot_cover
 from .skeleton.urdf_check import UrdfLimits, UrdfRefused, check_urdf, read_urdf_file
 
 MEASURED_POINTS = SHIPPED_POINTS
@@ -47,6 +48,7 @@ class SceneParts:
     urdf_xml: str | None
     surface: SurfaceBody | None = None   # of a surface body: its bind pose and depth under the skin
     bind_all: bool = False          # the outermost binding level reaches every vertex (a capsule body)
+    cover: RobotCover | None = None     # of a robot cover: each vertex's link bone and depth
 
 
 def material_of(c: SceneConfig) -> Material:
@@ -162,6 +164,16 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
             spec = HumanoidSpec(urdf_xml, jelly_radii(skeleton, leaf_shapes, body, progress), leaf_shapes=leaf_shapes)
         say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
         mesh = jelly_man_mesh(spec, target_tets=body.target_tets)
+    elif kind == "robot_cover":
+        say(progress, f"covering the robot's links (~{body.target_tets} tets)")
+        urdf_file = (find_data_file(config.skeleton.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")
+                     if source == "urdf_file" else None)
+        cover = robot_cover(urdf_xml, skeleton, thickness=body.cover_thickness, target_tets=body.target_tets,
+                            source=body.cover_shapes, urdf_file=urdf_file)
+        for note in cover.notes:
+            say(progress, note)
+        return SceneParts(config, cover.mesh, np.zeros(cover.mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
+                          cover=cover)
     elif kind == "mesh":
         mesh = read_mesh(body.mesh_file)
     elif kind == "surface":

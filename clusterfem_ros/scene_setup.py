@@ -16,6 +16,7 @@ from .body.anchors import anchor_constraints
 from .body.binding import Binding, bind_to_skeleton, segment_distance
 from .body.constraints import LevelGains, LineConstraint, PointConstraint, point_targets
 from .body.driver import SkeletonDriver
+from .body.link_binding import bind_to_links
 from .body.surface_body import SurfaceBody, unbound_islands
 from .config import SceneConfig
 from .fem.integrators import make_integrator
@@ -70,7 +71,8 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     anchored = binding = driver = joints = stream = None
     if skeleton is not None:
         q0 = skeleton.neutral() if parts.surface is None else parts.surface.bind_q
-        binding = bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress)
+        binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress)
+                   if parts.cover is None else bind_cover(config, model, skeleton, q0, parts.cover, progress))
         driver = skeleton_driver(config, binding, model.rest, skeleton, anchors)
         joints, stream = joint_inputs(config, skeleton, q0)
     elif anchors:                   # world points: their targets, once
@@ -139,6 +141,20 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
                                bone_names=skeleton.bone_names, warn=False, surface_depth=depth)
     if surface is not None:
         refuse_islands(model, binding, anchors)
+    return binding
+
+
+def bind_cover(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarray, cover,
+               progress: Callable[[str], None] | None = None) -> Binding:
+    """A robot cover's vertices bound each to its own link's bone (body/link_binding.py), in as many levels as
+    binding.level_radii has: level 0 on or in the link (within half a voxel of its surface), the outer ones the
+    skin, every vertex bound."""
+    poses = skeleton.forward(q0, np.zeros(skeleton.nv))
+    starts, ends = skeleton.bone_segments(q0)
+    binding = bind_to_links(model.rest, cover.bone, cover.depth, len(config.binding.level_radii),
+                            core=0.5 * cover.spacing, skin=cover.thickness, starts=starts, ends=ends,
+                            rest_rotation=poses.rotation, rest_translation=poses.translation)
+    say(progress, f"binding {model.n_vertices} vertices each to its own link: {binding.summary()}")
     return binding
 
 

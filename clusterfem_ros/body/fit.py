@@ -177,12 +177,20 @@ def surface_depth(points: np.ndarray, surface_vertices: np.ndarray, triangles: n
 
 
 def find_data_file(name: str, manifest: str = "", what: str = "surface file") -> Path:
-    """A data file given by path, or by a bare name under $CLUSTERFEM_DATA or ../shared/data of the checkout;
+    """A data file given by path, by ``package://<package>/<path>`` in an installed package
+    (skeleton/robot_data.py), or by a bare name under $CLUSTERFEM_DATA or ../shared/data of the checkout;
     ``what`` names it in the error."""
     import os
+    from ..skeleton.robot_data import PACKAGE_SCHEME, package_file
     p = Path(name)
     if p.is_file():
         return p
+    if name.startswith(PACKAGE_SCHEME):
+        found = package_file(name)
+        if found is None:
+            raise FitError(f"{what} {name!r} is in no installed package: install the package that ships it (the "
+                           "robot scenes use example-robot-data, pinned in requirements.lock)")
+        return found
     roots = [Path(os.environ["CLUSTERFEM_DATA"])] if os.environ.get("CLUSTERFEM_DATA") else []
     roots.append(Path(__file__).resolve().parents[3] / "shared" / "data")
     for root in roots:

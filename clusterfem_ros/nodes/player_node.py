@@ -1,10 +1,11 @@
-"""The mocap player: plays a BVH file, a key-frame file or the built-in walk as sensor_msgs/JointState,
-and latches the matching URDF on robot_description, so the simulation needs no separate file.
+"""The mocap player: plays a BVH file, a key-frame file, the built-in walk or a URDF's joint sweep as
+sensor_msgs/JointState, and latches the matching URDF on robot_description, so the simulation needs no separate
+file.
 
     mocap_player --ros-args -p source:=bvh -p file:=mocap/cmu_06_01_walk.bvh
 
-Its parameters: source (builtin_walk, bvh or keyframes), file, rate_hz, speed, start_offset, loop, loop_blend;
-an unknown name is refused, naming the nearest known one.
+Its parameters: source (builtin_walk, bvh, keyframes or joint_sweep), file, rate_hz, speed, start_offset, loop,
+loop_blend, unit, up; an unknown name is refused, naming the nearest known one.
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from std_msgs.msg import String
 
 from msg_adapters.joint_state import joint_state_cdr
 
-from ..motion import PLAYER_PARAMS, load_motion
+from ..motion import PLAYER_PARAMS, SOURCES, load_motion
 from .params import ROS_NAMES
 from .spinning import run_node
 
@@ -44,9 +45,11 @@ class MocapPlayer(Node):
             if name not in PLAYER_PARAMS and name not in ROS_NAMES and not name.startswith("qos_overrides."):
                 raise unknown_player_parameter(name)
         self.declare_parameter("source", "builtin_walk", ParameterDescriptor(
-            description="builtin_walk, bvh or keyframes", additional_constraints="one of: builtin_walk, bvh, keyframes"))
+            description="builtin_walk, bvh, keyframes or joint_sweep (a URDF's joints through their ranges)",
+            additional_constraints=f"one of: {', '.join(SOURCES)}"))
         self.declare_parameter("file", "", ParameterDescriptor(description=(
-            "BVH or key-frame file for those sources: a path, or a name under $CLUSTERFEM_DATA or ../shared/data")))
+            "BVH, key-frame or URDF file for those sources: a path, package://<package>/<path> of an installed "
+            "package, or a name under $CLUSTERFEM_DATA or ../shared/data")))
         self.declare_parameter("rate_hz", 120.0, _range(1.0, 2000.0, "JointState publish rate [Hz]"))
         self.declare_parameter("speed", 1.0, _range(0.01, 100.0, "playback speed factor"))
         self.declare_parameter("start_offset", 0.0, _range(0.0, 1e6, "start this far into the motion [s]"))

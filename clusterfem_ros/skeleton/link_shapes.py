@@ -26,6 +26,7 @@ import numpy as np
 
 from ..errors import ClusterFemError
 from .mounting import rpy_matrix
+from .robot_data import package_file
 from .urdf_builder import HELPER_MASS, TIP_SUFFIX, UrdfBuilder
 
 KINDS = ("box", "cylinder", "sphere", "capsule")
@@ -74,8 +75,12 @@ def _floats(text: str | None, count: int, where: str, signed: bool = False) -> n
 
 
 def _mesh_file(name: str, search: list[Path]) -> Path | None:
-    """The mesh a URDF names (a path, file://path or package://<package>/<path>): the path itself, or under a
-    search folder by its path, or by its path less leading folders (the package's own layout)."""
+    """The mesh a URDF names (a path, file://path or package://<package>/<path>): the installed package's file
+    (robot_data.package_file), the path itself, or under a search folder by its path, or by its path less
+    leading folders (the package's own layout)."""
+    installed = package_file(name)
+    if installed is not None:
+        return installed
     rest = name.split("://", 1)[1] if "://" in name else name
     if Path(rest).is_absolute():
         return Path(rest) if Path(rest).is_file() else None

@@ -1,0 +1,321 @@
+"""A soft cover on a robot: the volumes of its links' own shapes with a skin around them, voxelized into
+tetrahedra, each part bound to its own link.
+
+Shapes: each link's ``<collision>`` geometry (``source='collision'``; a link without any takes its
+``<visual>`` one), or the other way round with ``source='visual'``: meshes (STL, OBJ, DAE... through trimesh,
+scaled and placed by their ``<origin>``), boxes, cylinders, spheres and capsules, all as triangle surfaces.
+A link that is not a bone of the skeleton (a frame, a helper) gives its shapes to the bone it hangs on by
+fixed joints; shapes beyond a movable joint from any bone are left out, named in the notes.
+
+Why voxels (a signed-distance shell) rather than fTetWild: robot meshes are often open, self-intersecting
+or made of several overlapping pieces; a voxel shell needs none of them to be closed, costs a second, and
+gives the tet count asked for directly. Each link's surface is sampled densely (``spacing``), the distance
+of every voxel centre to it taken from a k-d tree; the voxels within ``max(thickness, 0.87 h)`` of the
+surface form a closed shell (0.87 h: half a voxel diagonal, so the shell has no gaps), and the shell's holes
+filled (``ndimage.binary_fill_holes``) give the link's solid: its volume plus a skin of ``thickness``.
+The voxel spacing ``h`` is chosen so the cover has about ``target_tets`` tets (five per voxel).
+
+Links of different rigid bodies are never glued: a voxel belongs to the link it lies in (else the nearest),
+links joined by fixed joints form one rigid body, and where voxels of two rigid bodies touch (share a
+corner), the voxel of the larger body is left out, so the small links keep their cover where the spacing
+allows (of two equal ones, one) and every part moves with its own link. A rigid body whose voxels all go is named in the notes.
+
+Each vertex carries its bone and its depth: its distance to its link's surface, negative inside a closed
+(watertight) shape; ``link_binding`` (body/) turns them into the binding: the vertices on or in the link
+held firmly, the skin's held softly.
+
+Arrays: vertices (n, 3) [m] in the skeleton's rest pose q = 0; ``bone`` (n,) skeleton bone index;
+``depth`` (n,) [m].
+"""
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+from ..fem.tet_mesh import TetMesh
+from ..fem.voxel_mesh import grid_mesh, voxel_centres
+from .link_shapes import _floats, _mesh_file, search_folders
+from .mounting import rpy_matrix
+
+SOURCES = ("collision", "visual")
+SHELL = 0.5 * np.sqrt(3.0)       # a voxel whose centre is within half its diagonal of a surface touches it
+
+
+@dataclass(frozen=True)
+class CoverPart:
+    """One link's shapes in the world at rest, as surface samples, with the bone and rigid body they go with."""
+    link: str
+    bone: int                   # skeleton bone index
+    body: int                   # rigid body index (bones joined by fixed joints share it)
+    points: np.ndarray          # (k, 3) surface samples [m]
+    meshes: list                # trimesh.Trimesh in the world, for the inside test
+    lo: np.ndarray              # (3,) bounding box of the surface [m]
+    hi: np.ndarray
+
+
+@dataclass(frozen=True)
+class RobotCover:
+    mesh: TetMesh
+    bone: np.ndarray            # (n,) bone of each vertex
+    depth: np.ndarray           # (n,) distance to its link's surface, negative inside a closed shape [m]
+    spacing: float              # voxel edge h [m]
+    thickness: float            # the skin as built: max(thickness asked, 0.87 h) [m]
+    notes: list[str] = field(default_factory=list)
+
+
+def _geometry(element: ET.Element, link: str, source: str, search: list[Path]):
+    """One <collision>/<visual> element as a trimesh in its link's frame, or (None, why not)."""
+    import trimesh
+    o = element.find("origin")
+    xyz = _floats(o.get("xyz", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin xyz", True)
+    rpy = _floats(o.get("rpy", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin rpy", True)
+    g = element.find("geometry")
+    geo = g[0] if g is not None and len(g) else None
+    where = f"link {link!r} <{source}>"
+    if geo is None:
+        return None, f"{where} has no geometry"
+    if geo.tag == "box":
+        m = trimesh.creation.box(extents=_floats(geo.get("size"), 3, f"{where} box size"))
+    elif geo.tag in ("cylinder", "capsule"):
+        r = _floats(geo.get("radius"), 1, f"{where} {geo.tag} radius")[0]
+        length = _floats(geo.get("length"), 1, f"{where} {geo.tag} length")[0]
+        m = (trimesh.creation.cylinder(radius=r, height=length, sections=24) if geo.tag == "cylinder"
+             else trimesh.creation.capsule(height=length, radius=r, count=[12, 12]))
+    elif geo.tag == "sphere":
+        m = trimesh.creation.icosphere(subdivisions=2, radius=_floats(geo.get("radius"), 1, f"{where} sphere radius")[0])
+    elif geo.tag == "mesh":
+        name = geo.get("filename", "")
+        path = _mesh_file(name, search)
+        if path is None:
+            return None, f"{where} mesh {name!r} not found"
+        try:
+            m = trimesh.load(path, force="mesh")
+        except Exception as exc:  # trimesh raises many kinds for unreadable files
+            return None, f"{where} mesh {path.name!r} cannot be read ({exc})"
+        if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
+            return None, f"{where} mesh {path.name!r} has no triangles"
+        scale = _floats(geo.get("scale", "1 1 1"), 3, f"{where} mesh scale", signed=True)   # -1: mirrored
+        if not scale.all():
+            return None, f"{where} mesh {path.name!r} has scale {geo.get('scale')!r}: a zero flattens it"
+        m = m.copy()
+        m.apply_transform(np.diag(np.append(scale, 1.0)))     # trimesh keeps the faces outward under a mirror
+    else:
+        return None, f"{where} has a <{geo.tag}>, not a mesh, box, cylinder, sphere or capsule"
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = rpy_matrix(*rpy), xyz
+    m.apply_transform(T)
+    return m, ""
+
+
+def link_geometry(xml: str, source: str = "collision", search: list[Path] | None = None):
+    """({link: [trimesh in the link frame]}, notes): each link's shapes from ``source``, else from the other."""
+    if source not in SOURCES:
+        raise ValueError(f"cover shapes source = {source!r}: choose one of {', '.join(SOURCES)}")
+    root = ET.fromstring(xml)
+    search = search if search is not None else search_folders()
+    order = (source,) + tuple(s for s in SOURCES if s != source)
+    out, problems = {}, []
+    for link in root.findall("link"):
+        name = link.get("name")
+        for s in order:
+            found = []
+            for e in link.findall(s):
+                m, why = _geometry(e, name, s, search)
+                if m is not None:
+                    found.append(m)
+                else:
+                    problems.append(why)
+            if found:
+                out[name] = found
+                break
+    notes = [f"shapes left out: {'; '.join(problems)}"] if problems else []
+    return out, notes
+
+
+def rigid_bodies(xml: str, bone_names: list[str]) -> tuple[dict[str, int], dict[int, int]]:
+    """({link: the bone it is rigidly fixed to (fixed joints only), for the links that have one},
+    {bone: its rigid body index}): bones joined by fixed joints (through any links) share a rigid body."""
+    root = ET.fromstring(xml)
+    parent: dict[str, tuple[str, str]] = {}
+    for j in root.findall("joint"):
+        p, c = j.find("parent"), j.find("child")
+        if p is not None and c is not None:
+            parent[c.get("link")] = (p.get("link"), j.get("type"))
+    index = {n: b for b, n in enumerate(bone_names)}
+
+    def top(link: str) -> str:
+        """The highest link reached from ``link`` through fixed joints only."""
+        seen = set()
+        while link in parent and parent[link][1] == "fixed" and link not in seen:
+            seen.add(link)
+            link = parent[link][0]
+        return link
+
+    def bone_of(link: str) -> int | None:
+        """``link``'s bone: itself, else the nearest bone above it through fixed joints, else below it."""
+        seen, c = set(), link
+        while c not in seen:
+            seen.add(c)
+            if c in index:
+                return index[c]
+            if c not in parent or parent[c][1] != "fixed":
+                break
+            c = parent[c][0]
+        return None
+
+    links = [x.get("name") for x in root.findall("link")]
+    owner = {n: b for n in links if (b := bone_of(n)) is not None}
+    tops: dict[str, int] = {}
+    body = {}
+    for n, b in index.items():
+        body[b] = tops.setdefault(top(n), len(tops))
+    return owner, body
+
+
+def cover_parts(xml: str, skeleton, geometry: dict, spacing: float) -> tuple[list[CoverPart], list[str]]:
+    """The shapes of ``geometry`` placed at the skeleton's rest pose, sampled every ``spacing`` [m]."""
+    import pinocchio as pin
+    import trimesh
+    model, data = skeleton.model, skeleton.data
+    pin.forwardKinematics(model, data, pin.neutral(model))
+    pin.updateFramePlacements(model, data)
+    owner, body = rigid_bodies(xml, skeleton.bone_names)
+    parts, away = [], []
+    for link, meshes in geometry.items():
+        if link not in owner or not model.existFrame(link, pin.BODY):
+            away.append(link)
+            continue
+        M = data.oMf[model.getFrameId(link, pin.BODY)]
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = M.rotation, M.translation
+        world = [m.copy().apply_transform(T) for m in meshes]
+        points = []
+        for m in world:
+            count = int(min(max(m.area / spacing ** 2 * 1.5, 50), 400000))
+            points += [np.asarray(m.vertices), np.asarray(trimesh.sample.sample_surface(m, count, seed=0)[0])]
+        points = np.concatenate(points)
+        b = owner[link]
+        parts.append(CoverPart(link, b, body[b], points, world, points.min(axis=0), points.max(axis=0)))
+    notes = [f"links on no bone through fixed joints have no cover: {', '.join(away)}"] if away else []
+    return parts, notes
+
+
+def _inside(meshes: list, points: np.ndarray) -> np.ndarray:
+    """(k,) bool: inside any of the closed meshes (open ones hold no inside)."""
+    out = np.zeros(len(points), dtype=bool)
+    for m in meshes:
+        if m.is_watertight and len(points):
+            out |= m.contains(points)
+    return out
+
+
+def _voxels(parts: list[CoverPart], trees: list, lo: np.ndarray, hi: np.ndarray, h: float, thickness: float):
+    """(mask (nx, ny, nz), part index per voxel (-1 outside), (nx, ny, nz)) at spacing ``h``."""
+    centres, n = voxel_centres(lo, hi, h)
+    reach = max(thickness, SHELL * h)
+    best = np.full(centres.shape[0], np.inf)
+    label = np.full(centres.shape[0], -1, dtype=np.int64)
+    grid = np.arange(centres.shape[0]).reshape(n)
+    for k, p in enumerate(parts):
+        i0 = np.clip(np.floor((p.lo - reach - lo) / h).astype(int), 0, np.array(n))
+        i1 = np.clip(np.ceil((p.hi + reach - lo) / h).astype(int), 0, np.array(n))
+        if (i1 <= i0).any():
+            continue
+        sub = grid[i0[0]:i1[0], i0[1]:i1[1], i0[2]:i1[2]]
+        d, _ = trees[k].query(centres[sub.ravel()])
+        d = d.reshape(sub.shape)
+        solid = ndimage.binary_fill_holes(d <= reach)
+        # inside a link (filled, beyond the shell) ranks before any distance; else the nearest surface wins
+        score = np.where(solid & (d > reach), -1.0, d)
+        idx = sub[solid]
+        s = score[solid]
+        better = s < best[idx]
+        best[idx[better]], label[idx[better]] = s[better], k
+    return label.reshape(n) >= 0, label.reshape(n), n
+
+
+def _separate(mask: np.ndarray, label: np.ndarray, body_of: np.ndarray) -> np.ndarray:
+    """``mask`` without the voxels that share a corner with a voxel of another rigid body: of each such pair the
+    voxel of the body with more voxels goes (of equal ones, the body with the higher index)."""
+    body = np.where(mask, body_of[np.maximum(label, 0)], -1)
+    size = np.bincount(body[mask], minlength=body_of.max() + 1)
+    drop = np.zeros_like(mask)
+    n = mask.shape
+    for off in [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) > (0, 0, 0)]:
+        a = tuple(slice(max(-o, 0), n[ax] - max(o, 0)) for ax, o in enumerate(off))
+        b = tuple(slice(max(o, 0), n[ax] - max(-o, 0)) for ax, o in enumerate(off))
+        ba, bb = body[a], body[b]
+        clash = mask[a] & mask[b] & (ba != bb)
+        sa, sb = size[np.maximum(ba, 0)], size[np.maximum(bb, 0)]
+        drop[a] |= clash & ((sa > sb) | ((sa == sb) & (ba > bb)))
+        drop[b] |= clash & ((sb > sa) | ((sa == sb) & (bb > ba)))
+    return mask & ~drop
+
+
+def robot_cover(xml: str, skeleton, thickness: float = 0.02, target_tets: int = 4800, source: str = "collision",
+                urdf_file: str | Path | None = None, iterations: int = 6) -> RobotCover:
+    """The cover of the module docstring around ``skeleton`` (built from the prepared URDF ``xml``) at rest."""
+    if not (np.isfinite(thickness) and thickness > 0):
+        raise ValueError(f"cover thickness = {thickness!r}: give a positive length in metres")
+    if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
+        raise ValueError(f"target_tets = {target_tets!r}: give a whole number >= 50")
+    geometry, notes = link_geometry(xml, source, search_folders(urdf_file))
+    if not geometry:
+        raise ValueError("no link of this URDF has a usable collision or visual shape: a robot cover needs the "
+                         "links' shapes (check that the mesh files are installed), or use body.kind jelly_man")
+    extent = max(float(np.ptp(np.concatenate([np.concatenate([np.asarray(m.bounds) for m in ms]) for ms in
+                                              geometry.values()]), axis=0).max()), 1e-3)
+    parts, more = cover_parts(xml, skeleton, geometry, spacing=extent / 300.0)
+    notes += more
+    if not parts:
+        raise ValueError("no shaped link hangs on a bone of the skeleton: nothing to cover")
+    body_of = np.array([p.body for p in parts])
+    trees = [cKDTree(p.points) for p in parts]
+    lo = np.min([p.lo for p in parts], axis=0) - thickness - 1e-3
+    hi = np.max([p.hi for p in parts], axis=0) + thickness + 1e-3
+    # volume of the solids at a coarse spacing -> first guess of h (5 tets per voxel), then a few secant steps on
+    # log(count) against log(h): count ~ h^-3 for a volume, ~ h^-2 for a skin, the slope is measured
+    h = float(np.min(hi - lo)) / 12.0
+    tried: list[tuple[float, int, tuple]] = []
+    for _ in range(iterations):
+        mask, label, n = _voxels(parts, trees, lo, hi, h, thickness)
+        kept = _separate(mask, label, body_of)
+        count = 5 * int(kept.sum())
+        tried.append((h, count, (kept, label)))
+        if count and abs(count - target_tets) <= 0.1 * target_tets:
+            break
+        if len(tried) >= 2 and tried[-1][1] > 0 and tried[-2][1] > 0 and tried[-1][1] != tried[-2][1]:
+            (h0, c0, _), (h1, c1, _) = tried[-2], tried[-1]
+            slope = np.clip(np.log(c1 / c0) / np.log(h1 / h0), -4.0, -1.5)
+        else:
+            slope = -3.0
+        h *= float(np.clip((target_tets / max(count, 1)) ** (1.0 / slope), 0.5, 2.0))
+    h, count, (kept, label) = min(tried, key=lambda x: abs(x[1] - target_tets) if x[1] else np.inf)
+    mesh = grid_mesh(kept, lo, np.full(3, h))
+    # each tet's voxel -> its part; a vertex takes the part of its tets (parts of one vertex share a rigid body)
+    centroid = mesh.vertices[mesh.tets].mean(axis=1)
+    ijk = np.floor((centroid - lo) / h).astype(int)
+    tet_part = label[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    vpart = np.empty(mesh.n_vertices, dtype=np.int64)
+    vpart[mesh.tets.ravel()] = np.repeat(tet_part, 4)
+    bone = np.array([p.bone for p in parts])[vpart]
+    depth = np.empty(mesh.n_vertices)
+    for k, p in enumerate(parts):
+        idx = np.flatnonzero(vpart == k)
+        if idx.size:
+            d, _ = trees[k].query(mesh.vertices[idx])
+            depth[idx] = np.where(_inside(p.meshes, mesh.vertices[idx]), -d, d)
+    covered = set(np.unique(vpart).tolist())
+    bare = sorted({p.link for k, p in enumerate(parts) if k not in covered
+                   and not any(q.body == p.body for j, q in enumerate(parts) if j in covered)})
+    if bare:
+        notes.append(f"rigid bodies too small for the voxel spacing {h * 1e3:.1f} mm keep no cover: {', '.join(bare)}")
+    notes.append(f"robot cover: {mesh.n_tets} tets, {mesh.n_vertices} vertices on {len(covered)} of {len(parts)} "
+                 f"shaped links, voxel {h * 1e3:.1f} mm, skin {max(thickness, SHELL * h) * 1e3:.1f} mm "
+                 f"({source} shapes first)")
+    return RobotCover(mesh, bone, depth, h, max(thickness, SHELL * h), notes)

@@ -1,0 +1,211 @@
+"""Soft covers on robots: the joint sweep, the cover around the links' own shapes, its binding, and each shipped
+robot scene (config/robot_*.yaml) played headless with 0 resets."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clusterfem_ros.body.link_binding import bind_to_links
+from clusterfem_ros.skeleton.joint_sweep import joint_sweep
+from clusterfem_ros.skeleton.kinematics import Skeleton
+from clusterfem_ros.skeleton.robot_cover import robot_cover
+from clusterfem_ros.skeleton.robot_data import package_file, robot_data_folder
+
+ROOT = Path(__file__).resolve().parents[1]
+ROBOT_SCENES = sorted((ROOT / "config").glob("robot_*.yaml"))
+
+
+def _link(name: str, shape: str = "", mass: float = 1.0, xyz: str = "0 0 0") -> str:
+    geometry = f"<collision><origin xyz='{xyz}'/><geometry>{shape}</geometry></collision>" if shape else ""
+    return (f"<link name='{name}'><inertial><mass value='{mass}'/><inertia ixx='1' iyy='1' izz='1' ixy='0' ixz='0' "
+            f"iyz='0'/></inertial>{geometry}</link>")
+
+
+def _joint(name: str, kind: str, parent: str, child: str, xyz: str = "0 0 0", axis: str = "0 1 0",
+           limit: str = "", extra: str = "") -> str:
+    return (f"<joint name='{name}' type='{kind}'><parent link='{parent}'/><child link='{child}'/>"
+            f"<origin xyz='{xyz}'/><axis xyz='{axis}'/>{limit}{extra}</joint>")
+
+
+# an arm: a base, two 0.3 m links on revolute joints, a wrist fixed to the second, two fingers (prismatic, one a
+# mimic of the other) and a spinning tool (continuous)
+ARM = ("<robot name='arm'>"
+       + _link("base", "<box size='0.2 0.2 0.1'/>")
+       + _link("upper", "<box size='0.08 0.08 0.3'/>", xyz="0 0 0.15")
+       + _link("fore", "<cylinder radius='0.04' length='0.3'/>", xyz="0 0 0.15")
+       + _link("wrist", "<sphere radius='0.05'/>")
+       + _link("finger_a", "<box size='0.02 0.02 0.06'/>", xyz="0 0 0.03")
+       + _link("finger_b", "<box size='0.02 0.02 0.06'/>", xyz="0 0 0.03")
+       + _link("tool", "<box size='0.03 0.03 0.08'/>", xyz="0 0 0.04")
+       + _joint("shoulder", "revolute", "base", "upper", "0 0 0.05", limit="<limit lower='-1' upper='2' effort='1' velocity='1'/>")
+       + _joint("elbow", "revolute", "upper", "fore", "0 0 0.3", limit="<limit lower='-2.5' upper='-0.5' effort='1' velocity='1'/>")
+       + _joint("wrist_fix", "fixed", "fore", "wrist", "0 0 0.3")
+       + _joint("grip_a", "prismatic", "wrist", "finger_a", "0.05 0 0.04", axis="1 0 0",
+                limit="<limit lower='0' upper='0.04' effort='1' velocity='1'/>")
+       + _joint("grip_b", "prismatic", "wrist", "finger_b", "-0.05 0 0.04", axis="-1 0 0",
+                limit="<limit lower='0' upper='0.04' effort='1' velocity='1'/>", extra="<mimic joint='grip_a' multiplier='1' offset='0'/>")
+       + _joint("spin", "continuous", "wrist", "tool", "0 0.08 0", axis="0 1 0")
+       + "</robot>")
+
+
+def test_sweep_stays_in_range_loops_and_moves_mimics_with_their_master():
+    sweep = joint_sweep(ARM, fraction=0.6, period=4.0)
+    tr = sweep.trajectory
+    assert tr.names == ["shoulder", "elbow", "grip_a", "grip_b", "spin"]     # fixed joints are not played
+    q = tr.positions
+    limits = {"shoulder": (-1, 2), "elbow": (-2.5, -0.5), "grip_a": (0, 0.04), "grip_b": (0, 0.04)}
+    for name, (lo, hi) in limits.items():
+        col = q[:, tr.names.index(name)]
+        assert lo - 1e-12 <= col.min() and col.max() <= hi + 1e-12, name
+        assert np.ptp(col) == pytest.approx(0.6 * (hi - lo), rel=0.02), f"{name} sweeps 60 % of its range"
+    # the sweep is around the rest pose where the range allows: the shoulder's range holds 0 +- 0.9
+    assert q[:, 0].mean() == pytest.approx(0.0, abs=0.02)
+    # the elbow's range excludes 0: its sweep is as near 0 as the range allows
+    assert q[:, 1].max() == pytest.approx(-0.5, abs=1e-3)
+    np.testing.assert_allclose(q[:, 3], q[:, 2], atol=1e-15)             # the mimic follows its master
+    spin = q[:, 4]
+    assert spin.min() == pytest.approx(0.0, abs=1e-9) and spin.max() == pytest.approx(2 * np.pi, rel=1e-3)
+    np.testing.assert_allclose(q[-1], q[0], atol=1e-9)                  # one period: it loops without a seam
+    v = np.abs(np.diff(q, axis=0)) / np.diff(tr.times)[:, None]
+    assert v.max() < 2 * np.pi * np.pi / 4.0 * 1.01, "no joint is faster than the turn of the continuous one"
+
+
+def test_sweep_holds_a_joint_without_range_and_names_it():
+    urdf = ("<robot name='r'>" + _link("a") + _link("b") + _link("c")
+            + _joint("j1", "revolute", "a", "b", limit="<limit lower='0' upper='0' effort='1' velocity='1'/>")
+            + _joint("j2", "revolute", "b", "c", limit="<limit lower='-1' upper='1' effort='1' velocity='1'/>")
+            + "</robot>")
+    sweep = joint_sweep(urdf)
+    assert not sweep.trajectory.positions[:, 0].any()
+    assert any("j1" in note for note in sweep.notes)
+    with pytest.raises(ValueError, match="fraction"):
+        joint_sweep(urdf, fraction=1.5)
+    with pytest.raises(ValueError, match="nothing to sweep"):
+        joint_sweep("<robot name='r'>" + _link("a") + "</robot>")
+
+
+def _arm_cover(**kw):
+    sk = Skeleton.from_urdf_string(ARM)
+    return sk, robot_cover(ARM, sk, **kw)
+
+
+def test_cover_keeps_rigid_bodies_apart_and_holds_every_link():
+    sk, cover = _arm_cover(thickness=0.01, target_tets=3000)
+    mesh = cover.mesh
+    assert 0.8 * 3000 <= mesh.n_tets <= 1.2 * 3000
+    names = sk.bone_names
+    body = {"base": 0, "upper": 1, "fore": 2, "wrist": 2, "finger_a": 3, "finger_b": 4, "tool": 5}
+    vertex_body = np.array([body[names[b]] for b in cover.bone])
+    # no tet joins two rigid bodies (wrist is fixed to fore: one body), so each part moves with its own link
+    assert (vertex_body[mesh.tets] == vertex_body[mesh.tets[:, :1]]).all()
+    # each rigid body of these sizes keeps a part
+    assert set(vertex_body.tolist()) == set(body.values())
+    # the cover holds each link's shape: the centres of the upper arm's box and the forearm's cylinder lie in the
+    # cover (inside a tet of their own link)
+    for link, centre in (("upper", [0, 0, 0.2]), ("fore", [0, 0, 0.5])):
+        tets = mesh.tets[cover.bone[mesh.tets[:, 0]] == names.index(link)]
+        x = mesh.vertices[tets]
+        lo, hi = x.min(axis=(0, 1)), x.max(axis=(0, 1))
+        assert (lo <= centre).all() and (np.array(centre) <= hi).all(), link
+        assert cover.depth[np.unique(tets)].min() < 0, f"{link}: vertices inside the closed shape have depth < 0"
+
+
+def test_link_binding_binds_every_vertex_to_its_own_link_in_levels_by_depth():
+    sk, cover = _arm_cover(thickness=0.02, target_tets=2000)
+    poses = sk.forward(sk.neutral())
+    starts, ends = sk.bone_segments(sk.neutral())
+    b = bind_to_links(cover.mesh.vertices, cover.bone, cover.depth, 2, core=0.5 * cover.spacing,
+                      skin=cover.thickness, starts=starts, ends=ends, rest_rotation=poses.rotation,
+                      rest_translation=poses.translation)
+    np.testing.assert_array_equal(b.bone, cover.bone)
+    assert (b.level >= 0).all(), "every vertex of a robot cover is bound"
+    assert (b.level[cover.depth <= 0.5 * cover.spacing] == 0).all()
+    for bone in np.unique(cover.bone):
+        assert (b.level[cover.bone == bone] == 0).any(), f"bone {sk.bone_names[bone]} holds its part firmly"
+    # the local coordinates carry the rest positions: x = R local + p at rest
+    x = np.einsum("nij,nj->ni", poses.rotation[b.bone], b.local) + poses.translation[b.bone]
+    np.testing.assert_allclose(x, cover.mesh.vertices, atol=1e-12)
+
+
+def test_cover_refuses_a_urdf_without_shapes():
+    urdf = ("<robot name='r'>" + _link("a") + _link("b")
+            + _joint("j", "revolute", "a", "b", limit="<limit lower='-1' upper='1' effort='1' velocity='1'/>")
+            + "</robot>")
+    with pytest.raises(ValueError, match="no link of this URDF has a usable collision or visual shape"):
+        robot_cover(urdf, Skeleton.from_urdf_string(urdf))
+
+
+def test_package_names_resolve_only_in_installed_packages():
+    from clusterfem_ros.body.fit import FitError, find_data_file
+    assert package_file("package://no-such-package/robots/x.urdf") is None
+    assert package_file("robots/x.urdf") is None
+    with pytest.raises(FitError, match="in no installed package"):
+        find_data_file("package://no-such-package/robots/x.urdf")
+
+
+def test_the_player_section_takes_the_joint_sweep(tmp_path):
+    from clusterfem_ros.motion import load_motion, load_player_section, skeleton_source_for
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(ARM)
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(f"mocap_player:\n  ros__parameters: {{source: joint_sweep, file: {urdf}}}\n")
+    assert load_player_section(scene)["source"] == "joint_sweep"
+    motion = load_motion("joint_sweep", urdf)
+    assert motion.urdf == ARM and motion.trajectory.names[-1] == "spin"
+    assert skeleton_source_for("joint_sweep") == "urdf_file"
+
+
+def _need_robot_data():
+    if robot_data_folder() is None:
+        pytest.skip("example-robot-data is not installed (requirements.lock pins it): the robot scenes use its URDFs")
+
+
+@pytest.mark.parametrize("scene_file", ROBOT_SCENES, ids=[p.stem for p in ROBOT_SCENES])
+def test_robot_scene_plays_its_sweep_with_no_reset(scene_file):
+    """Each shipped robot scene, its player's joint sweep played 3 s headless on the input clock: 0 resets, the
+    cover on its links (no vertex farther from where its link carries it than its skin is thick)."""
+    _need_robot_data()
+    from clusterfem_ros.config import load_scene_file
+    from clusterfem_ros.fem.stability import DivergenceError
+    from clusterfem_ros.motion import load_motion, load_player_section
+    from clusterfem_ros.scene import Scene
+    player = load_player_section(scene_file)
+    assert player["source"] == "joint_sweep"
+    tr = load_motion("joint_sweep", player["file"]).trajectory
+    scene = Scene.build(load_scene_file(scene_file))
+    assert scene.model.mesh.n_tets >= 1000
+    column = {n: k for k, n in enumerate(tr.names)}
+    assert set(column) <= set(scene.skeleton.joint_names), "the sweep plays the robot's own joint names"
+    b = scene.binding
+    worst = 0.0
+    for k in range(3 * 120 + 1):
+        t = 1000.0 + k / 120
+        q, v = tr.sample(k / 120)
+        scene.push_joint_state(t, tr.names, q, v)
+        try:
+            scene.advance_to(t)
+        except DivergenceError as exc:
+            pytest.fail(f"{scene_file.name}: reset at {k / 120:.2f} s: {exc}")
+        if k % 30 == 0 and scene.sim_time is not None:
+            assert scene.output_problem() is None
+            qs = np.array([q[column[n]] if n in column else 0.0 for n in scene.skeleton.joint_names])
+            poses = scene.skeleton.forward(qs)
+            carried = np.einsum("nij,nj->ni", poses.rotation[b.bone], b.local) + poses.translation[b.bone]
+            worst = max(worst, float(np.linalg.norm(scene.model.rest + scene.state.u - carried, axis=1).max()))
+    thickness = scene.config.body.cover_thickness
+    assert worst < thickness, f"a vertex lags {worst * 1e3:.1f} mm behind its link, more than the skin's thickness"
+
+
+def test_a_mimic_joint_left_out_follows_its_master():
+    from clusterfem_ros.skeleton.joint_map import JointMap
+    jm = JointMap(["a", "b", "c"], mimic={"b": ("a", -2.0, 0.1), "x": ("a", 1.0, 0.0)})
+    r = jm.update(["a", "c"], [0.5, 0.2], [1.0, 3.0])
+    np.testing.assert_allclose(r.q, [0.5, -0.9, 0.2])
+    np.testing.assert_allclose(r.v, [1.0, -2.0, 3.0])
+    assert r.updated.all()
+    r = jm.update(["a", "b"], [0.5, 0.3])                # a message that sets the mimic joint itself wins
+    np.testing.assert_allclose(r.q, [0.5, 0.3, 0.2])
+    r = jm.update(["c"], [0.0])                          # the master not set: the mimic keeps its value
+    np.testing.assert_allclose(r.q, [0.5, 0.3, 0.0])
