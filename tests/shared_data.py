@@ -1,8 +1,15 @@
-"""The real data beside the checkout (../shared/data), wherever the checkout is."""
+"""The real data beside the checkout (../shared/data) or under $CLUSTERFEM_DATA, checked against the sha256 of its
+manifest; a test whose data is absent is skipped, naming the manifest that says where to get it.
+
+``CLUSTERFEM_SHARED`` (tests only) stands for ../shared: pointed at an empty folder, the suite runs as on a
+checkout without it (test_shared_data.py does so).
+"""
+import os
 from pathlib import Path
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-CMU_WALK = SHARED / "data" / "mocap" / "cmu_06_01_walk.bvh"
+SHARED = Path(os.environ.get("CLUSTERFEM_SHARED") or Path(__file__).resolve().parents[2] / "shared")
+CMU_WALK = SHARED / "data" / "mocap" / "cmu_06_01_walk.bvh"      # where the README's commands read the walk
+CLIP_MANIFEST = Path(__file__).resolve().parent / "data" / "mocap_clips.yaml"
 CHARACTER_SCENE = Path(__file__).resolve().parents[1] / "config" / "character_walk.yaml"
 CHARACTER_MANIFEST = Path(__file__).resolve().parents[1] / "config" / "character_data.md"
 
@@ -28,3 +35,27 @@ def character_mesh() -> Path:
     got = hashlib.sha256(path.read_bytes()).hexdigest()
     assert got == want, f"{path} has sha256 {got}, config/{CHARACTER_MANIFEST.name} says {want}: fetch it again"
     return path
+
+
+def walk_clip(beside_only: bool = False) -> Path:
+    """The CMU walk (the manifest's ``walk`` entry) from ../shared/data/mocap or, unless ``beside_only`` (what the
+    README's commands read), $CLUSTERFEM_DATA/mocap, checked against the manifest's sha256; the calling test is
+    skipped, naming the manifest, when it is absent."""
+    import hashlib
+
+    import pytest
+    import yaml
+    entry = yaml.safe_load(CLIP_MANIFEST.read_text())["walk"]
+    dirs = [SHARED / "data" / "mocap"]
+    if os.environ.get("CLUSTERFEM_DATA") and not beside_only:
+        dirs.append(Path(os.environ["CLUSTERFEM_DATA"]) / "mocap")
+    found = [d / f"{entry['name']}.bvh" for d in dirs if (d / f"{entry['name']}.bvh").is_file()]
+    if not found:
+        pytest.skip(f"the walk clip {entry['name']}.bvh is absent from {' and '.join(str(d) for d in dirs)}: entry "
+                    f"'walk' of tests/data/{CLIP_MANIFEST.name} says where it comes from ({entry['path']} at commit "
+                    f"{entry['commit']} of {entry['repository']}) and where to put it")
+    got = hashlib.sha256(found[0].read_bytes()).hexdigest()
+    assert got == entry["sha256"], (f"{found[0]} has sha256 {got}, tests/data/{CLIP_MANIFEST.name} says "
+                                    f"{entry['sha256']}: copy {entry['path']} at commit {entry['commit']} of "
+                                    f"{entry['repository']} again")
+    return found[0]

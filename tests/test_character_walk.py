@@ -6,7 +6,7 @@ user's mesh cache (the first run meshes them: about two minutes on 2 cores under
 """
 import pytest
 
-from tests.shared_data import CHARACTER_SCENE, CMU_WALK, character_mesh
+from tests.shared_data import CHARACTER_SCENE, character_mesh, walk_clip
 
 TARGET_TETS = 5000      # the scene's body.target_tets
 
@@ -14,9 +14,7 @@ TARGET_TETS = 5000      # the scene's body.target_tets
 @pytest.fixture(scope="module")
 def walk():
     character_mesh()
-    if not CMU_WALK.exists():
-        pytest.skip(f"{CMU_WALK} is not there (../shared/data/mocap)")
-    return CMU_WALK
+    return walk_clip()
 
 
 def _clip(name: str):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from benchmarks.clips import find_clip, load_manifest, missing_message
-from tests.shared_data import CMU_WALK
+from tests.shared_data import walk_clip
 
 CLIPS = load_manifest()
 
@@ -48,7 +48,7 @@ def test_the_headless_soak_reports_inverted_states_consistently():
     """Half a second of the shared CMU walk on the default scene: the inverted columns agree with each other
     (some state inverted <=> an element inverted at once <=> min det F < 0) and count only states shown."""
     from benchmarks.clip_soak import headless_soak
-    r = headless_soak(CMU_WALK, seconds=0.5)
+    r = headless_soak(walk_clip(), seconds=0.5)
     assert r.resets == 0 and r.shown > 0
     assert 0 <= r.inverted_states <= r.shown
     assert (r.inverted_states > 0) == (r.most_inverted > 0) == (r.min_det < 0.0)

@@ -10,7 +10,7 @@ import yaml
 
 from clusterfem_ros.config import SceneConfig, scene_file_text
 from clusterfem_ros.motion import load_player_section, skeleton_source_for
-from tests.shared_data import CMU_WALK
+from tests.shared_data import walk_clip
 
 pytestmark = pytest.mark.ros
 
@@ -35,9 +35,7 @@ def _used(out: str) -> int:
 
 @pytest.fixture
 def walk(tmp_path):
-    if not CMU_WALK.exists():
-        pytest.skip(f"{CMU_WALK} is not there (../shared/data/mocap)")
-    return shutil.copy(CMU_WALK, tmp_path / "walk.bvh")
+    return shutil.copy(walk_clip(), tmp_path / "walk.bvh")
 
 
 def test_run_with_bvh_plays_the_file_on_a_body_built_on_its_skeleton(tmp_path, walk):

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.shared_data import walk_clip
+
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 SAMPLE = ROOT / "bags" / "sample_default_scene"
@@ -100,8 +102,7 @@ def test_the_readme_node_commands_run_together(tmp_path):
     from clusterfem_ros.recording.bag_reader import _reader
     block = [c for c in readme_commands(README.read_text()) if c.startswith(("clusterfem_node", "mocap_player"))]
     assert len(block) == 2, block
-    bvh = ROOT.parent / "shared" / "data" / "mocap" / "cmu_06_01_walk.bvh"
-    assert bvh.exists(), f"{bvh} is the README's example clip: ../shared must sit beside the repository"
+    walk_clip(beside_only=True)          # the README's example clip, read from ../shared beside the repository
     env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="SHM", ROS_DOMAIN_ID=str(160 + os.getpid() % 30))
     bindir = Path(sys.executable).parent
     procs, lines = [], {}

@@ -202,6 +202,80 @@ def test_refused_joint_states_are_counted_never_recorded_and_the_bag_replays_bit
     assert np.abs(surfaces[-1][1] - surfaces[0][1]).max() > 0.1        # the body walked: not one picture
     assert replay_main([str(bag)]) == 0
 
+
+def _bag_raw(folder, topic: str) -> list[bytes]:
+    from rosbags.highlevel import AnyReader
+    with AnyReader([Path(folder)]) as r:
+        return [raw for _, _, raw in r.messages(connections=[c for c in r.connections if c.topic == topic])]
+
+
+def test_a_state_not_finite_without_its_volume_or_off_its_bones_reaches_no_topic_and_no_bag(world, tmp_path):
+    """The output gate on a running, recording node: after three joint states the scene's state is replaced by
+    one that is not finite, one shrunk to 0.3 % of its volume and one with a surface vertex 5 m from its bone
+    (what a diverging step leaves). Each is handed over to the outputs and refused there: no Marker or stress
+    cloud on the topics or in the bag shows it, the refusals are counted, and the body goes on walking."""
+    from sensor_msgs.msg import PointCloud2
+    from visualization_msgs.msg import Marker
+
+    from clusterfem_ros.motion import load_motion
+    from msg_adapters.pointcloud import read_points
+    sim = _sim(world, **{"recording.enabled": True, "recording.dir": str(tmp_path), "physics.clock": "input",
+                         "output.marker_rate_hz": 60.0, "output.stress_rate_hz": 30.0})
+    markers = world.collect(Marker, "clusterfem/surface")
+    clouds = world.collect(PointCloud2, "clusterfem/stress")
+    scene = sim.scene
+    i = int(scene.surface_vertices[0])
+
+    def not_finite(u):
+        u[3, 1] = np.nan
+
+    def shrunk(u):                                       # every vertex 85 % of the way to the centroid
+        x = scene.model.rest + u
+        u[:] = x.mean(axis=0) + 0.15 * (x - x.mean(axis=0)) - scene.model.rest
+
+    def torn(u):
+        u[i, 2] += 5.0
+    corruptions = {40: not_finite, 100: shrunk, 160: torn}
+    problems, taken = [], [0]
+    real_take = scene.take_joint_state
+
+    def take(*args, **kwargs):                           # on the physics thread: right before its hand-over
+        out = real_take(*args, **kwargs)
+        taken[0] += 1
+        corrupt = corruptions.get(taken[0])
+        if corrupt is not None:
+            corrupt(scene.state.u)
+            problems.append(scene.problem_of(scene.state.u, scene.state.v, scene._poses(scene.sim_time)))
+        return out
+    scene.take_joint_state = take
+    s = Sender(world, sim)
+    walk = load_motion().trajectory
+    t0 = s.now_ns()
+    for _ in range(260):
+        stamp = s.now_ns()
+        s.pub.publish(joint_state_cdr(walk.names, walk.sample((stamp - t0) * 1e-9, loop=True)[0], stamp=stamp))
+        time.sleep(0.01)
+    world.wait_for(lambda: taken[0] >= 200 and len(problems) == 3, 30, "the three corrupted states")
+    n = len(markers)
+    world.wait_for(lambda: len(markers) >= n + 3, 20, "markers after them")
+    world.executor.shutdown(timeout_sec=5.0)
+    sim.close()
+    assert "not finite" in problems[0] and "volume is off" in problems[1] and f"surface vertex {i} is" in problems[2]
+    assert sim.physics.refused >= 3 and sim.diagnostics()["outputs_withheld"] >= 3
+    bag_markers, bag_clouds = _bag_raw(sim.recording_path, "/clusterfem/surface"), _bag_raw(sim.recording_path,
+                                                                                        "/clusterfem/stress")
+    assert len(bag_markers) >= 20 and len(bag_clouds) >= 10 and len(markers) >= 20 and len(clouds) >= 10
+    for raw in markers + bag_markers:
+        x = _points(raw)
+        assert np.isfinite(x).all()
+        assert np.linalg.norm(x - np.median(x, axis=0), axis=1).max() < 2.5          # no vertex 5 m out
+        assert np.ptp(x[:, 2]) > 1.0                                                 # standing, not shrunk
+    for raw in clouds + bag_clouds:
+        c = read_points(deserialize_message(raw, PointCloud2))
+        x = np.column_stack([c["x"], c["y"], c["z"]])
+        assert np.isfinite(x).all() and np.isfinite(c["von_mises"]).all()
+        assert np.linalg.norm(x - np.median(x, axis=0), axis=1).max() < 2.5 and np.ptp(x[:, 2]) > 1.0
+
 def test_a_full_disk_stops_recording_with_an_error_and_the_simulation_goes_on(world, tmp_path, monkeypatch):
     from diagnostic_msgs.msg import DiagnosticArray
     from visualization_msgs.msg import Marker

@@ -6,7 +6,7 @@ from clusterfem_ros.config import SceneConfig
 from clusterfem_ros.motion import load_motion
 from clusterfem_ros.scene import Scene
 from clusterfem_ros.skeleton.trajectory import JointTrajectory
-from tests.shared_data import CMU_WALK
+from tests.shared_data import walk_clip
 
 
 def _open_trajectory():
@@ -45,9 +45,7 @@ def test_an_open_capture_jumps_at_its_loop_point_and_with_a_seam_it_does_not():
 def test_the_cmu_walk_loops_into_the_scene_without_a_teleport():
     """The bundled walk looped through the seam, fed to the scene: no 'teleport' (the root jump of 3-4 m at
     every loop was counted as used and rejected), and the root keeps going forward."""
-    if not CMU_WALK.exists():
-        pytest.skip(f"{CMU_WALK} is not there (../shared/data/mocap)")
-    m = load_motion("bvh", CMU_WALK)
+    m = load_motion("bvh", walk_clip())
     tr = m.looping(0.5)                                   # what the player plays (loop_blend 0.5 s)
     scene = Scene.build(SceneConfig().with_values({"skeleton.source": "robot_description", "body.target_tets": 700}),
                         urdf_xml=m.urdf)

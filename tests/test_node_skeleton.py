@@ -7,7 +7,7 @@ from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 
 from clusterfem_ros.nodes.testing import RosWorld
-from tests.shared_data import CMU_WALK
+from tests.shared_data import walk_clip
 
 pytestmark = pytest.mark.ros
 
@@ -165,11 +165,11 @@ def test_replaying_the_recorded_joint_states_reproduces_the_recorded_surfaces(wo
     assert moved > 0.1                         # the compared surfaces are not all the same picture
 
 
-@pytest.mark.skipif(not CMU_WALK.exists(), reason=f"{CMU_WALK} not present (../shared beside the checkout)")
 def test_bvh_player_latches_its_urdf_and_the_node_builds_a_jelly_body_on_it(world):
     from visualization_msgs.msg import Marker
+    walk = walk_clip()
     markers = world.collect(Marker, "clusterfem/surface")
-    player = _player(world, source="bvh", file=str(CMU_WALK))
+    player = _player(world, source="bvh", file=str(walk))
     sim = _sim(world, **{"skeleton.source": "robot_description", "body.bone_radius": 0.04})
     world.wait_for(lambda: sim.scene is not None, 60, "the scene built from robot_description")
     assert sorted(sim.scene.skeleton.joint_names) == sorted(player.names)      # mapped by name, any order
@@ -179,11 +179,10 @@ def test_bvh_player_latches_its_urdf_and_the_node_builds_a_jelly_body_on_it(worl
 
 
 def test_a_recording_on_a_latched_skeleton_carries_it_and_the_renderer_poses_it(world, tmp_path):
-    if not CMU_WALK.exists():
-        pytest.skip(f"{CMU_WALK} is not there (../shared/data/mocap)")
+    walk = walk_clip()
     from clusterfem_ros.bag_frames import read_bag_frames
     from clusterfem_ros.motion import load_motion
-    _player(world, source="bvh", file=str(CMU_WALK))
+    _player(world, source="bvh", file=str(walk))
     sim = _sim(world, **{"skeleton.source": "robot_description", "body.bone_radius": 0.04, "recording.enabled": True,
                          "recording.dir": str(tmp_path)})
     world.wait_for(lambda: sim.counts.get("clusterfem/surface", 0) >= 3, 60, "markers on the BVH's skeleton")
@@ -191,7 +190,7 @@ def test_a_recording_on_a_latched_skeleton_carries_it_and_the_renderer_poses_it(
     assert sim.counts["robot_description"] == 1
     sim.close()
     frames = read_bag_frames(sim.recording_path)
-    assert frames.urdf == load_motion("bvh", CMU_WALK).urdf          # the latched text, byte for byte
+    assert frames.urdf == load_motion("bvh", walk).urdf          # the latched text, byte for byte
 
 
 def test_keyframe_player_drives_the_builtin_humanoid(world):

@@ -5,16 +5,14 @@ import pytest
 from clusterfem_ros.skeleton.bvh import BvhError, load_bvh, parse_bvh
 from clusterfem_ros.skeleton.bvh_to_urdf import bvh_trajectory, bvh_urdf, find_spikes
 from clusterfem_ros.skeleton.kinematics import Skeleton
-from tests.shared_data import CMU_WALK
+from tests.shared_data import walk_clip
 
-CMU = CMU_WALK
-pytestmark = pytest.mark.skipif(not CMU.exists(), reason=f"{CMU} not present (../shared beside the checkout)")
 UNIT = 0.056444
 
 
 @pytest.fixture(scope="module")
 def cmu():
-    motion = load_bvh(CMU)
+    motion = load_bvh(walk_clip())
     return motion, Skeleton.from_urdf_string(bvh_urdf(motion))
 
 

@@ -231,3 +231,16 @@ def test_a_refused_sample_leaves_the_joint_map_as_it_was():
     np.testing.assert_array_equal(r.q, [0.0, 0.0, 0.0, 0.4])
     jm.commit(r.q)
     np.testing.assert_array_equal(jm.merge(["yaw"], [0.1]).q, [0.0, 0.0, 0.1, 0.4])
+
+
+def test_a_restart_waits_for_a_sample_in_range_and_keeps_no_growing_list():
+    """Old stamps in a row restart the stream only on one whose root is in range; the thousands refused before it
+    leave a bounded memory."""
+    s = stream(max_age=1.0, restart_after=3, max_root_distance=10.0)
+    s.push(100.0, np.zeros(4))
+    for k in range(5000):
+        kinds = [kind for kind, _ in s.push(0.001 * k, np.array([50.0, 0, 0, 0]))]
+        assert kinds[0] == "stale" and "restart" not in kinds and not s.took_last
+    assert len(s._rejected) <= 3 and s.newest == 100.0
+    assert [kind for kind, _ in s.push(6.0, np.array([5.0, 0, 0, 0]))] == ["stale", "restart"]
+    assert s.took_last and s.newest == 6.0 and len(s) == 1

@@ -299,6 +299,7 @@ class JointStreamInterpolator:
                 if self._rejected and stamp <= self._rejected[-1]:
                     self._rejected.clear()
                 self._rejected.append(stamp)
+                del self._rejected[:-self.restart_after]          # bounded: a run waiting for a sample in range
                 if len(self._rejected) < self.restart_after:
                     return [(kind, text)]
                 limit = self._range_problem(stamp, q, v, alone=True)
