@@ -154,6 +154,10 @@ PARAMS: tuple[Param, ...] = (
     Param("output.diagnostics_rate_hz", 2.0, "DiagnosticArray rate (0 = off)", 0.0, 100.0),
     Param("output.colormap", "turbo", "colour map of the stress on the surface", choices=COLORMAPS),
     Param("output.stress_max", 0.0, "von Mises stress mapped to the top colour [Pa]; 0 = E / 20", 0.0, 1.0e12),
+    Param("output.live_port", 0, "serve the topics live over the Foxglove WebSocket protocol on this port, the bytes "
+          "published and recorded (8765 is Foxglove's default; 0 = off)", 0, 65535),
+    Param("output.live_host", "127.0.0.1", "address the live view binds: 127.0.0.1 serves this host only, 0.0.0.0 "
+          "every interface"),
     Param("recording.enabled", False, "record inputs and outputs to an MCAP bag"),
     Param("recording.dir", "bags", "folder for recordings (a timestamped bag folder is made inside)"),
     Param("recording.prefix", "clusterfem", "bag folder name prefix"),
@@ -357,6 +361,8 @@ class OutputSection:
     diagnostics_rate_hz: float
     colormap: str
     stress_max: float               # [Pa], 0: E / 20
+    live_port: int                  # Foxglove WebSocket live view, 0: off
+    live_host: str
 
 
 @dataclass(frozen=True)
