@@ -176,14 +176,13 @@ def surface_depth(points: np.ndarray, surface_vertices: np.ndarray, triangles: n
 
 
 def find_data_file(name: str, manifest: str = "", what: str = "surface file") -> Path:
-    """A data file given by path, or by a bare name under $CLUSTERFEM_DATA or ../shared/data of the checkout;
-    ``what`` names it in the error."""
-    import os
+    """A data file given by path, or by a bare name under the data folders (clusterfem_ros.data_dirs:
+    $CLUSTERFEM_DATA, ../shared/data of a checkout, the user data folder); ``what`` names it in the error."""
+    from ..data_dirs import data_roots
     p = Path(name)
     if p.is_file():
         return p
-    roots = [Path(os.environ["CLUSTERFEM_DATA"])] if os.environ.get("CLUSTERFEM_DATA") else []
-    roots.append(Path(__file__).resolve().parents[3] / "shared" / "data")
+    roots = data_roots()
     for root in roots:
         if (root / name).is_file():
             return root / name
