@@ -48,7 +48,7 @@ PARAMS: tuple[Param, ...] = (
     Param("body.mesh_file", "", "volume mesh (.msh/.vtu/.vtk/.mesh) when body.kind is 'mesh', in the skeleton's rest pose"),
     Param("body.target_tets", 4800, "approximate tet count of the jelly man, or of a surface body (within 20 %)", 100, 400000),
     Param("body.surface_file", "", "triangle surface (.obj/.stl/.ply/.glb) of a character when body.kind is 'surface': a path, "
-          "or a path under $CLUSTERFEM_DATA or ../shared/data; tetrahedralized with fTetWild, cached"),
+          "or a path under $CLUSTERFEM_DATA, ../shared/data or the user data folder; tetrahedralized with fTetWild, cached"),
     Param("body.surface_group", "", "the OBJ group of body.surface_file to use ('' = the whole file)"),
     Param("body.surface_unit", 1.0, "metres per unit of body.surface_file (0.1 for decimetres, 0.01 for cm)", 1.0e-6, 1.0e3),
     Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
@@ -95,7 +95,7 @@ PARAMS: tuple[Param, ...] = (
     Param("skeleton.bind_pose", "neutral", "pose a surface body was modelled in: the URDF's zero pose, or frame 0 of "
           "skeleton.bind_bvh (the capture the player plays)", choices=("neutral", "first_frame")),
     Param("skeleton.bind_bvh", "", "BVH file whose frame 0 is the bind pose when skeleton.bind_pose is 'first_frame': "
-          "a path, or a name under $CLUSTERFEM_DATA or ../shared/data"),
+          "a path, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder"),
     Param("skeleton.bind_joints", [], "joints set to skeleton.bind_angles on top of skeleton.bind_pose (e.g. the arms "
           "of an A-pose mesh on a T-pose skeleton)", item=str),
     Param("skeleton.bind_angles", [], "per joint of skeleton.bind_joints, its bind angle [rad] (or position [m])"),

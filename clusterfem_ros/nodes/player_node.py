@@ -46,7 +46,7 @@ class MocapPlayer(Node):
         self.declare_parameter("source", "builtin_walk", ParameterDescriptor(
             description="builtin_walk, bvh or keyframes", additional_constraints="one of: builtin_walk, bvh, keyframes"))
         self.declare_parameter("file", "", ParameterDescriptor(description=(
-            "BVH or key-frame file for those sources: a path, or a name under $CLUSTERFEM_DATA or ../shared/data")))
+            "BVH or key-frame file for those sources: a path, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder")))
         self.declare_parameter("rate_hz", 120.0, _range(1.0, 2000.0, "JointState publish rate [Hz]"))
         self.declare_parameter("speed", 1.0, _range(0.01, 100.0, "playback speed factor"))
         self.declare_parameter("start_offset", 0.0, _range(0.0, 1e6, "start this far into the motion [s]"))
