@@ -19,14 +19,16 @@ setup(
     package_data={"clusterfem_ros": ["data/*.csv"], "clusterfem_ros.skeleton": ["data/*.yaml"]},
     # Only what pip should really fetch: rclpy and the message packages come from the ROS install
     # (wheels or apt), and listing them here would pull a second copy.
-    install_requires=["numpy", "scipy", "numba", "pin", "mcap", "meshio", "pyyaml", "matplotlib", "imageio",
-                      "imageio-ffmpeg", "trimesh", "pycollada", "rtree", "pytetwild", "pyvista", "fast_simplification"],
+    # (tests/test_package_manifest.py checks package.xml declares each, and each third-party import is here)
+    install_requires=["numpy", "scipy", "numba", "pin", "mcap", "meshio", "pyyaml", "matplotlib", "pillow",
+                      "imageio", "imageio-ffmpeg", "trimesh", "pycollada", "rtree", "pytetwild", "pyvista",
+                      "fast_simplification", "rosbags", "foxglove-sdk", "platformdirs"],
     zip_safe=True,
     maintainer="clusterfem_ros maintainers",
     maintainer_email="clusterfem@example.com",
     description="Skeleton-driven soft bodies with clustered linear FEM for ROS 2.",
     license="Apache-2.0",
-    extras_require={"test": ["pytest", "rosbags"], "robots": ["example-robot-data"]},
+    extras_require={"test": ["pytest", "websockets", "mcap-ros2-support"], "robots": ["example-robot-data"]},
     entry_points={
         "console_scripts": [
             "clusterfem_demo = clusterfem_ros.nodes.demo:main",

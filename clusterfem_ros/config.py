@@ -50,7 +50,7 @@ PARAMS: tuple[Param, ...] = (
     Param("body.mesh_file", "", "volume mesh (.msh/.vtu/.vtk/.mesh) when body.kind is 'mesh', in the skeleton's rest pose"),
     Param("body.target_tets", 4800, "approximate tet count of the jelly man, of a robot cover, or of a surface body (within 20 %)", 100, 400000),
     Param("body.surface_file", "", "triangle surface (.obj/.stl/.ply/.glb) of a character when body.kind is 'surface': a path, "
-          "or a path under $CLUSTERFEM_DATA or ../shared/data; tetrahedralized with fTetWild, cached"),
+          "or a path under $CLUSTERFEM_DATA, ../shared/data or the user data folder; tetrahedralized with fTetWild, cached"),
     Param("body.surface_group", "", "the OBJ group of body.surface_file to use ('' = the whole file)"),
     Param("body.surface_unit", 1.0, "metres per unit of body.surface_file (0.1 for decimetres, 0.01 for cm)", 1.0e-6, 1.0e3),
     Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
@@ -107,7 +107,7 @@ PARAMS: tuple[Param, ...] = (
     Param("skeleton.bind_pose", "neutral", "pose a surface body was modelled in: the URDF's zero pose, or frame 0 of "
           "skeleton.bind_bvh (the capture the player plays)", choices=("neutral", "first_frame")),
     Param("skeleton.bind_bvh", "", "BVH file whose frame 0 is the bind pose when skeleton.bind_pose is 'first_frame': "
-          "a path, or a name under $CLUSTERFEM_DATA or ../shared/data"),
+          "a path, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder"),
     Param("skeleton.bvh_unit", "auto", "length unit of the BVH file played (the player's 'unit' unless its own section "
           "sets it) and of skeleton.bind_bvh: auto (found from the skeleton: a standing human), m, cm, mm, inch, cmu "
           "(0.056444 m) or metres per file unit as a number"),
@@ -183,6 +183,10 @@ PARAMS: tuple[Param, ...] = (
     Param("output.diagnostics_rate_hz", 2.0, "DiagnosticArray rate (0 = off)", 0.0, 100.0),
     Param("output.colormap", "turbo", "colour map of the stress on the surface", choices=COLORMAPS),
     Param("output.stress_max", 0.0, "von Mises stress mapped to the top colour [Pa]; 0 = E / 20", 0.0, 1.0e12),
+    Param("output.live_port", 0, "serve the topics live over the Foxglove WebSocket protocol on this port, the bytes "
+          "published and recorded (8765 is Foxglove's default; 0 = off)", 0, 65535),
+    Param("output.live_host", "127.0.0.1", "address the live view binds: 127.0.0.1 serves this host only, 0.0.0.0 "
+          "every interface"),
     Param("recording.enabled", False, "record inputs and outputs to an MCAP bag"),
     Param("recording.dir", "bags", "folder for recordings (a timestamped bag folder is made inside)"),
     Param("recording.prefix", "clusterfem", "bag folder name prefix"),
@@ -398,6 +402,8 @@ class OutputSection:
     diagnostics_rate_hz: float
     colormap: str
     stress_max: float               # [Pa], 0: E / 20
+    live_port: int                  # Foxglove WebSocket live view, 0: off
+    live_host: str
 
 
 @dataclass(frozen=True)

@@ -137,3 +137,35 @@ def test_a_keyframe_scene_and_the_error_budget_run_from_the_installed_wheel(inst
     from clusterfem_ros.method_choice import SHIPPED_POINTS, choose_from_file
     chosen = SceneConfig().with_values(choose_from_file(SHIPPED_POINTS, "jelly_man", 25.0).overrides)
     assert got["budget"] == {k: chosen[k] for k in got["budget"]}     # the same measured points, shipped
+
+
+DATA_LOOKUP = r'''
+import json
+from clusterfem_ros.body.fit import find_data_file
+from clusterfem_ros.data_dirs import data_roots
+print(json.dumps({"roots": [str(r) for r in data_roots()], "found": str(find_data_file("mocap/probe.bvh"))}))
+'''
+
+
+def test_the_installed_package_finds_data_in_clusterfem_data_or_the_user_data_folder(installed, tmp_path):
+    """No '../shared/data' beside site-packages (<venv>/lib/python3.X/shared/data): $CLUSTERFEM_DATA, then the
+    user data folder ($XDG_DATA_HOME/clusterfem_ros here)."""
+    _, python, elsewhere, env = installed
+    user = tmp_path / "xdg" / "clusterfem_ros"
+    (user / "mocap").mkdir(parents=True)
+    (user / "mocap" / "probe.bvh").write_text("HIERARCHY\n")
+    env = dict(env, XDG_DATA_HOME=str(tmp_path / "xdg"), CLUSTERFEM_DATA=str(tmp_path / "data"))
+    got = json.loads(_run([str(python), "-c", DATA_LOOKUP], elsewhere, env).stdout.strip().splitlines()[-1])
+    assert got["roots"] == [str(tmp_path / "data"), str(user)], got
+    assert got["found"] == str(user / "mocap" / "probe.bvh"), got
+    (tmp_path / "data" / "mocap").mkdir(parents=True)                    # $CLUSTERFEM_DATA comes first
+    (tmp_path / "data" / "mocap" / "probe.bvh").write_text("HIERARCHY\n")
+    got = json.loads(_run([str(python), "-c", DATA_LOOKUP], elsewhere, env).stdout.strip().splitlines()[-1])
+    assert got["found"] == str(tmp_path / "data" / "mocap" / "probe.bvh"), got
+
+
+def test_the_installed_console_scripts_answer_help(installed):
+    _, python, elsewhere, env = installed
+    for script in ("clusterfem_node", "mocap_player", "clusterfem_demo"):
+        out = _run([str(python.parent / script), "--help"], elsewhere, env, timeout=120)
+        assert out.stdout.startswith("usage:") and "docs/parameters.md" in out.stdout, out.stdout[:500]

@@ -93,6 +93,19 @@ def test_yaml_booleans_integers_and_any_case_reach_the_parameters_as_meant(conte
         node.destroy_node()
 
 
+def test_our_scene_file_loader_reads_the_same_spellings(tmp_path):
+    """scripts/run --scene reads the file with PyYAML (which takes yes/on as booleans, y as text)."""
+    params = tmp_path / "scene.yaml"
+    params.write_text(f"{NODE_NAME}:\n  ros__parameters:\n    skeleton.up_axis: Y\n    skeleton.fit_up: y\n"
+                      "    skeleton.root_joint: Free\n    material.young_modulus: 30000\n")
+    config = load_scene_file(params)
+    assert (config["skeleton.up_axis"], config["skeleton.fit_up"], config["skeleton.root_joint"]) == ("y", "Y", "free")
+    assert config["material.young_modulus"] == 30000.0 and isinstance(config["material.young_modulus"], float)
+    params.write_text(f"{NODE_NAME}:\n  ros__parameters:\n    recording.prefix: on\n")
+    with pytest.raises(ConfigError, match="recording.prefix.*quote the value"):
+        load_scene_file(params)
+
+
 def test_the_command_line_form_of_the_docs_works(context):
     """docs/usage.md: `-p skeleton.up_axis:=y` (rcl reads y as true)."""
     config, node = _through_rclpy(context, "-p", "skeleton.up_axis:=y", "-p", "skeleton.fit_up:=y")

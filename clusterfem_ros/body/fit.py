@@ -178,9 +178,9 @@ def surface_depth(points: np.ndarray, surface_vertices: np.ndarray, triangles: n
 
 def find_data_file(name: str, manifest: str = "", what: str = "surface file") -> Path:
     """A data file given by path, by ``package://<package>/<path>`` in an installed package
-    (skeleton/robot_data.py), or by a bare name under $CLUSTERFEM_DATA or ../shared/data of the checkout;
-    ``what`` names it in the error."""
-    import os
+    (skeleton/robot_data.py), or by a bare name under the data folders (clusterfem_ros.data_dirs:
+    $CLUSTERFEM_DATA, ../shared/data of a checkout, the user data folder); ``what`` names it in the error."""
+    from ..data_dirs import data_roots
     from ..skeleton.robot_data import PACKAGE_SCHEME, package_file
     p = Path(name)
     if p.is_file():
@@ -191,8 +191,7 @@ def find_data_file(name: str, manifest: str = "", what: str = "surface file") ->
             raise FitError(f"{what} {name!r} is in no installed package: install the package that ships it (the "
                            "robot scenes use example-robot-data, pinned in requirements.lock)")
         return found
-    roots = [Path(os.environ["CLUSTERFEM_DATA"])] if os.environ.get("CLUSTERFEM_DATA") else []
-    roots.append(Path(__file__).resolve().parents[3] / "shared" / "data")
+    roots = data_roots()
     for root in roots:
         if (root / name).is_file():
             return root / name

@@ -72,8 +72,11 @@ class ClusterFemNode(Node):
         self._marker_pub = self.create_publisher(Marker, SURFACE_TOPIC, 1)
         self._stress_pub = self.create_publisher(PointCloud2, STRESS_TOPIC, 1)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAG_TOPIC, 10)
+        self.live = None                      # the Foxglove live view (nodes/live_view.py), if output.live_port
         if c.recording.enabled:
             self._open_recording()
+        if c.output.live_port:
+            self._open_live_view()
         self.create_subscription(JointState, JOINTS_TOPIC, self._on_joint_state, qos_profile_sensor_data, raw=True)
         if c.skeleton.source == "robot_description":
             self.get_logger().info("waiting for the URDF on 'robot_description' (transient local)")
@@ -158,6 +161,24 @@ class ClusterFemNode(Node):
         (path / PARAMS_FILE).write_text(scene_file_text(self.config.resolved()))   # a replay's other input
         self.get_logger().info(f"recording to {path}")
 
+    def _open_live_view(self) -> None:
+        from .live_view import LiveView
+        out = self.config.output
+        self.live = LiveView(out.live_host, out.live_port, name=self.get_fully_qualified_name())
+        topics = [(JOINTS_TOPIC, "sensor_msgs/msg/JointState"), (SURFACE_TOPIC, "visualization_msgs/msg/Marker"),
+                  (STRESS_TOPIC, "sensor_msgs/msg/PointCloud2"), (DIAG_TOPIC, "diagnostic_msgs/msg/DiagnosticArray")]
+        if self.config.skeleton.source == "robot_description":
+            topics.append((URDF_TOPIC, "std_msgs/msg/String"))
+        self._live_topics = {t: self.resolve_topic_name(t) for t, _ in topics}
+        for topic, msg_type in topics:
+            self.live.add_topic(self._live_topics[topic], msg_type)
+        self.get_logger().info(f"live view on {self.live.url} (Foxglove: Open connection, Foxglove WebSocket; "
+                               "layout config/foxglove_layout.json)")
+
+    def _consumed(self, pub) -> bool:
+        """Somebody takes this output: a subscriber, the recording or the live view."""
+        return pub.get_subscription_count() > 0 or self.recorder is not None or self.live is not None
+
     def _make_output_timers(self) -> None:
         for t in self._output_timers.values():
             self.destroy_timer(t)
@@ -200,6 +221,10 @@ class ClusterFemNode(Node):
     def close(self) -> None:
         """Stop physics, then finalise the recording (idempotent); called on every way out."""
         self.stop_physics()
+        with self._record_lock:
+            live, self.live = self.live, None
+        if live is not None:
+            live.close()
         if self.recorder is not None:
             rec, self.recorder = self.recorder, None
             try:
@@ -235,6 +260,14 @@ class ClusterFemNode(Node):
         executor thread (outputs) and on the physics thread (joint states): one at a time."""
         with self._record_lock:
             self.counts[topic] = self.counts.get(topic, 0) + 1
+            live = self.live
+            if live is not None and topic in self._live_topics:     # the same bytes, served live
+                try:
+                    live.log(self._live_topics[topic], data, self.get_clock().now().nanoseconds if log_ns is None
+                             else log_ns)
+                except Exception as exc:        # the live view stops, the node goes on
+                    self.live = None
+                    self.get_logger().error(f"live view stopped: {type(exc).__name__}: {exc}")
             rec = self.recorder
             if rec is None:
                 return
@@ -294,7 +327,7 @@ class ClusterFemNode(Node):
     # -- outputs ---------------------------------------------------------------------------------
     def _snapshot_for(self, pub) -> Snapshot | None:
         """The state to publish on ``pub``, if anybody consumes it and physics has handed one over."""
-        if self.physics is None or not (pub.get_subscription_count() > 0 or self.recorder is not None):
+        if self.physics is None or not self._consumed(pub):
             return None
         return self.physics.shown()
 
@@ -421,7 +454,7 @@ class ClusterFemNode(Node):
         return s.volume_error_of(s.model.rest + snap.u)
 
     def _publish_diagnostics(self) -> None:
-        if not (self._diag_pub.get_subscription_count() > 0 or self.recorder is not None):
+        if not self._consumed(self._diag_pub):
             return
         t0 = time.perf_counter()
         values = self.diagnostics()

@@ -39,6 +39,7 @@ DDS_NOTE = default_discovery()
 
 
 PLAYER_START_TIMEOUT_S = 60.0
+LIVE_PORT = 8765            # Foxglove's default WebSocket port
 
 
 def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
@@ -120,6 +121,10 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--bags", default="bags", help="folder for the recording (default bags/)")
     ap.add_argument("--png", default=None, help="picture of the final state (default: <bag folder>/final_state.png)")
     ap.add_argument("--no-video", action="store_true", help="do not render the recording to run.mp4 / run.gif")
+    ap.add_argument("--live", type=int, nargs="?", const=LIVE_PORT, default=0, metavar="PORT",
+                    help=f"serve the topics to Foxglove over its WebSocket protocol on 127.0.0.1:PORT (default "
+                         f"{LIVE_PORT}; body k of --bodies on PORT + k - 1): Open connection, ws://127.0.0.1:PORT, "
+                         "layout config/foxglove_layout.json")
     _body_arguments(ap)
     return ap.parse_args(argv)
 
@@ -156,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.bodies > 1 and args.process_per_body:
         from .bodies import run_process_per_body
         scenes = _scene_files(args, args.bodies)
-        return run_process_per_body(args, lambda k: _child_argv(args, scenes[k]))
+        return run_process_per_body(args, lambda k: _child_argv(args, scenes[k]) + (
+            ["--live", str(args.live + k)] if args.live else []))
 
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -189,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
                           Parameter("recording.dir", value=args.bags)]
             if ns:
                 overrides.append(Parameter("recording.prefix", value="clusterfem_" + ns.replace("/", "_")))
+            if args.live:
+                overrides.append(Parameter("output.live_port", value=args.live + k))
             sims.append(ClusterFemNode(parameter_overrides=overrides, **({"namespace": ns} if ns else {})))
             if config.skeleton.source != "none":
                 player_params = dict(plans[k][0])

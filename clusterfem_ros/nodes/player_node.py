@@ -49,7 +49,7 @@ class MocapPlayer(Node):
             additional_constraints=f"one of: {', '.join(SOURCES)}"))
         self.declare_parameter("file", "", ParameterDescriptor(description=(
             "BVH, key-frame or URDF file for those sources: a path, package://<package>/<path> of an installed "
-            "package, or a name under $CLUSTERFEM_DATA or ../shared/data")))
+            "package, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder")))
         self.declare_parameter("rate_hz", 120.0, _range(1.0, 2000.0, "JointState publish rate [Hz]"))
         self.declare_parameter("speed", 1.0, _range(0.01, 100.0, "playback speed factor"))
         self.declare_parameter("start_offset", 0.0, _range(0.0, 1e6, "start this far into the motion [s]"))

@@ -8,8 +8,10 @@
         world.wait_for(lambda: len(markers) >= 3, 30, "three surface markers")
 
 Each RosWorld has its own rclpy Context, ROS_DOMAIN_ID and single-threaded executor, so tests do not hear
-each other. DDS stays in shared memory: importing this module sets FASTDDS_BUILTIN_TRANSPORTS=SHM unless it
-is set (import it before the first rclpy.init of the process, or set the variable yourself). Teardown order
+each other. DDS stays on this machine: importing this module sets FASTDDS_BUILTIN_TRANSPORTS=SHM unless it
+is set (import it before the first rclpy.init of the process, or set the variable yourself); where
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST is set too (scripts/env.sh), rmw_fastrtps takes that instead: shared
+memory and UDP to 127.0.0.1 only (docs/usage.md, Network). Teardown order
 matters (../shared/notes): shut the executor down, join its thread, close and destroy the nodes (a node's
 ``close()`` finalises its recording), shut the context down. Used by this package's own node tests.
 """

@@ -17,7 +17,6 @@ length) of a cylinder or capsule, or (r, r, r) of a sphere [m].
 """
 from __future__ import annotations
 
-import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -146,15 +145,14 @@ def leaf_links(root: ET.Element) -> list[str]:
 
 
 def search_folders(urdf_file: str | Path | None = None) -> list[Path]:
-    """Where meshes are looked for: the URDF file's folder and its parent, $CLUSTERFEM_DATA, ../shared/data."""
+    """Where meshes are looked for: the URDF file's folder and its parent, then the data folders
+    (clusterfem_ros.data_dirs: $CLUSTERFEM_DATA, ../shared/data of a checkout, the user data folder)."""
+    from ..data_dirs import data_roots
     out = []
     if urdf_file:
         here = Path(urdf_file).resolve().parent
         out += [here, here.parent]
-    if os.environ.get("CLUSTERFEM_DATA"):
-        out.append(Path(os.environ["CLUSTERFEM_DATA"]))
-    out.append(Path(__file__).resolve().parents[3] / "shared" / "data")
-    return out
+    return out + data_roots()
 
 
 def _tip(shapes: list[LinkShape]) -> np.ndarray:
