@@ -64,7 +64,8 @@ def seam_report(path: Path, seconds: float = 13.0, blend: float = 0.5) -> dict:
         row[f"tilt_{name}"] = float(np.rad2deg(np.arccos(np.clip(root.apply(up) @ up, -1, 1))).max())
         starts = [tr.sample(k * T + 1e-9, loop=True)[0] for k in range(2)]
         r0, r1 = _rotations(tr, capture, np.array(starts))[0]
-        row[f"heading_{name}"] = float(np.rad2deg(twist(r1 * r0.inv(), up)[0]))
+        turn = float(np.rad2deg(twist(r1 * r0.inv(), up)[0]))
+        row[f"heading_{name}"] = (turn + 180.0) % 360.0 - 180.0
     return row
 
 
