@@ -68,7 +68,8 @@ def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: 
         traj = bvh_trajectory(capture)
         # a position channel is horizontal when its file axis maps to a ROS axis without a vertical part
         carry = np.array([n.endswith("pos") and abs(capture.to_ros[2, "XYZ".index(n[-4])]) < 0.5 for n in traj.names])
-        return Motion(bvh_urdf(capture), traj, f"BVH {path.name} ({capture.n_frames} frames, "
+        skipped = ", frame 0 (a prepended pose) skipped" if traj.times.size < capture.n_frames else ""
+        return Motion(bvh_urdf(capture), traj, f"BVH {path.name} ({capture.n_frames} frames{skipped}, "
                       f"{traj.duration:.2f} s)", False, carry, capture.placement, capture)
     if source == "joint_sweep":
         from .skeleton.joint_sweep import joint_sweep

@@ -260,3 +260,13 @@ def test_the_scenes_bvh_unit_reaches_the_player_and_the_player_says_it_was_given
         load_motion("bvh", player["file"], unit=player["unit"], up=player["up"])
     m = load_motion("bvh", clip, unit="inch")
     assert "unit inch (0.0254 m per file unit, given)" in m.placement and m.capture.unit_m == 0.0254
+
+
+def test_a_prepended_t_pose_is_skipped_and_a_first_captured_frame_is_kept():
+    """The CMU conversions prepend a T-pose to the capture; other files start with motion."""
+    root, rot = walk_motion(frames=40)
+    assert bvh_trajectory(parse_bvh(human_bvh((root, rot), unit_m=0.01))).times.size == 40
+    rest_root, rest_rot = rest_motion(frames=1)
+    tposed = (np.vstack([rest_root, root]), {n: Rotation.concatenate([rest_rot[n], rot[n]]) for n in rot})  # arms out
+    tr = bvh_trajectory(parse_bvh(human_bvh(tposed, unit_m=0.01)))
+    assert tr.times.size == 40 and tr.times[0] == 0.0

@@ -17,9 +17,12 @@ joint's three Euler angles are continuous over time (``continuous_euler``): of t
 frame's rotation, (a, b, c) and (a + 180, 180 - b, c + 180) deg, each shifted by whole turns, the one
 nearest the previous frame's is kept, so a file wrapping at +-180 deg or flipping to the other triple of the
 same rotation makes no jump (at gimbal lock a keeps its previous value); the rotations are the file's
-exactly. Joints with fewer rotation channels are unwrapped per channel. ``skip_tpose=True``
-(default, right for the CMU cgspeed conversions) drops frame 0, the T-pose the converter prepends,
-and starts the time at 0 on frame 1; ``skip_tpose=False`` keeps every frame.
+exactly. Joints with fewer rotation channels are unwrapped per channel. ``skip_tpose="auto"``
+(default) drops frame 0 when it is a pose the converter prepended (the CMU cgspeed conversions' T-pose,
+``prepended_pose``): some joint turns more than ``TPOSE_JUMP_DEG`` from it to frame 1, more than
+``TPOSE_RATIO`` times the captured motion's own frame-to-frame turn (the median over the frames of each
+frame's largest joint turn); the time
+then starts at 0 on frame 1. ``True`` always drops frame 0, ``False`` keeps every frame.
 
 Glitches (``find_spikes``, ``despike=True`` by default): real captures have single- or few-frame
 spikes, e.g. a joint flipping by ~170 deg for 3 frames near Euler gimbal lock and flipping back. A run of
@@ -278,7 +281,24 @@ def _bridge(motion: BvhMotion, ji: int, frames: np.ndarray, a: int, b: int) -> N
     frames[b:, cols] = np.rad2deg(continuous_euler(np.deg2rad(frames[b - 1:, cols]), order)[1:])
 
 
-def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: str = "catmull_rom",
+TPOSE_JUMP_DEG = 30.0
+TPOSE_RATIO = 5.0
+
+
+def prepended_pose(motion: BvhMotion) -> bool:
+    """True when frame 0 is a pose prepended to the capture (see the module docstring)."""
+    if motion.n_frames < 3:
+        return False
+    steps = np.zeros(motion.n_frames - 1)
+    for ji in range(len(motion.joints)):
+        R = joint_rotations(motion, ji)
+        cos = (np.einsum("fij,fij->f", R[:-1], R[1:]) - 1.0) / 2.0
+        steps = np.maximum(steps, np.rad2deg(np.arccos(np.clip(cos, -1.0, 1.0))))
+    own = float(np.median(steps[1:]))
+    return bool(steps[0] > TPOSE_JUMP_DEG and steps[0] > TPOSE_RATIO * own)
+
+
+def bvh_trajectory(motion: BvhMotion, skip_tpose: bool | str = "auto", interpolation: str = "catmull_rom",
                    despike: bool = True, spike_deg: float = 90.0, max_spike_frames: int = 5,
                    max_rotation_speed: float | None = MAX_ROTATION_SPEED) -> JointTrajectory:
     """The capture as a trajectory over ``bvh_joint_names(motion)`` (see the module docstring)."""
@@ -287,6 +307,8 @@ def bvh_trajectory(motion: BvhMotion, skip_tpose: bool = True, interpolation: st
         for c in _chain_order(j.channels):
             cols.append(j.channel_start + j.channels.index(c))
             revolute.append(c.endswith("rotation"))
+    if skip_tpose == "auto":
+        skip_tpose = prepended_pose(motion)
     first = 1 if skip_tpose else 0
     if motion.n_frames <= first:
         raise ValueError(f"{motion.source}: only the T-pose frame is present: pass skip_tpose=False to keep it")

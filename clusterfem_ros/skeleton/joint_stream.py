@@ -103,20 +103,29 @@ def _range_measures(q, v, prev, revolute, prismatic, moved_at, stamp, max_speed)
     return np.sqrt(root), fastest, np.sqrt(jump), kw, step_k, dt_k
 
 
-def nearest_ball_triples(triples: np.ndarray, previous: np.ndarray) -> np.ndarray:
-    """(B, 3) angles of ball joints (three orthogonal axes) each re-expressed as the triple of the same rotation
-    nearest ``previous`` (B, 3): of (a, b, c) and (a + pi, pi - b, c + pi), each shifted by whole turns."""
-    twin = triples + np.array([np.pi, 0.0, np.pi])
-    twin[:, 1] = np.pi - triples[:, 1]
-    best = None
-    for cand in (triples, twin):
-        cand = cand + 2.0 * np.pi * np.round((previous - cand) / (2.0 * np.pi))
-        if best is None:
-            best = cand
-        else:
-            nearer = np.abs(cand - previous).sum(1) < np.abs(best - previous).sum(1)
-            best[nearer] = cand[nearer]
-    return best
+@numba.njit(**HOLDS_GIL)
+def _nearest_ball_triples(q, prev, balls):
+    """In place: each ball joint's angles in q re-expressed as the triple of the same rotation nearest ``prev``: of
+    (a, b, c) and (a + pi, pi - b, c + pi) (three orthogonal axes), each shifted by whole turns."""
+    two_pi = 2.0 * np.pi
+    best = np.empty(3)
+    cand = np.empty(3)
+    for b in range(balls.shape[0]):
+        best_cost = np.inf
+        for twin in range(2):
+            for i in range(3):
+                x = q[balls[b, i]]
+                if twin:
+                    x = np.pi - x if i == 1 else x + np.pi
+                p = prev[balls[b, i]]
+                cand[i] = x + two_pi * np.round((p - x) / two_pi)
+            cost = abs(cand[0] - prev[balls[b, 0]]) + abs(cand[1] - prev[balls[b, 1]]) + \
+                abs(cand[2] - prev[balls[b, 2]])
+            if cost < best_cost:
+                best_cost = cost
+                best[:] = cand
+        for i in range(3):
+            q[balls[b, i]] = best[i]
 
 
 @numba.njit(**HOLDS_GIL)
@@ -227,7 +236,7 @@ class JointStreamInterpolator:
             q = q.copy()
             q[self.revolute] = prev[self.revolute] + wrap_angle(q[self.revolute] - prev[self.revolute])
             if self.balls.shape[0]:
-                q[self.balls] = nearest_ball_triples(q[self.balls], prev[self.balls])
+                _nearest_ball_triples(q, prev, self.balls)
             jump = float(np.linalg.norm(q[self.prismatic] - prev[self.prismatic]))
             if self.prismatic.any() and jump > self.teleport_distance:
                 self.teleports += 1
@@ -375,6 +384,7 @@ class JointStreamInterpolator:
         z = np.zeros(len(self.joint_names))
         _range_measures(z, z, z, self.revolute, self.prismatic, self._moved_at, 0.0, 1.0)
         _ball_measures(z, z, np.zeros((1, 3), np.int64), np.ones((1, 3, 3)) / np.sqrt(3), np.zeros(3), 0.0, 1.0)
+        _nearest_ball_triples(np.zeros(3), np.zeros(3), np.zeros((1, 3), np.int64))
 
     def push_or_raise(self, stamp_s: float, q: np.ndarray, v: np.ndarray | None = None,
                       now: float | None = None) -> list[tuple[str, str]]:
