@@ -67,7 +67,8 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     anchors = anchor(config, model.rest, skeleton, progress)
     anchored = binding = driver = joints = stream = None
     if skeleton is not None:
-        q0 = skeleton.neutral() if parts.surface is None else parts.surface.bind_q
+        q0 = parts.surface.bind_q if parts.surface is not None else \
+            parts.bind_q if parts.bind_q is not None else skeleton.neutral()
         binding = bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress)
         driver = skeleton_driver(config, binding, model.rest, skeleton, anchors)
         joints, stream = joint_inputs(config, skeleton, q0)
