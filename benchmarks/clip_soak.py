@@ -103,16 +103,19 @@ def unit_found(path: Path) -> tuple[str, float]:
 
 
 def flesh_check(scene) -> tuple[float, str]:
-    """(the skeleton's rest height [m], the major bones of ``MAJOR_ROLES`` that no rest vertex of the body lies
-    within 1.5 of its capsule radius of ('none'), or 'not a human (...)')."""
+    """(the skeleton's height in the pose the body was built in [m], the major bones of ``MAJOR_ROLES`` that no
+    rest vertex of the body lies within 1.5 of its capsule radius of ('none'), or 'not a human (...)')."""
+    from clusterfem_ros.scene_build import jelly_bind_pose
     from clusterfem_ros.skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
     sk = scene.skeleton
+    q = jelly_bind_pose(scene.config, sk)
+    q = sk.neutral() if q is None else q
     try:
-        roles = label_skeleton(sk)
+        roles = label_skeleton(sk, q)
     except NotHumanoid as exc:
         return 0.0, f"not a human ({exc})"
     radii, _ = flesh_radii(roles)
-    s, e = sk.bone_segments(sk.neutral())
+    s, e = sk.bone_segments(q)
     rest = scene.model.rest
     missing = []
     for b, name in enumerate(sk.bone_names):
@@ -142,7 +145,7 @@ def headless_soak(path: Path, overrides: dict | None = None, seconds: float | No
     from clusterfem_ros.scene import Scene
     motion = load_motion("bvh", path)
     tr = motion.trajectory
-    scene = Scene.build(clip_config(overrides, scene_file), urdf_xml=motion.urdf)
+    scene = Scene.build(clip_config(overrides, scene_file, path), urdf_xml=motion.urdf)
     length = tr.duration if seconds is None else min(seconds, tr.duration)
     res = SoakResult(path.stem, length)
     res.unit = unit_found(path)[0]

@@ -63,10 +63,12 @@ def missing_message(clip: Clip) -> str:
             f"{clip.repository} (entry '{clip.name}' of {MANIFEST.relative_to(REPO)})")
 
 
-def clip_config(overrides: dict | None = None, scene: Path | None = None) -> SceneConfig:
+def clip_config(overrides: dict | None = None, scene: Path | None = None, bvh: Path | None = None) -> SceneConfig:
     """The default scene (or the scene file ``scene``) on a BVH's own skeleton, what ``scripts/run --bvh`` runs:
-    the jelly man built on it, or the scene's character fitted to it."""
+    the jelly man built on it (in the pose motion.capture_bind_pose chooses for the clip ``bvh``), or the scene's
+    character fitted to it."""
     from clusterfem_ros.config import load_scene_file
     from clusterfem_ros.motion import on_capture_skeleton
-    base = SceneConfig() if scene is None else load_scene_file(scene)
-    return on_capture_skeleton(base).with_values(overrides or {})
+    base = (SceneConfig() if scene is None else load_scene_file(scene)).with_values(overrides or {})
+    said = on_capture_skeleton(base, bvh, lambda line: print(f"[clip_soak] {line}", flush=True))
+    return said.with_values(overrides or {})

@@ -59,7 +59,7 @@ def node_soak(path: Path, overrides: dict | None = None, seconds: float | None =
     motion = load_motion("bvh", path)
     length = motion.trajectory.duration if seconds is None else min(seconds, motion.trajectory.duration)
     config = clip_config({"physics.clock": "input", "output.marker_rate_hz": 30.0, "output.stress_rate_hz": 0.0,
-                          "output.diagnostics_rate_hz": 0.0, **(overrides or {})}, scene_file)
+                          "output.diagnostics_rate_hz": 0.0, **(overrides or {})}, scene_file, path)
     res = NodeSoakResult(path.stem, length)
     with RosWorld() as world:
         sim = world.add(ClusterFemNode(context=world.context, parameter_overrides=[

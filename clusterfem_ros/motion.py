@@ -106,12 +106,50 @@ def load_player_section(path: str | Path) -> dict | None:
     return dict(params)
 
 
-def on_capture_skeleton(config):
+def on_capture_skeleton(config, bvh_file: str | Path | None = None, progress=None):
     """The scene ``config`` made to play a BVH on the capture's own skeleton (skeleton.source robot_description): a
     character's surface (body.kind surface) is fitted to that skeleton in the scene's bind pose; any other body
-    becomes the jelly man built around it."""
+    becomes the jelly man built around it, in the pose ``capture_bind_pose`` chooses when ``bvh_file`` is given
+    and skeleton.bind_pose is left 'neutral' (``progress`` gets the line saying which)."""
     kind = "surface" if config.body.kind == "surface" else "jelly_man"
-    return config.with_values({"skeleton.source": "robot_description", "body.kind": kind})
+    values = {"skeleton.source": "robot_description", "body.kind": kind}
+    if bvh_file is not None and kind == "jelly_man" and config.skeleton.bind_pose == "neutral":
+        pose, why = capture_bind_pose(bvh_file)
+        if progress is not None:
+            progress(why)
+        if pose == "first_frame":
+            values.update({"skeleton.bind_pose": "first_frame", "skeleton.bind_bvh": str(bvh_file)})
+    return config.with_values(values)
+
+
+def capture_bind_pose(bvh_file: str | Path) -> tuple[str, str]:
+    """('neutral' or 'first_frame', the line saying why): the pose to build a jelly body in on a capture's skeleton.
+    The zero pose when a human stands in it (skeleton/bone_roles.py: feet to head within 45 deg of up); frame 0
+    when only there (a rig whose bones lie along their parents' axes until the frames pose them)."""
+    from .body.fit import bind_configuration
+    from .skeleton.bone_roles import NotHumanoid, label_skeleton, stands
+    from .skeleton.kinematics import Skeleton
+    path = Path(bvh_file)
+    capture = load_motion("bvh", path)
+    skeleton = Skeleton.from_urdf_string(capture.urdf)
+
+    def standing(q) -> tuple[bool, str]:
+        try:
+            roles = label_skeleton(skeleton, q)
+        except NotHumanoid as exc:
+            return False, f"no human ({exc})"
+        return stands(roles), f"feet to head along {np.round(roles.up, 2).tolist()}"
+
+    zero, zero_why = standing(None)
+    if zero:
+        return "neutral", f"jelly body built in the capture's zero pose (a human stands in it: {zero_why})"
+    first, first_why = standing(bind_configuration(skeleton, "first_frame", bvh_file=str(path)))
+    if first:
+        return "first_frame", (f"jelly body built in frame 0 of {path.name}: no human stands in its zero pose "
+                               f"({zero_why}), one does in frame 0 ({first_why}); skeleton.bind_pose 'neutral' "
+                               "with bind_joints / bind_angles overrides")
+    return "neutral", (f"warning: no human stands in the zero pose of {path.name} ({zero_why}) nor in its frame 0 "
+                       f"({first_why}): the jelly body is built in the zero pose; check the file's up axis")
 
 
 def skeleton_source_for(source: str) -> str:

@@ -49,6 +49,7 @@ class SceneParts:
     surface: SurfaceBody | None = None   # of a surface body: its bind pose and depth under the skin
     bind_all: bool = False          # the outermost binding level reaches every vertex (a capsule body)
     cover: RobotCover | None = None     # of a robot cover: each vertex's link bone and depth
+    bind_q: np.ndarray | None = None    # (nq,) the skeleton's configuration the jelly body was built in (None: q = 0)
 
 
 def material_of(c: SceneConfig) -> Material:
@@ -119,18 +120,34 @@ def load_skeleton(config: SceneConfig, urdf_xml: str | None, progress: Callable[
         raise (UrdfRefused(exc.kind, text) if isinstance(exc, UrdfRefused) else UrdfError(text)) from exc
 
 
-def jelly_radii(skeleton: Skeleton, leaf_shapes: dict, body, progress: Callable[[str], None] | None = None
-                ) -> dict[str, float]:
+def jelly_bind_pose(config: SceneConfig, skeleton: Skeleton, progress: Callable[[str], None] | None = None
+                    ) -> np.ndarray | None:
+    """The configuration a jelly body on ``skeleton`` is built and bound in: None (the zero pose) unless
+    skeleton.bind_pose / bind_joints say otherwise (body/fit.bind_configuration), e.g. frame 0 of the capture for
+    a rig whose zero pose is no standing human."""
+    s = config.skeleton
+    if s.bind_pose == "neutral" and not s.bind_joints:
+        return None
+    from .body.fit import bind_configuration
+    q = bind_configuration(skeleton, s.bind_pose, s.bind_joints, s.bind_angles, s.bind_bvh)
+    say(progress, f"jelly body built in the bind pose (skeleton.bind_pose {s.bind_pose!r}"
+                  + (f", {len(s.bind_joints)} joints set" if s.bind_joints else "") + ")")
+    return q
+
+
+def jelly_radii(skeleton: Skeleton, leaf_shapes: dict, body, progress: Callable[[str], None] | None = None,
+                q: np.ndarray | None = None) -> dict[str, float]:
     """{bone: capsule radius [m]} of a jelly body on ``skeleton`` (not the built-in humanoid): with body.flesh 'auto',
     radii by each bone's role in a human (skeleton/bone_roles.py), bare bones left out and named in one line;
     with 'uniform', or when the skeleton is not a human's (said in one line), body.bone_radius for every bone. A
-    leaf with URDF shapes has radius 0 (its shapes are its flesh)."""
+    leaf with URDF shapes has radius 0 (its shapes are its flesh). The roles are read in the configuration ``q``
+    (None: the zero pose)."""
     from .skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
     r = float(body.bone_radius)
     radii = {name: r for name in skeleton.bone_names}
     if body.flesh == "auto":
         try:
-            roles = label_skeleton(skeleton)
+            roles = label_skeleton(skeleton, q)
         except NotHumanoid as exc:
             say(progress, f"body.flesh 'auto': not a human skeleton ({exc}); every bone gets body.bone_radius "
                           f"{r:g} m (set body.flesh 'uniform' to skip this test)")
@@ -153,7 +170,7 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
     source = config.skeleton.source
     body = config.body
     kind = body.kind
-    fixed = None
+    fixed = bind_q = None
     if kind == "jelly_man":
         if skeleton is None:
             raise ValueError("body.kind 'jelly_man' is built around a skeleton, but skeleton.source is 'none': "
@@ -161,9 +178,11 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
         if source == "builtin":
             spec = default_humanoid()
         else:
-            spec = HumanoidSpec(urdf_xml, jelly_radii(skeleton, leaf_shapes, body, progress), leaf_shapes=leaf_shapes)
+            bind_q = jelly_bind_pose(config, skeleton, progress)
+            spec = HumanoidSpec(urdf_xml, jelly_radii(skeleton, leaf_shapes, body, progress, bind_q),
+                                leaf_shapes=leaf_shapes)
         say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
-        mesh = jelly_man_mesh(spec, target_tets=body.target_tets)
+        mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q)
     elif kind == "robot_cover":
         say(progress, f"covering the robot's links (~{body.target_tets} tets)")
         urdf_file = (find_data_file(config.skeleton.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")
@@ -190,4 +209,4 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
     # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
     # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
     bind_all = kind == "jelly_man" and source != "builtin"
-    return SceneParts(config, mesh, fixed, skeleton, urdf_xml, bind_all=bind_all)
+    return SceneParts(config, mesh, fixed, skeleton, urdf_xml, bind_all=bind_all, bind_q=bind_q)

@@ -70,7 +70,8 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     anchors = anchor(config, model.rest, skeleton, progress)
     anchored = binding = driver = joints = stream = None
     if skeleton is not None:
-        q0 = skeleton.neutral() if parts.surface is None else parts.surface.bind_q
+        q0 = parts.surface.bind_q if parts.surface is not None else \
+            parts.bind_q if parts.bind_q is not None else skeleton.neutral()
         binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress)
                    if parts.cover is None else bind_cover(config, model, skeleton, q0, parts.cover, progress))
         driver = skeleton_driver(config, binding, model.rest, skeleton, anchors)

@@ -181,3 +181,32 @@ def test_the_jelly_body_on_a_mixamo_rig_has_flesh_on_every_major_bone():
     said = []
     radii = jelly_radii(Skeleton.from_urdf_string(chain), {}, SceneConfig().body, said.append)
     assert radii == {"a": 0.05, "b": 0.05} and "not a human skeleton" in said[0]
+
+
+def test_a_rig_whose_zero_pose_is_no_standing_human_gets_its_flesh_in_frame_0():
+    """The Bandai Namco rig's bones lie along their parents' X axes until the frames pose them: its zero pose has
+    feet to head along the side, frame 0 stands. capture_bind_pose chooses frame 0 for it (and the zero pose for
+    the Mixamo rig, which stands in it); there every major role is found on both sides, as the names say, and
+    the jelly body built there has flesh on every major bone."""
+    from benchmarks.clip_soak import flesh_check
+    from clusterfem_ros.body.fit import bind_configuration
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.motion import capture_bind_pose, load_motion, on_capture_skeleton
+    from clusterfem_ros.scene import Scene
+    from clusterfem_ros.skeleton.bone_roles import stands
+    bandai, mixamo = DATA / "bandai_namco_dash.bvh", DATA / "mixamo_rig_freebvh.bvh"
+    assert capture_bind_pose(mixamo)[0] == "neutral"
+    pose, why = capture_bind_pose(bandai)
+    assert pose == "first_frame" and "no human stands in its zero pose" in why
+    sk = _bvh_skeleton(bandai)
+    q = bind_configuration(sk, "first_frame", bvh_file=str(bandai))
+    assert not stands(label_skeleton(sk))
+    roles = label_skeleton(sk, q)
+    assert stands(roles)
+    have = {roles.role_of(n) for n in sk.bone_names}
+    assert {f"{s}_{r}" for s in "lr" for r in MAJOR[3:]} <= have and {"pelvis", "spine", "head"} <= have
+    assert all(roles.sides[k] == name_side(n) for k, n in enumerate(sk.bone_names) if name_side(n))
+    config = on_capture_skeleton(SceneConfig().with_values({"body.target_tets": 1500}), bandai)
+    assert config.skeleton.bind_pose == "first_frame"
+    scene = Scene.build(config, urdf_xml=load_motion("bvh", bandai).urdf)
+    assert flesh_check(scene)[1] == "none"

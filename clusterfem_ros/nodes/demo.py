@@ -88,7 +88,7 @@ def _player_plan(args, scene_file: Path, config):
         if not bvh.is_file():
             raise SystemExit(f"[demo] --bvh {args.bvh}: no such file")
         player = {"source": "bvh", "file": str(bvh.resolve())}
-        config = on_capture_skeleton(config)
+        config = on_capture_skeleton(config, bvh.resolve(), lambda line: print(f"[demo] {line}", flush=True))
     else:
         player = load_player_section(scene_file) or {"source": "builtin_walk"}
     source = player.get("source", "builtin_walk")

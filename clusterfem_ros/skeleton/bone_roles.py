@@ -279,8 +279,11 @@ def label_bones(names: list[str], parent, starts, ends) -> BoneRoles:
                 off = lateral(starts[solid], starts[arm_att[1]])
                 ok = [i for i in range(len(solid) - 1) if off[i] >= 0.06 * height and lengths[i] >= 0.08 * height]
                 k = ok[0] if ok else int(np.argmax(lengths[:-1] + lengths[1:]))
-            role_of = {b: (first if i < k else upper if i == k else lower if i == k + 1 else
-                           end_role if i == k + 2 else tip_role) for i, b in enumerate(solid)}
+            def role_at(i: int) -> str:
+                return first if i < k else upper if i == k else lower if i == k + 1 else \
+                    end_role if i == k + 2 else tip_role
+
+            role_of = {b: role_at(i) for i, b in enumerate(solid)}
             pending = []
             for b in chain:
                 pending.append(b)
@@ -288,8 +291,8 @@ def label_bones(names: list[str], parent, starts, ends) -> BoneRoles:
                     for c in pending:
                         roles[c], sides[c] = role_of[b], side
                     pending = []
-            for c in pending:
-                roles[c], sides[c] = role_of[solid[-1]], side
+            for c in pending:       # zero-length bones past the last one with length: the next part (a hand)
+                roles[c], sides[c] = role_at(len(solid)), side
     # the trunk: root to the legs' meeting point is pelvis, up to the arms' is spine, then neck and head
     leg_hub, arm_hub = leg_att[1], arm_att[1]
     for b in _path(parent, root, leg_hub):
@@ -326,9 +329,14 @@ def label_bones(names: list[str], parent, starts, ends) -> BoneRoles:
     return BoneRoles(list(names), roles, sides, height, up, left, sided_by, reach, notes)
 
 
-def label_skeleton(skeleton) -> BoneRoles:
-    """``label_bones`` of a ``kinematics.Skeleton`` in its rest pose (q = 0)."""
-    starts, ends = skeleton.bone_segments(skeleton.neutral())
+def stands(roles: BoneRoles, vertical=(0.0, 0.0, 1.0)) -> bool:
+    """Whether the labelled skeleton stands: its feet-to-head axis within 45 degrees of ``vertical``."""
+    return float(roles.up @ np.asarray(vertical, dtype=np.float64)) >= np.cos(np.pi / 4)
+
+
+def label_skeleton(skeleton, q: np.ndarray | None = None) -> BoneRoles:
+    """``label_bones`` of a ``kinematics.Skeleton`` in its rest pose (q = 0) or in the configuration ``q``."""
+    starts, ends = skeleton.bone_segments(skeleton.neutral() if q is None else q)
     return label_bones(skeleton.bone_names, skeleton.bone_parent, starts, ends)
 
 
@@ -357,4 +365,4 @@ def flesh_radii(roles: BoneRoles) -> tuple[dict[str, float], list[str]]:
     return radii, bare
 
 
-__all__ = ["BoneRoles", "NotHumanoid", "flesh_radii", "label_bones", "label_skeleton", "name_side"]
+__all__ = ["BoneRoles", "NotHumanoid", "flesh_radii", "label_bones", "label_skeleton", "name_side", "stands"]

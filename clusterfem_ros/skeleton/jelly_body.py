@@ -109,12 +109,13 @@ def separate_limbs(mask: np.ndarray, label: np.ndarray, may_touch: np.ndarray) -
     return kept
 
 
-def humanoid_capsules(spec, with_parents: bool = False):
-    """(starts, ends, radii) of the bones of ``spec`` (a ``HumanoidSpec``) that have a radius, at rest; with
-    ``with_parents``, also (nb,) the index among them of each one's nearest ancestor that has a radius (-1)."""
+def humanoid_capsules(spec, with_parents: bool = False, q: np.ndarray | None = None):
+    """(starts, ends, radii) of the bones of ``spec`` (a ``HumanoidSpec``) that have a radius, at rest (or in the
+    configuration ``q``, the body's bind pose); with ``with_parents``, also (nb,) the index among them of each one's
+    nearest ancestor that has a radius (-1)."""
     from .kinematics import Skeleton
     sk = Skeleton.from_urdf_string(spec.urdf)
-    s, e = sk.bone_segments(sk.neutral())
+    s, e = sk.bone_segments(sk.neutral() if q is None else q)
     keep = [b for b, n in enumerate(sk.bone_names) if n in spec.bone_radius]
     missing = sorted(set(spec.bone_radius) - set(sk.bone_names))
     if missing:
@@ -134,15 +135,16 @@ def humanoid_capsules(spec, with_parents: bool = False):
     return caps + (np.array(parents, dtype=np.int64),)
 
 
-def leaf_shapes_placed(spec) -> list:
-    """The world placements at rest (q = 0) of ``spec.leaf_shapes`` (link_shapes.PlacedShape), each with
-    the index of its bone among ``humanoid_capsules(spec)``; [] when the spec has none."""
+def leaf_shapes_placed(spec, q: np.ndarray | None = None) -> list:
+    """The world placements at rest (q = 0, or the configuration ``q``) of ``spec.leaf_shapes``
+    (link_shapes.PlacedShape), each with the index of its bone among ``humanoid_capsules(spec)``; [] when the spec
+    has none."""
     if not getattr(spec, "leaf_shapes", None):
         return []
     from .link_shapes import place_shapes
     from .kinematics import Skeleton
     sk = Skeleton.from_urdf_string(spec.urdf)
-    poses = sk.forward(sk.neutral())
+    poses = sk.forward(sk.neutral() if q is None else q)
     kept = [n for n in sk.bone_names if n in spec.bone_radius]
     return place_shapes(spec.leaf_shapes, sk.bone_names, poses.rotation, poses.translation,
                         {n: k for k, n in enumerate(kept)})
@@ -165,15 +167,16 @@ def _label(points: np.ndarray, s, e, r, shapes: list) -> np.ndarray:
     return label
 
 
-def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue_hops: int | None = 2):
+def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue_hops: int | None = 2,
+                   q: np.ndarray | None = None):
     """Tet mesh of the capsules of ``spec`` (and of its leaf shapes, if it has ``leaf_shapes``) with about
     ``target_tets`` tets (nearest count found by bisection); voxels of bones more than ``glue_hops`` apart never
-    touch (None: every touching voxel is glued)."""
+    touch (None: every touching voxel is glued). ``q``: the skeleton's configuration to build it in (None: q = 0)."""
     from ..fem.voxel_mesh import grid_mesh, voxel_centres
     if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
         raise ValueError(f"target_tets = {target_tets!r}: give a whole number >= 50")
-    s, e, r, parents = humanoid_capsules(spec, with_parents=True)
-    shapes = leaf_shapes_placed(spec)
+    s, e, r, parents = humanoid_capsules(spec, with_parents=True, q=q)
+    shapes = leaf_shapes_placed(spec, q)
     may_touch = None if glue_hops is None else bone_hops(parents) <= glue_hops
     lo = np.minimum(s, e).min(axis=0) - r.max()
     hi = np.maximum(s, e).max(axis=0) + r.max()
