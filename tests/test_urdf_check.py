@@ -78,6 +78,19 @@ def test_xml_tricks_are_refused_before_any_expansion():
     assert refusal("  ").kind == "empty"
 
 
+def test_a_hostile_skeleton_urdf_file_is_refused_naming_the_file(tmp_path):
+    from clusterfem_ros.config import from_mapping
+    from clusterfem_ros.scene_build import load_skeleton
+    for name, text, kind in (("loop.urdf", self_loop(), "self_loop"), ("big.urdf", star(20), "too_large")):
+        path = tmp_path / name
+        path.write_text(text)
+        config = from_mapping({"skeleton.source": "urdf_file", "skeleton.urdf_file": str(path),
+                               "skeleton.max_urdf_bytes": 1000})
+        with pytest.raises(UrdfRefused) as info:
+            load_skeleton(config, None)
+        assert info.value.kind == kind and name in str(info.value)
+
+
 def test_a_urdf_file_too_large_is_refused_unread(tmp_path):
     path = tmp_path / "big.urdf"
     path.write_text(star(8) + " " * 30_000)
