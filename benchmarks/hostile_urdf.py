@@ -3,6 +3,7 @@ much memory does it hold?
 
     python -m benchmarks.hostile_urdf              # the full-size descriptions of issue 37
     python -m benchmarks.hostile_urdf --small      # the small versions the tests use
+    python -m benchmarks.hostile_urdf --max-urdf-bytes 10000000   # the 3-5 MB ones reach the tree checks
 
 The node runs as a process of its own (``python -m clusterfem_ros.nodes.clusterfem_node``, skeleton.source
 robot_description, a small jelly body), on a private ROS_DOMAIN_ID over shared memory. This script latches a
@@ -104,6 +105,9 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--small", action="store_true", help="the tests' small versions")
     ap.add_argument("--wait", type=float, default=60.0, help="seconds to wait for each refusal")
+    ap.add_argument("--max-urdf-bytes", type=int, default=0,
+                    help="the node's skeleton.max_urdf_bytes (0: its default), e.g. 10000000 to let the 3 MB ones "
+                         "reach the tree checks")
     args = ap.parse_args(argv)
     env = dict(os.environ, ROS_DOMAIN_ID=str(150 + os.getpid() % 50), FASTDDS_BUILTIN_TRANSPORTS="SHM")
     os.environ.update(env)
@@ -118,6 +122,8 @@ def main(argv=None) -> None:
     from clusterfem_ros.skeleton.kinematics import Skeleton
     params = {"skeleton.source": "robot_description", "body.kind": "jelly_man", "body.target_tets": 700,
               "warping": False, "output.diagnostics_rate_hz": 5.0, "output.marker_rate_hz": 20.0}
+    if args.max_urdf_bytes:
+        params["skeleton.max_urdf_bytes"] = args.max_urdf_bytes
     cmd = [sys.executable, "-m", "clusterfem_ros.nodes.clusterfem_node", "--ros-args"]
     for k, v in params.items():
         cmd += ["-p", f"{k}:={str(v).lower() if isinstance(v, bool) else v}"]

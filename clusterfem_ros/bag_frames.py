@@ -130,6 +130,7 @@ def _skeleton_urdf(scene: dict, bag_urdf: str | None, folder: Path) -> str | Non
     which a player may still have latched into the bag), else the bag's own robot_description, else the built-in
     humanoid for a builtin scene; mounted and with leaf tips as the node made its skeleton
     (skeleton.link_shapes.prepare_urdf), so the drawn bones match the body."""
+    from .skeleton.urdf_check import CEILING, check_urdf, read_urdf_file
     source = scene.get("skeleton.source", "builtin")
     urdf, where = None, None
     if source == "urdf_file":
@@ -142,7 +143,7 @@ def _skeleton_urdf(scene: dict, bag_urdf: str | None, folder: Path) -> str | Non
                 where = find_data_file(name)
             except FitError:
                 pass
-        urdf = where.read_text() if where is not None else None
+        urdf = read_urdf_file(where, CEILING) if where is not None else None
     urdf = urdf or bag_urdf
     if not urdf and source == "builtin":
         from .skeleton.humanoid import humanoid_urdf
@@ -150,6 +151,7 @@ def _skeleton_urdf(scene: dict, bag_urdf: str | None, folder: Path) -> str | Non
     if not urdf:
         return None
     from .skeleton.link_shapes import prepare_urdf
+    check_urdf(urdf, CEILING)               # a bag's description is the world's: a bounded tree first (urdf_check.py)
     return prepare_urdf(urdf, scene.get("skeleton.up_axis", "z"), scene.get("skeleton.root_joint", "auto"),
                         leaf_shapes=scene.get("body.kind", "jelly_man") == "jelly_man", urdf_file=where).urdf
 

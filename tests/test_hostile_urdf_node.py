@@ -72,6 +72,15 @@ def test_a_latched_bad_description_is_refused_then_a_good_one_builds_and_later_b
     seen = len(markers)
     world.wait_for(lambda: (send(), len(markers) > seen + 3)[1], 30, "markers after the hostile descriptions")
     assert scene.inputs.accepted > 0 and sim.divergences == 0
+    q = np.zeros(len(names))
+    q[names.index("root_x")] = 1e308                       # a prismatic joint far past its URDF limit
+
+    def send_far():
+        msg = JointState(name=names, position=q.tolist())
+        msg.header.stamp = world.nodes[-1].get_clock().now().to_msg()
+        joints.publish(msg)
+    world.wait_for(lambda: (send_far(), sim.diagnostics().get("rejected_joint_range", 0) > 0)[1], 30,
+                   "a joint value out of range counted on diagnostics")
     assert sim.diagnostics()["robot_description_refused"] == 8
 
 

@@ -78,6 +78,19 @@ def test_xml_tricks_are_refused_before_any_expansion():
     assert refusal("  ").kind == "empty"
 
 
+def test_a_hostile_skeleton_urdf_file_is_refused_naming_the_file(tmp_path):
+    from clusterfem_ros.config import from_mapping
+    from clusterfem_ros.scene_build import load_skeleton
+    for name, text, kind in (("loop.urdf", self_loop(), "self_loop"), ("big.urdf", star(20), "too_large")):
+        path = tmp_path / name
+        path.write_text(text)
+        config = from_mapping({"skeleton.source": "urdf_file", "skeleton.urdf_file": str(path),
+                               "skeleton.max_urdf_bytes": 1000})
+        with pytest.raises(UrdfRefused) as info:
+            load_skeleton(config, None)
+        assert info.value.kind == kind and name in str(info.value)
+
+
 def test_a_urdf_file_too_large_is_refused_unread(tmp_path):
     path = tmp_path / "big.urdf"
     path.write_text(star(8) + " " * 30_000)
@@ -161,3 +174,37 @@ def test_every_robot_of_example_robot_data_passes_the_default_limits():
         except UrdfRefused as e:
             refused[path.name] = str(e)
     assert not refused
+
+
+@pytest.mark.skipif(not _robot_urdfs(), reason="example-robot-data is not installed (pip install example-robot-data)")
+def test_every_robot_of_example_robot_data_takes_values_in_its_ranges_and_refuses_beyond():
+    """Each robot that becomes a skeleton (mounted as the scene does): the middle of every limited joint's range
+    and any angle of the wrapped ones taken without a problem; a value past a limit by twice the margin refused."""
+    from clusterfem_ros.skeleton.joint_limits import joint_limits
+    from clusterfem_ros.skeleton.joint_map import JointMap
+    from clusterfem_ros.skeleton.mounting import mount_urdf
+    margin, built = 0.05, 0
+    for path in _robot_urdfs():
+        text = path.read_text()
+        if "<link" not in text:
+            continue
+        try:
+            sk = Skeleton.from_urdf_string(mount_urdf(text).urdf)
+        except (NotImplementedError, ValueError):      # planar joints, unbuildable inertias: not a skeleton here
+            continue
+        built += 1
+        lim = joint_limits(sk.urdf, sk.joint_names, margin)
+        limited = np.isfinite(lim.lower)
+        mid = np.full(sk.nq, 12.0)
+        mid[limited] = 0.5 * (lim.lower[limited] + lim.upper[limited])
+        r = JointMap(sk.joint_names, limits=lim).update(sk.joint_names, mid)
+        assert r.accepted and r.problems == [], (path.name, r.problems)
+        if limited.any():
+            k = int(np.flatnonzero(limited)[0])
+            span = lim.upper[k] - lim.lower[k]
+            past = mid.copy()
+            past[k] = lim.upper[k] + 2 * margin * span + 1e-3
+            r = JointMap(sk.joint_names, limits=lim).update(sk.joint_names, past)
+            assert r.problems[0][0] == "joint_range", (path.name, r.problems)
+    assert built >= 50
+

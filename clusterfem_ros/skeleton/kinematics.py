@@ -1,6 +1,8 @@
 """A skeleton from a URDF: scalar joints by name, bones, and their world poses and twists (Pinocchio).
 
-``Skeleton`` wraps a fixed pinocchio ``Model`` and a scratch ``Data``. Its configuration is *scalar*:
+``Skeleton`` wraps a fixed pinocchio ``Model`` (built only from a text that passed ``urdf_check.check_urdf``)
+and a scratch ``Data`` made on first use (only ``forward_pinocchio`` needs it: its size grows with the cube of
+the joints; ``forward`` and ``bone_segments`` use the numba kernel). Its configuration is *scalar*:
 one entry per revolute, continuous or prismatic joint, in ``joint_names`` order (pinocchio's q order),
 so a ``sensor_msgs/JointState`` maps onto it by name; ``nq == nv``. A continuous joint's angle is
 turned into pinocchio's (cos, sin) pair internally.
