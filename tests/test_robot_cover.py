@@ -129,12 +129,22 @@ def test_link_binding_binds_every_vertex_to_its_own_link_in_levels_by_depth():
     np.testing.assert_allclose(x, cover.mesh.vertices, atol=1e-12)
 
 
-def test_cover_refuses_a_urdf_without_shapes():
-    urdf = ("<robot name='r'>" + _link("a") + _link("b")
-            + _joint("j", "revolute", "a", "b", limit="<limit lower='-1' upper='1' effort='1' velocity='1'/>")
+def test_cover_puts_capsules_on_bare_bones_and_refuses_a_urdf_with_nothing_to_cover():
+    urdf = ("<robot name='r'>" + _link("a") + _link("b") + _link("c")
+            + _joint("j", "revolute", "a", "b", "0 0 0.3", limit="<limit lower='-1' upper='1' effort='1' velocity='1'/>")
+            + _joint("k", "revolute", "b", "c", "0 0 0.3", limit="<limit lower='-1' upper='1' effort='1' velocity='1'/>")
             + "</robot>")
+    sk = Skeleton.from_urdf_string(urdf)
+    cover = robot_cover(urdf, sk, thickness=0.01, target_tets=1500, bare_radius=0.04)
+    assert any("capsule of 0.04 m" in note for note in cover.notes)
+    # a and b have segments of 0.3 m (c has none): their capsules of radius 0.04 (plus the skin) hold the cover
+    assert set(np.unique(cover.bone).tolist()) == {sk.bone_names.index("a"), sk.bone_names.index("b")}
+    x = cover.mesh.vertices
+    assert np.hypot(x[:, 0], x[:, 1]).max() < 0.04 + cover.thickness + cover.spacing
+    assert x[:, 2].min() < -0.03 and x[:, 2].max() > 0.63
+    lone = "<robot name='r'>" + _link("a") + "</robot>"
     with pytest.raises(ValueError, match="no link of this URDF has a usable collision or visual shape"):
-        robot_cover(urdf, Skeleton.from_urdf_string(urdf))
+        robot_cover(lone, Skeleton.from_urdf_string(lone))
 
 
 def test_package_names_resolve_only_in_installed_packages():

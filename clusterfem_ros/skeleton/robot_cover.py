@@ -5,7 +5,9 @@ Shapes: each link's ``<collision>`` geometry (``source='collision'``; a link wit
 ``<visual>`` one), or the other way round with ``source='visual'``: meshes (STL, OBJ, DAE... through trimesh,
 scaled and placed by their ``<origin>``), boxes, cylinders, spheres and capsules, all as triangle surfaces.
 A link that is not a bone of the skeleton (a frame, a helper) gives its shapes to the bone it hangs on by
-fixed joints; shapes beyond a movable joint from any bone are left out, named in the notes.
+fixed joints; shapes beyond a movable joint from any bone are left out, named in the notes. A rigid body
+without any shape (a URDF drawn without shapes, or links left bare) gets a capsule of ``bare_radius``
+(body.bone_radius) around each of its bones' segments that has a length, named in the notes.
 
 Why voxels (a signed-distance shell) rather than fTetWild: robot meshes are often open, self-intersecting
 or made of several overlapping pieces; a voxel shell needs none of them to be closed, costs a second, and
@@ -177,6 +179,27 @@ def rigid_bodies(xml: str, bone_names: list[str]) -> tuple[dict[str, int], dict[
     return owner, body
 
 
+def bone_capsules(xml: str, skeleton, geometry: dict, radius: float) -> dict:
+    """{link: [capsule]} in the link frame around the segment of every bone whose rigid body has no shape and whose
+    segment has a length (a URDF drawn without shapes, or links left bare)."""
+    import trimesh
+    owner, body = rigid_bodies(xml, skeleton.bone_names)
+    shaped = {body[owner[link]] for link in geometry if link in owner}
+    poses = skeleton.forward(skeleton.neutral())
+    starts, ends = skeleton.bone_segments(skeleton.neutral())
+    out = {}
+    for b, name in enumerate(skeleton.bone_names):
+        d = poses.rotation[b].T @ (ends[b] - starts[b])
+        length = float(np.linalg.norm(d))
+        if body[b] in shaped or length < 1e-6:
+            continue
+        m = trimesh.creation.capsule(height=length, radius=radius, count=[12, 12])
+        T = trimesh.geometry.align_vectors([0.0, 0.0, 1.0], d / length)
+        T[:3, 3] = poses.rotation[b].T @ (starts[b] - poses.translation[b]) + 0.5 * d
+        out[name] = [m.apply_transform(T)]
+    return out
+
+
 def cover_parts(xml: str, skeleton, geometry: dict, spacing: float) -> tuple[list[CoverPart], list[str]]:
     """The shapes of ``geometry`` placed at the skeleton's rest pose, sampled every ``spacing`` [m]."""
     import pinocchio as pin
@@ -258,16 +281,23 @@ def _separate(mask: np.ndarray, label: np.ndarray, body_of: np.ndarray) -> np.nd
 
 
 def robot_cover(xml: str, skeleton, thickness: float = 0.02, target_tets: int = 4800, source: str = "collision",
-                urdf_file: str | Path | None = None, iterations: int = 6) -> RobotCover:
-    """The cover of the module docstring around ``skeleton`` (built from the prepared URDF ``xml``) at rest."""
+                urdf_file: str | Path | None = None, iterations: int = 6, bare_radius: float = 0.05) -> RobotCover:
+    """The cover of the module docstring around ``skeleton`` (built from the prepared URDF ``xml``) at rest; a rigid
+    body without any shape gets capsules of ``bare_radius`` [m] around its bones' segments (bone_capsules)."""
     if not (np.isfinite(thickness) and thickness > 0):
         raise ValueError(f"cover thickness = {thickness!r}: give a positive length in metres")
     if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
         raise ValueError(f"target_tets = {target_tets!r}: give a whole number >= 50")
     geometry, notes = link_geometry(xml, source, search_folders(urdf_file))
+    capsules = bone_capsules(xml, skeleton, geometry, bare_radius)
+    if capsules:
+        notes.append(f"links without a shape in their rigid body get a capsule of {bare_radius:g} m around their "
+                     f"bone (body.bone_radius): {', '.join(capsules)}")
+        geometry = {**geometry, **capsules}
     if not geometry:
-        raise ValueError("no link of this URDF has a usable collision or visual shape: a robot cover needs the "
-                         "links' shapes (check that the mesh files are installed), or use body.kind jelly_man")
+        raise ValueError("no link of this URDF has a usable collision or visual shape, and no bone has a length to "
+                         "put a capsule around: a robot cover needs the links' shapes (check that the mesh files are "
+                         "installed)")
     extent = max(float(np.ptp(np.concatenate([np.concatenate([np.asarray(m.bounds) for m in ms]) for ms in
                                               geometry.values()]), axis=0).max()), 1e-3)
     parts, more = cover_parts(xml, skeleton, geometry, spacing=extent / 300.0)
