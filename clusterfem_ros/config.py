@@ -54,6 +54,8 @@ PARAMS: tuple[Param, ...] = (
     Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
+    Param("body.skin", "smooth", "skin of the jelly man: 'smooth' (its surface vertices on the bone capsules blended at "
+          "the joints, skeleton/smooth_body.py) or 'voxel' (the voxel steps)", choices=("smooth", "voxel")),
     # the material defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
     Param("material.young_modulus", DEFAULT_YOUNG_MODULUS, "Young's modulus E [Pa]", 1.0, 1.0e10),
     Param("material.poisson_ratio", DEFAULT_POISSON_RATIO, "Poisson ratio nu [-]", 0.0, 0.499),
@@ -242,6 +244,7 @@ class BodySection:
     bone_radius: float              # [m]
     scale: float
     fix_bottom: bool
+    skin: str                       # 'smooth' or 'voxel' (a jelly man's surface)
 
 
 @dataclass(frozen=True)

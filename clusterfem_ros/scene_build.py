@@ -24,6 +24,7 @@ from .method_choice import SHIPPED_POINTS, choose_from_file
 from .skeleton.humanoid import HumanoidSpec, default_humanoid
 from .skeleton.jelly_body import jelly_man_mesh
 from .skeleton.kinematics import Skeleton, UrdfError
+from .skeleton.smooth_body import smooth_jelly_man_mesh
 from .skeleton.link_shapes import prepare_urdf
 
 MEASURED_POINTS = SHIPPED_POINTS
@@ -131,8 +132,12 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
             r = float(body.bone_radius)
             spec = HumanoidSpec(urdf_xml, {name: 0.0 if name in leaf_shapes else r for name in skeleton.bone_names},
                                 leaf_shapes=leaf_shapes)
-        say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
-        mesh = jelly_man_mesh(spec, target_tets=body.target_tets)
+        if body.skin == "smooth":
+            say(progress, f"meshing the jelly man (~{body.target_tets} tets): voxels, skin on the blended capsules")
+            mesh = smooth_jelly_man_mesh(spec, target_tets=body.target_tets)
+        else:
+            say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
+            mesh = jelly_man_mesh(spec, target_tets=body.target_tets)
     elif kind == "mesh":
         mesh = read_mesh(body.mesh_file)
     elif kind == "surface":
