@@ -109,7 +109,7 @@ def run(skeleton, traj, model, binding, gains, warp: bool | str, duration: float
     # the volume/tracking probes cost time: time a clean run, measure on a second one
     wall, _, _, subs = simulate(steps, False)
     _, vol_err, track, _ = simulate(steps, True)
-    return {"steps/s": steps / wall, "rtf": steps * step / wall, "substeps": (min(subs), max(subs)),
+    return {"steps/s": steps / wall, "rtf": steps * step / wall, "substeps": (min(subs), max(subs)), "substeps_mean": float(np.mean(subs)),
             "volume": vol_err, "track": track}
 
 

@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         s0, s1 = r["substeps"]
         rows.append([name, f"{mesh.n_tets}", f"{np.median(depth) / h:.3f} / {np.percentile(depth, 95) / h:.3f} / "
                      f"{depth.max() / h:.3f}", f"{share:.2f}", f"{free * 1e3:.3f}",
-                     f"{plan_substeps(step, free).substeps}", f"{s0}" if s0 == s1 else f"{s0}-{s1}",
+                     f"{plan_substeps(step, free).substeps}", f"{s0}" if s0 == s1 else f"{s0}-{s1}, mean {r['substeps_mean']:.3f}",
                      f"{r['steps/s']:.0f}", f"{r['steps/s'] / best['voxel']['steps/s']:.2f}",
                      f"{r['volume'] * 100:.2f} %", f"{r['track'] * 1e3:.2f}"])
     print(f"jelly man skins, {args.tets} target tets, voxel edge h = {h * 1e3:.1f} mm, {args.duration:g} s of walking "

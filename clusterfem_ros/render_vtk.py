@@ -12,6 +12,7 @@ context can abort the process instead of raising, and render.py then falls back 
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -28,9 +29,9 @@ import pyvista as pv
 p = pv.Plotter(off_screen=True, window_size=(64, 48))
 p.add_mesh(pv.Sphere())
 img = p.screenshot(return_img=True)
-p.close()
 assert img.shape[:2] == (48, 64) and img.std() > 0, img.shape
-print(type(p.ren_win).__name__)
+print(p.ren_win.GetClassName())
+p.close()
 """
 _available: tuple[bool, str] | None = None
 
@@ -39,12 +40,19 @@ def opengl_available(timeout_s: float = 60.0) -> tuple[bool, str]:
     """(whether VTK can draw off screen here, what it said): a child process draws a sphere (cached)."""
     global _available
     if _available is None:
-        try:
-            out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=timeout_s)
-            text = (out.stdout.strip() or out.stderr.strip().splitlines()[-1:] or [f"exit code {out.returncode}"])
-            _available = (out.returncode == 0, text if isinstance(text, str) else text[0])
-        except (OSError, subprocess.TimeoutExpired) as exc:
-            _available = (False, str(exc))
+        # without a display, VTK would try X first and print a warning: ask for EGL (headless GPU or Mesa) first
+        tries = [{"VTK_DEFAULT_OPENGL_WINDOW": "vtkEGLRenderWindow"}, {}] if not os.environ.get("DISPLAY") else [{}]
+        for extra in tries:
+            try:
+                out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True,
+                                     timeout=timeout_s, env={**os.environ, **extra})
+                said = out.stdout.strip() or (out.stderr.strip().splitlines() or [f"exit code {out.returncode}"])[-1]
+                _available = (out.returncode == 0, said)
+            except (OSError, subprocess.TimeoutExpired) as exc:
+                _available = (False, str(exc))
+            if _available[0]:
+                os.environ.update(extra)
+                break
     return _available
 
 
