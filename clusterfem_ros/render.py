@@ -311,6 +311,13 @@ def render_bag(folder: str | Path, mp4: str | Path | None = None, gif: str | Pat
     time; the default outputs are ``<bag>/run.mp4`` and ``<bag>/run.gif``. ``progress`` gets a line about
     once a second. Returns (mp4 path, gif path or None).
     """
+    return render_bags([folder], mp4, gif, options, progress)
+
+
+def render_bags(folders: list, mp4: str | Path | None = None, gif: str | Path | None = None,
+                options: VideoOptions | None = None, progress=print) -> tuple[Path, Path | None]:
+    """``render_bag`` of several bags one after the other in one video (each on its own stress scale, said on its
+    colour bar); ``options.max_frames`` counts per bag. The default outputs are in the first bag's folder."""
     import imageio.v2 as imageio
     from PIL import Image
 
@@ -322,47 +329,58 @@ def render_bag(folder: str | Path, mp4: str | Path | None = None, gif: str | Pat
                          "(multiples of 16 avoid resizing by the encoder)")
     if not (1.0 <= options.fps <= 120.0):
         raise ValueError(f"video rate {options.fps!r} frames/s: give 1 to 120")
+    if not folders:
+        raise ValueError("no bag to render: give at least one bag folder")
     kind = choose_renderer(options.renderer, progress)
-    frames = read_bag_frames(folder)
-    # a Marker re-sent before the next physics step carries the same state: one frame per state
-    surfaces = [s for k, s in enumerate(frames.surfaces) if k == 0 or s.stamp_ns != frames.surfaces[k - 1].stamp_ns]
-    shown = video_frames(surfaces, options.fps)
-    shown = shown[: options.max_frames] if options.max_frames > 0 else shown
-    mp4 = Path(mp4) if mp4 else frames.folder / "run.mp4"
+    bags = [read_bag_frames(folder) for folder in folders]
+    mp4 = Path(mp4) if mp4 else bags[0].folder / "run.mp4"
     gif = None if options.gif_width <= 0 else (Path(gif) if gif else mp4.with_suffix(".gif"))
     gif_every = max(int(round(options.fps / options.gif_fps)), 1)
     mp4.parent.mkdir(parents=True, exist_ok=True)
-    stress, vmax, cmap, note = run_scale(frames, options, progress)
-    if kind == "vtk":
-        from .render_vtk import VtkFrameRenderer
-        poser, skeleton_note = skeleton_poser(frames)
-        renderer = VtkFrameRenderer(frames, options, stress, vmax, cmap, note, poser)
-    else:
-        renderer = FrameRenderer(frames, options, stress, vmax, note)
-        skeleton_note = renderer.skeleton_note
-    if skeleton_note and frames.scene.get("skeleton.source", "builtin") != "none":
-        progress(f"[render] {skeleton_note}")
+    plans = []
+    for frames in bags:
+        # a Marker re-sent before the next physics step carries the same state: one frame per state
+        surfaces = [s for k, s in enumerate(frames.surfaces)
+                    if k == 0 or s.stamp_ns != frames.surfaces[k - 1].stamp_ns]
+        shown = video_frames(surfaces, options.fps)
+        plans.append((frames, surfaces, shown[: options.max_frames] if options.max_frames > 0 else shown))
+    total = sum(len(shown) for _, _, shown in plans)
     small = []
-    image, drawn = None, -1
+    done = 0
     t_start = t_said = time.perf_counter()
-    try:
-        with imageio.get_writer(mp4, fps=options.fps, codec="libx264", quality=7, macro_block_size=16,
-                                ffmpeg_log_level="error") as writer:
-            for k, index in enumerate(shown):
-                if index != drawn:
-                    image, drawn = renderer.draw(surfaces[index]), index
-                writer.append_data(image)
-                if gif is not None and k % gif_every == 0:
-                    h = int(round(options.gif_width * image.shape[0] / image.shape[1]))
-                    small.append(np.asarray(Image.fromarray(image).resize((options.gif_width, h), Image.LANCZOS)))
-                now = time.perf_counter()
-                if now - t_said >= 1.0 or k + 1 == len(shown):
-                    rate = (k + 1) / max(now - t_start, 1e-9)
-                    progress(f"[render] frame {k + 1}/{len(shown)} ({100 * (k + 1) / len(shown):3.0f} %), "
-                             f"{rate:.1f} frames/s, {(len(shown) - k - 1) / rate:.0f} s left")
-                    t_said = now
-    finally:
-        renderer.close()
+    with imageio.get_writer(mp4, fps=options.fps, codec="libx264", quality=7, macro_block_size=16,
+                            ffmpeg_log_level="error") as writer:
+        for frames, surfaces, shown in plans:
+            if len(bags) > 1:
+                progress(f"[render] {frames.folder}")
+            stress, vmax, cmap, note = run_scale(frames, options, progress)
+            if kind == "vtk":
+                from .render_vtk import VtkFrameRenderer
+                poser, skeleton_note = skeleton_poser(frames)
+                renderer = VtkFrameRenderer(frames, options, stress, vmax, cmap, note, poser)
+            else:
+                renderer = FrameRenderer(frames, options, stress, vmax, note)
+                skeleton_note = renderer.skeleton_note
+            if skeleton_note and frames.scene.get("skeleton.source", "builtin") != "none":
+                progress(f"[render] {skeleton_note}")
+            image, drawn = None, -1
+            try:
+                for index in shown:
+                    if index != drawn:
+                        image, drawn = renderer.draw(surfaces[index]), index
+                    writer.append_data(image)
+                    if gif is not None and done % gif_every == 0:
+                        h = int(round(options.gif_width * image.shape[0] / image.shape[1]))
+                        small.append(np.asarray(Image.fromarray(image).resize((options.gif_width, h), Image.LANCZOS)))
+                    done += 1
+                    now = time.perf_counter()
+                    if now - t_said >= 1.0 or done == total:
+                        rate = done / max(now - t_start, 1e-9)
+                        progress(f"[render] frame {done}/{total} ({100 * done / total:3.0f} %), "
+                                 f"{rate:.1f} frames/s, {(total - done) / rate:.0f} s left")
+                        t_said = now
+            finally:
+                renderer.close()
     if gif is not None:
         imageio.mimsave(gif, small, duration=1000.0 * gif_every / options.fps, loop=0)
     return mp4, gif
@@ -380,7 +398,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m clusterfem_ros.render",
                                  description="Render a recorded bag to an MP4 and a small GIF: the surface coloured "
                                              "by von Mises stress, the skeleton, the simulated time.")
-    ap.add_argument("bag", help="bag folder (the one scripts/run prints after 'recording') or its .mcap file")
+    ap.add_argument("bag", nargs="+", help="bag folder (the one scripts/run prints after 'recording') or its .mcap "
+                    "file; several bags play one after the other")
     ap.add_argument("--mp4", default=None, help="video file (default: <bag>/run.mp4)")
     ap.add_argument("--gif", default=None, help="GIF file (default: the video's name with .gif)")
     ap.add_argument("--no-gif", action="store_true", help="write the MP4 only")
@@ -403,9 +422,9 @@ def main(argv: list[str] | None = None) -> int:
                            stress_max=args.stress_max)
     try:
         t0 = time.perf_counter()
-        mp4, gif = render_bag(args.bag, args.mp4, args.gif, options)
+        mp4, gif = render_bags(args.bag, args.mp4, args.gif, options)
     except (BagFramesError, ValueError, OSError) as exc:
-        print(f"[render] cannot render {args.bag}: {exc}", file=sys.stderr)
+        print(f"[render] cannot render {' '.join(args.bag)}: {exc}", file=sys.stderr)
         return 2
     print(f"[render] {mp4}" + (f" and {gif}" if gif else "") + f" in {time.perf_counter() - t0:.1f} s")
     return 0
