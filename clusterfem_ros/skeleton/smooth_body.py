@@ -27,7 +27,7 @@ import numpy as np
 from ..fem.tet_mesh import TetMesh, boundary_triangles
 
 BLEND = 1.0                 # fillet radius at a joint, as a share of the smaller capsule radius of the pair
-MIN_ALTITUDE = 0.6          # no tet's smallest altitude below this share of its voxel altitude
+MIN_ALTITUDE = 0.7          # no tet's smallest altitude below this share of its voxel altitude
 NEWTON_STEPS = 8
 RELAX_SWEEPS = 4
 HALVINGS = 30
