@@ -2,7 +2,8 @@
 
     python -m benchmarks.jelly_report [--duration 3] [--step 1e-3] [--tets 4800]
 
-The default scene: ``smooth_jelly_man_mesh`` (``jelly_man_mesh``'s ~4800 tets, skin on the blended capsules) around the built-in ~48-DOF humanoid, bound with the
+The default scene: ``smooth_jelly_man_mesh`` (``jelly_man_mesh``'s ~4800 tets, skin on the blended capsules)
+around the built-in ~48-DOF humanoid, bound with the
 scene defaults (``config.PARAMS``: binding.level_radii / kp / kd, the material), driven by
 ``procedural_walk`` through ``SkeletonDriver`` and stepped by the clustered method at a 1 ms physics
 step. Printed per run: simulation steps per second (skeleton, constraints and physics, JIT excluded),
@@ -109,7 +110,8 @@ def run(skeleton, traj, model, binding, gains, warp: bool | str, duration: float
     # the volume/tracking probes cost time: time a clean run, measure on a second one
     wall, _, _, subs = simulate(steps, False)
     _, vol_err, track, _ = simulate(steps, True)
-    return {"steps/s": steps / wall, "rtf": steps * step / wall, "substeps": (min(subs), max(subs)), "substeps_mean": float(np.mean(subs)),
+    return {"steps/s": steps / wall, "rtf": steps * step / wall, "substeps": (min(subs), max(subs)),
+            "substeps_mean": float(np.mean(subs)),
             "volume": vol_err, "track": track}
 
 

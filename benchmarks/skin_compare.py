@@ -6,10 +6,12 @@ Both bodies are the default scene's (benchmarks/jelly_report.build_scene: the bu
 binding and material, the procedural walk, the clustered method with the default Neo-Hookean warping, one core),
 at the same tet count (the smooth body keeps the voxel body's tets and moves its vertices). Printed per skin:
 tets; the surface vertices' distance to the blended capsule surface (median / 95th percentile / max, in voxel
-edges h); the smallest tet altitude as a share of its voxel altitude; the critical step of the free body (fem/stability.py) and the sub-steps
-it plans per 1 ms step, and the sub-steps the walk took (the bound body's own plan); steps/s (runs interleaved, the best
-of ``--repeats``, and its ratio to the voxel body's); the largest volume error and level-0 tracking error of the
-walk. ``--min-altitude`` adds smooth bodies with other floors on the tets' altitude (smooth_body.MIN_ALTITUDE).
+edges h); the smallest tet altitude as a share of its voxel altitude; the critical step of the free body
+(fem/stability.py) and the sub-steps it plans per 1 ms step, and the sub-steps the walk took (the bound body's
+own plan; with the same tets, their mean is the cost ratio that load does not blur); steps/s (runs interleaved,
+the best of ``--repeats``, and its ratio to the voxel body's); the largest volume error and level-0 tracking
+error of the walk. ``--min-altitude`` adds smooth bodies with other floors on the tets' altitude
+(smooth_body.MIN_ALTITUDE).
 """
 from __future__ import annotations
 
@@ -70,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
         s0, s1 = r["substeps"]
         rows.append([name, f"{mesh.n_tets}", f"{np.median(depth) / h:.3f} / {np.percentile(depth, 95) / h:.3f} / "
                      f"{depth.max() / h:.3f}", f"{share:.2f}", f"{free * 1e3:.3f}",
-                     f"{plan_substeps(step, free).substeps}", f"{s0}" if s0 == s1 else f"{s0}-{s1}, mean {r['substeps_mean']:.3f}",
+                     f"{plan_substeps(step, free).substeps}",
+                     f"{s0}" if s0 == s1 else f"{s0}-{s1}, mean {r['substeps_mean']:.3f}",
                      f"{r['steps/s']:.0f}", f"{r['steps/s'] / best['voxel']['steps/s']:.2f}",
                      f"{r['volume'] * 100:.2f} %", f"{r['track'] * 1e3:.2f}"])
     print(f"jelly man skins, {args.tets} target tets, voxel edge h = {h * 1e3:.1f} mm, {args.duration:g} s of walking "

@@ -29,7 +29,8 @@ class RunStress:
         # Marker and a cloud were published from one snapshot (distances ~ float32 round-off)
         surface_ns = np.array([s.stamp_ns for s in surfaces], dtype=np.int64)
         k = np.searchsorted(surface_ns, self.cloud_ns).clip(0, len(surfaces) - 1)
-        gaps = np.minimum(np.abs(surface_ns[k] - self.cloud_ns), np.abs(surface_ns[np.maximum(k - 1, 0)] - self.cloud_ns))
+        gaps = np.minimum(np.abs(surface_ns[k] - self.cloud_ns),
+                          np.abs(surface_ns[np.maximum(k - 1, 0)] - self.cloud_ns))
         c = int(np.argmin(gaps))
         s = int(k[c]) if abs(surface_ns[k[c]] - self.cloud_ns[c]) == gaps[c] else int(max(k[c] - 1, 0))
         n_corners = len(surfaces[s].corners)

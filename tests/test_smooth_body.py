@@ -51,7 +51,8 @@ def test_the_surface_vertices_lie_on_the_implicit_shape(bodies):
     before = np.abs(shape.depth(voxels.vertices[surface], bones[surface]))
     after = np.abs(shape.depth(smooth.vertices[surface], bones[surface]))
     print(f"|depth| / h before: median {np.median(before) / h:.3f}, p95 {np.percentile(before, 95) / h:.3f}; "
-          f"after: median {np.median(after) / h:.3f}, p95 {np.percentile(after, 95) / h:.3f}, max {after.max() / h:.3f}")
+          f"after: median {np.median(after) / h:.3f}, p95 {np.percentile(after, 95) / h:.3f}, "
+          f"max {after.max() / h:.3f}")
     assert np.median(after) < 0.15 * h and np.percentile(after, 95) < 0.5 * h and after.max() < h
     assert np.median(after) < 0.5 * np.median(before)
     assert (after < 0.05 * h).mean() > 0.3
