@@ -182,6 +182,10 @@ def test_the_main_job_renders_its_recording(tmp_path):
     surfaces = read_bag_frames(bag).surfaces                            # 30 video frames per simulated second
     assert frames.shape == (len(video_frames(surfaces, 30.0)), 720, 1280, 3) and len(surfaces) >= 10, out
     assert (bag / "final_state.png").exists()
+    # the summary tells the timed run's numbers, as its table does
+    summary = out.split("real-time factor ")[1].split()[0]
+    row = out.split("process CPU\n")[1].split("\n")[0].split()
+    assert summary == row[3] and out.split("physics steps   ")[1].split()[0] == row[2], out
 
 
 def test_the_render_command_on_the_sample_bag(tmp_path, capsys):

@@ -61,6 +61,7 @@ class ClusterFemNode(Node):
         self.received = 0                     # joint states received; taken in + refused + before the scene
         self.before_scene = 0                 # joint states received before the scene was built (ignored)
         self.build_error: str | None = None   # why the last robot_description gave no scene (the demo reports it)
+        self.building = False                 # a scene is being built from robot_description (meshing may take minutes)
         self._warned: dict[str, float] = {}   # input problem kind -> when it was last logged
         self._stats = {"t_wall": time.perf_counter(), "steps": 0}
         self._rtf = 0.0
@@ -98,12 +99,15 @@ class ClusterFemNode(Node):
 
     def _on_robot_description(self, msg: String) -> None:
         if self.scene is None:
+            self.building = True
             try:
                 self._build(msg.data)
             except Exception as exc:  # a bad URDF must not kill the node: say what and wait for another
                 self.build_error = f"cannot build the scene from robot_description: {exc}"
                 self.get_logger().error(self.build_error)
                 return
+            finally:
+                self.building = False
             self._record(URDF_TOPIC, serialize_message(msg))    # the bag carries its skeleton (the renderer poses it)
 
     def _open_recording(self) -> None:

@@ -48,6 +48,8 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
         if player.poll() is not None:
             raise SystemExit(f"[demo] the mocap player exited with code {player.returncode} before sending a "
                              "joint state: run `python -m clusterfem_ros.nodes.player_node` to see why")
+        if getattr(sim, "building", False):     # the skeleton came; the body is being meshed (once: cached)
+            t0 = time.perf_counter()
         if time.perf_counter() - t0 > PLAYER_START_TIMEOUT_S:
             received = sim.counts.get("joint_states", 0)
             if received:
