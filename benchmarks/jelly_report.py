@@ -2,7 +2,8 @@
 
     python -m benchmarks.jelly_report [--duration 3] [--step 1e-3] [--tets 4800]
 
-The default scene: ``jelly_man_mesh`` (~4800 tets) around the built-in ~48-DOF humanoid, bound with the
+The default scene: ``smooth_jelly_man_mesh`` (``jelly_man_mesh``'s ~4800 tets, skin on the blended capsules)
+around the built-in ~48-DOF humanoid, bound with the
 scene defaults (``config.PARAMS``: binding.level_radii / kp / kd, the material), driven by
 ``procedural_walk`` through ``SkeletonDriver`` and stepped by the clustered method at a 1 ms physics
 step. Printed per run: simulation steps per second (skeleton, constraints and physics, JIT excluded),
@@ -50,16 +51,19 @@ def rest_configuration(skeleton) -> np.ndarray:
     raise AttributeError("the skeleton exposes no neutral configuration (neutral(), q0 or a pinocchio model)")
 
 
-def build_scene(target_tets: int, duration: float, step: float):
-    """(skeleton, trajectory, model, binding, gains) of the default jelly man scene."""
+def build_scene(target_tets: int, duration: float, step: float, skin: str | None = None, mesh=None):
+    """(skeleton, trajectory, model, binding, gains) of the default jelly man scene; ``skin`` 'smooth' or 'voxel'
+    (default: the scene's body.skin), or the body ``mesh`` given."""
     from clusterfem_ros.skeleton.humanoid import default_humanoid
     from clusterfem_ros.skeleton.jelly_body import jelly_man_mesh
     from clusterfem_ros.skeleton.kinematics import Skeleton
     from clusterfem_ros.skeleton.procedural_walk import procedural_walk
+    from clusterfem_ros.skeleton.smooth_body import smooth_jelly_man_mesh
     spec = default_humanoid()
     skeleton = Skeleton.from_urdf_string(spec.urdf)
     traj = procedural_walk(duration + step, 1.0 / step)
-    mesh = jelly_man_mesh(spec, target_tets=target_tets)
+    mesher = smooth_jelly_man_mesh if (skin or scene_default("body.skin")) == "smooth" else jelly_man_mesh
+    mesh = mesher(spec, target_tets=target_tets) if mesh is None else mesh
     material = Material(E=scene_default("material.young_modulus"), nu=scene_default("material.poisson_ratio"),
                         rho=scene_default("material.density"), xi=scene_default("material.mass_damping"),
                         zeta=scene_default("material.stiffness_damping"))
@@ -107,6 +111,7 @@ def run(skeleton, traj, model, binding, gains, warp: bool | str, duration: float
     wall, _, _, subs = simulate(steps, False)
     _, vol_err, track, _ = simulate(steps, True)
     return {"steps/s": steps / wall, "rtf": steps * step / wall, "substeps": (min(subs), max(subs)),
+            "substeps_mean": float(np.mean(subs)),
             "volume": vol_err, "track": track}
 
 

@@ -9,7 +9,7 @@ against rosbags' own deserialiser.
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +19,7 @@ from .errors import ClusterFemError
 from .recording.bag_reader import PARAMS_FILE, JointSample, read_joint_states, topic_in
 
 SURFACE_TOPIC = "/clusterfem/surface"
+STRESS_TOPIC = "/clusterfem/stress"
 JOINT_TOPIC = "/joint_states"
 URDF_TOPIC = "/robot_description"
 
@@ -35,12 +36,20 @@ class SurfaceFrame:
 
 
 @dataclass
+class StressFrame:
+    stamp_ns: int               # header stamp: the simulated time of the state
+    points: np.ndarray          # (n, 3) float64: every vertex of the body
+    von_mises: np.ndarray       # (n,) float64 [Pa]
+
+
+@dataclass
 class BagFrames:
     folder: Path
     surfaces: list[SurfaceFrame]
     joint_states: list[JointSample]
     urdf: str | None            # the skeleton's URDF, or None when neither the bag nor its scene gives one
     scene: dict                 # scene_parameters.yaml as {dotted name: value} ({} when the folder has none)
+    stresses: list[StressFrame] = field(default_factory=list)   # the stress PointClouds, in recording order
 
 
 class _Cdr:
@@ -96,6 +105,36 @@ def decode_surface_marker(data: bytes) -> SurfaceFrame:
         raise BagFramesError(f"surface Marker with {len(corners)} points and {len(rgba)} colours: expected one "
                              "colour per point and three points per triangle")
     return SurfaceFrame(sec * 1_000_000_000 + nanosec, corners, rgba)
+
+
+def decode_stress_cloud(data: bytes) -> StressFrame:
+    """A stress PointCloud2's CDR bytes (float32 fields x, y, z, von_mises, as ``msg_adapters.pointcloud``
+    writes them) -> StressFrame."""
+    r = _Cdr(data)
+    sec, nanosec = r.unpack("<iI", 4)
+    r.string()                                   # frame_id
+    height, width = r.unpack("<II", 4)
+    (n_fields,) = r.unpack("<I", 4)
+    offsets = {}
+    for _ in range(n_fields):
+        name = r.string()
+        (offset,) = r.unpack("<I", 4)
+        (datatype,) = r.unpack("<B", 1)
+        r.unpack("<I", 4)                        # count
+        if datatype == 7:                        # FLOAT32
+            offsets[name] = offset
+    (big,) = r.unpack("<?", 1)
+    step, _ = r.unpack("<II", 4)
+    (size,) = r.unpack("<I", 4)
+    missing = [f for f in ("x", "y", "z", "von_mises") if f not in offsets]
+    n = height * width
+    if missing or big or size < n * step or r.pos + size > len(data):
+        raise BagFramesError(f"stress PointCloud2 without float32 little-endian fields {missing or ''} or with "
+                             f"{size} data bytes for {n} points of {step} bytes: not a clusterfem stress cloud")
+    raw = np.frombuffer(data, dtype=np.uint8, count=n * step, offset=r.pos).reshape(n, step)
+    col = {f: raw[:, offsets[f]:offsets[f] + 4].copy().view("<f4")[:, 0].astype(np.float64) for f in offsets}
+    return StressFrame(sec * 1_000_000_000 + nanosec, np.column_stack([col["x"], col["y"], col["z"]]),
+                       col["von_mises"])
 
 
 def _flatten(d: dict, prefix: str = "") -> dict:
@@ -157,13 +196,14 @@ def _skeleton_urdf(scene: dict, bag_urdf: str | None, folder: Path) -> str | Non
 
 
 def read_bag_frames(folder: str | Path) -> BagFrames:
-    """Every surface Marker (in recording order), the joint states and the skeleton's URDF of one bag."""
+    """Every surface Marker and stress cloud (in recording order), the joint states and the skeleton's URDF of
+    one bag."""
     from mcap.reader import make_reader
 
     folder = Path(folder)
     mcap_path = _mcap_file(folder)
     folder = mcap_path.parent
-    surfaces, bag_urdf, topics = [], None, set()
+    surfaces, stresses, bag_urdf, topics = [], [], None, set()
     with open(mcap_path, "rb") as fh:
         reader = make_reader(fh)
         summary = reader.get_summary()
@@ -172,9 +212,12 @@ def read_bag_frames(folder: str | Path) -> BagFrames:
         # a node in a namespace records its topics under it ('/body1/clusterfem/surface')
         surface_topic = topic_in(topics, SURFACE_TOPIC) or SURFACE_TOPIC
         urdf_topic = topic_in(topics, URDF_TOPIC) or URDF_TOPIC
-        for _, channel, message in reader.iter_messages(topics=[surface_topic, urdf_topic]):
+        stress_topic = topic_in(topics, STRESS_TOPIC) or STRESS_TOPIC
+        for _, channel, message in reader.iter_messages(topics=[surface_topic, urdf_topic, stress_topic]):
             if channel.topic == surface_topic:
                 surfaces.append(decode_surface_marker(message.data))
+            elif channel.topic == stress_topic:
+                stresses.append(decode_stress_cloud(message.data))
             elif bag_urdf is None:
                 bag_urdf = _Cdr(message.data).string()
     if not surfaces:
@@ -182,4 +225,4 @@ def read_bag_frames(folder: str | Path) -> BagFrames:
                              "record with output.marker_rate_hz > 0")
     joints = read_joint_states(folder) if topic_in(topics, JOINT_TOPIC) else []
     scene = scene_of(folder)
-    return BagFrames(folder, surfaces, joints, _skeleton_urdf(scene, bag_urdf, folder), scene)
+    return BagFrames(folder, surfaces, joints, _skeleton_urdf(scene, bag_urdf, folder), scene, stresses)

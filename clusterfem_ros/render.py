@@ -1,12 +1,15 @@
 """Pictures of the body for people without RViz: a still PNG of one state, and a recorded bag as a video.
 
-    python -m clusterfem_ros.render BAG [--size 960x720] [--max-frames N] [--no-gif]
+    python -m clusterfem_ros.render BAG [--size 1280x720] [--fps 30] [--max-frames N] [--no-gif]
+                                        [--renderer auto|vtk|matplotlib]
 
-writes BAG/run.mp4 (H.264 through imageio-ffmpeg) and BAG/run.gif (small, looping): the surface coloured
-by von Mises stress as the node coloured it, with a colour bar; the skeleton posed from the bag's joint
-states; the simulated time; the camera following the body. Frames are drawn with matplotlib (Agg) as
-2-D polygons that this module projects, sorts back to front and shades itself, which is several times
-faster than matplotlib's 3-D axes for a few thousand triangles.
+writes BAG/run.mp4 (H.264 through imageio-ffmpeg, 30 frames per simulated second) and BAG/run.gif (small,
+looping): the surface coloured by von Mises stress on one scale for the whole video, chosen from the run
+(``run_stress``: the 99th percentile of the surface's stress over the run's stress clouds), with its colour
+bar and unit; the skeleton posed from the bag's joint states; the simulated time; the camera following the
+body. Frames are drawn by VTK off screen (``render_vtk``: lit, smooth-shaded, on a floor) when an OpenGL
+context can be had, else by matplotlib (Agg) as 2-D polygons that this module projects, sorts back to front
+and shades itself; the log says which.
 """
 from __future__ import annotations
 
@@ -96,17 +99,23 @@ class Camera:
         return right, np.cross(back, right), back
 
 
+RENDERERS = ("auto", "vtk", "matplotlib")
+
+
 @dataclass
 class VideoOptions:
-    width: int = 960                # MP4 frame size [px]; multiples of 16 keep the encoder from resizing
+    width: int = 1280               # MP4 frame size [px]; multiples of 16 keep the encoder from resizing
     height: int = 720
-    max_frames: int = 0             # 0 = every surface Marker in the bag
-    gif_width: int = 400            # the small GIF for the README (0 = no GIF)
+    fps: float = 30.0               # video frames per simulated second
+    max_frames: int = 0             # 0 = the whole recording
+    gif_width: int = 480            # the small GIF for the README (0 = no GIF)
     gif_fps: float = 10.0
     camera: Camera = field(default_factory=Camera)
+    renderer: str = "auto"          # one of RENDERERS: auto = VTK when it can draw off screen, else matplotlib
+    stress_max: float = 0.0         # top of the colour scale [Pa]; 0 = from the run (run_stress)
 
 
-def _stress_scale(scene: dict) -> tuple[float, str]:
+def _recorded_scale(scene: dict) -> tuple[float, str]:
     """(stress mapped to the top colour [Pa], colour map) as the node coloured the recorded Markers."""
     vmax = float(scene.get("output.stress_max", 0.0) or 0.0)
     if vmax <= 0.0:
@@ -133,6 +142,17 @@ class _SkeletonPoser:
         return self.skeleton.bone_segments(self.map.q)
 
 
+def skeleton_poser(frames) -> tuple[_SkeletonPoser | None, str | None]:
+    """(the bag's skeleton poser, None) or (None, why the skeleton is not drawn)."""
+    if frames.urdf and frames.joint_states:
+        try:
+            return _SkeletonPoser(frames.urdf, frames.joint_states), None
+        except (ValueError, NotImplementedError) as exc:     # UrdfError is a ValueError
+            return None, f"the skeleton is not drawn: its URDF cannot be posed ({exc})"
+    return None, ("the skeleton is not drawn: the bag has no joint states" if frames.urdf else
+                  "the skeleton is not drawn: neither the bag nor its scene_parameters.yaml gives a URDF")
+
+
 class FrameRenderer:
     """Draws one surface frame: the triangles projected by ``Camera``, sorted back to front and shaded by
     their normal's angle to the light, over a floor grid, with the skeleton on top, the simulated time and
@@ -140,7 +160,7 @@ class FrameRenderer:
     drawn once and restored, only the moving artists are drawn per frame, which halves a frame's cost.
     Each call returns an (h, w, 3) uint8 image."""
 
-    def __init__(self, frames, options: VideoOptions):
+    def __init__(self, frames, options: VideoOptions, stress=None, vmax: float = 0.0, scale_note: str = ""):
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
@@ -156,16 +176,12 @@ class FrameRenderer:
         self.half = 0.62 * max(extent, 1e-3)
         self.light = _unit(0.5 * self.back + 0.6 * self.up - 0.3 * self.right)
         self.t0 = min([frames.surfaces[0].stamp_ns * 1e-9] + [s.stamp for s in frames.joint_states[:1]])
-        self.skeleton = self.skeleton_note = None
-        if frames.urdf and frames.joint_states:
-            try:
-                self.skeleton = _SkeletonPoser(frames.urdf, frames.joint_states)
-            except (ValueError, NotImplementedError) as exc:     # UrdfError is a ValueError
-                self.skeleton_note = f"the skeleton is not drawn: its URDF cannot be posed ({exc})"
-        else:
-            self.skeleton_note = ("the skeleton is not drawn: the bag has no joint states" if frames.urdf else
-                                  "the skeleton is not drawn: neither the bag nor its scene_parameters.yaml gives a URDF")
+        self.skeleton, self.skeleton_note = skeleton_poser(frames)
         self.target = None
+        self.stress = stress
+        recorded_vmax, cmap = _recorded_scale(frames.scene)
+        self.vmax = vmax or recorded_vmax
+        self.cmap = matplotlib.colormaps[cmap]
 
         dpi = 100
         self.fig = plt.figure(figsize=(options.width / dpi, options.height / dpi), dpi=dpi)
@@ -183,10 +199,10 @@ class FrameRenderer:
             self.ax.add_collection(artist)
         self.clock = self.ax.text(0.03, 0.96, "", transform=self.ax.transAxes, fontsize=13, va="top",
                                   family="monospace", animated=True)
-        vmax, cmap = _stress_scale(frames.scene)
         cax = self.fig.add_axes((0.88, 0.12, 0.03, 0.76))
-        bar = self.fig.colorbar(matplotlib.cm.ScalarMappable(matplotlib.colors.Normalize(0.0, vmax), cmap), cax=cax)
-        bar.set_label("von Mises stress [Pa]")
+        bar = self.fig.colorbar(matplotlib.cm.ScalarMappable(matplotlib.colors.Normalize(0.0, self.vmax), cmap),
+                                cax=cax)
+        bar.set_label("von Mises stress [Pa]" + (f"\n{scale_note}" if scale_note else ""))
         self.fig.text(0.03, 0.02, f"{frames.folder.name}: {frames.scene.get('body.kind', 'body')}, "
                       f"{frames.scene.get('method', '')}", fontsize=8, color="0.4")
         self._plt = plt
@@ -217,7 +233,12 @@ class FrameRenderer:
         normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
         shade = 0.45 + 0.55 * np.abs(normal @ self.light)
-        colour = frame.rgba.reshape(-1, 3, 4)[:, :, :3].mean(axis=1) * shade[:, None]
+        values = self.stress.corners(frame) if self.stress is not None else None
+        if values is not None:
+            colour = self.cmap(np.clip(values.reshape(-1, 3).mean(axis=1) / self.vmax, 0.0, 1.0))[:, :3]
+        else:
+            colour = frame.rgba.reshape(-1, 3, 4)[:, :, :3].mean(axis=1)
+        colour = colour * shade[:, None]
         order = np.argsort((tri.mean(axis=1) - target) @ self.back)          # far first
         self.body.set_verts(self._project(tri[order], target))
         self.body.set_facecolors(np.clip(colour[order], 0.0, 1.0))
@@ -241,22 +262,62 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _frame_rate(surfaces) -> float:
-    """Frames per second that play the recording at its simulated speed (the Markers' median spacing)."""
-    if len(surfaces) < 2:
-        return 10.0
-    dt = np.median(np.diff([s.stamp_ns for s in surfaces])) * 1e-9
-    return float(np.clip(1.0 / dt, 1.0, 120.0)) if dt > 0 else 10.0
+def video_frames(surfaces, fps: float) -> list[int]:
+    """For every video frame at ``fps`` per simulated second, the index of the surface frame shown: the latest
+    one recorded at or before its time (a recording slower than ``fps`` repeats frames, a faster one skips)."""
+    stamps = np.array([s.stamp_ns for s in surfaces], dtype=np.int64)
+    n = int(np.floor((stamps[-1] - stamps[0]) * 1e-9 * fps + 1e-9)) + 1
+    times = stamps[0] + np.round(np.arange(n) * 1e9 / fps).astype(np.int64)
+    return list(np.searchsorted(stamps, times, side="right") - 1)
+
+
+def run_scale(frames, options: VideoOptions, progress=print):
+    """(RunStress or None, vmax [Pa], colour map, note for the colour bar): the one scale of a video."""
+    from .run_stress import run_stress_of
+    recorded, cmap = _recorded_scale(frames.scene)
+    stress = run_stress_of(frames)
+    if stress is None:
+        progress(f"[render] the bag has no stress clouds: the recorded colours are drawn, on the node's scale 0-"
+                 f"{recorded:.4g} Pa (output.stress_max); record with output.stress_rate_hz > 0 for the run's scale")
+        return None, recorded, cmap, "node's scale"
+    if options.stress_max > 0:
+        return stress, options.stress_max, cmap, "scale given"
+    progress(f"[render] {stress.describe()}")
+    return stress, stress.vmax, cmap, f"0-{stress.vmax:.0f}: {stress.percentile:g}th pct. of run"
+
+
+def choose_renderer(name: str, progress=print) -> str:
+    """'vtk' or 'matplotlib' for ``name`` in RENDERERS (auto: VTK when it can draw off screen here)."""
+    if name not in RENDERERS:
+        raise ValueError(f"renderer {name!r}: choose one of {', '.join(RENDERERS)}")
+    if name == "matplotlib":
+        return name
+    from .render_vtk import opengl_available
+    ok, said = opengl_available()
+    if ok:
+        progress(f"[render] VTK draws off screen ({said})")
+        return "vtk"
+    if name == "vtk":
+        raise ValueError(f"renderer 'vtk': VTK cannot draw off screen here ({said}); use --renderer matplotlib")
+    progress(f"[render] no OpenGL context for VTK ({said}): drawing with matplotlib instead")
+    return "matplotlib"
 
 
 def render_bag(folder: str | Path, mp4: str | Path | None = None, gif: str | Path | None = None,
                options: VideoOptions | None = None, progress=print) -> tuple[Path, Path | None]:
     """Render a recorded bag to an MP4 (H.264 through imageio-ffmpeg) and a small looping GIF.
 
-    One video frame per recorded state (surface Marker), played at the simulated speed; the default outputs are
-    ``<bag>/run.mp4`` and ``<bag>/run.gif``. ``progress`` gets a line about once a second.
-    Returns (mp4 path, gif path or None).
+    ``options.fps`` video frames per simulated second, each the latest recorded state (surface Marker) at its
+    time; the default outputs are ``<bag>/run.mp4`` and ``<bag>/run.gif``. ``progress`` gets a line about
+    once a second. Returns (mp4 path, gif path or None).
     """
+    return render_bags([folder], mp4, gif, options, progress)
+
+
+def render_bags(folders: list, mp4: str | Path | None = None, gif: str | Path | None = None,
+                options: VideoOptions | None = None, progress=print) -> tuple[Path, Path | None]:
+    """``render_bag`` of several bags one after the other in one video (each on its own stress scale, said on its
+    colour bar); ``options.max_frames`` counts per bag. The default outputs are in the first bag's folder."""
     import imageio.v2 as imageio
     from PIL import Image
 
@@ -266,39 +327,62 @@ def render_bag(folder: str | Path, mp4: str | Path | None = None, gif: str | Pat
     if options.width < 64 or options.height < 64 or options.width % 2 or options.height % 2:
         raise ValueError(f"video size {options.width}x{options.height}: give even sizes of at least 64 px "
                          "(multiples of 16 avoid resizing by the encoder)")
-    frames = read_bag_frames(folder)
-    # a Marker re-sent before the next physics step carries the same state: one video frame per state
-    surfaces = [s for k, s in enumerate(frames.surfaces) if k == 0 or s.stamp_ns != frames.surfaces[k - 1].stamp_ns]
-    fps = _frame_rate(surfaces)
-    surfaces = surfaces[: options.max_frames] if options.max_frames > 0 else surfaces
-    mp4 = Path(mp4) if mp4 else frames.folder / "run.mp4"
+    if not (1.0 <= options.fps <= 120.0):
+        raise ValueError(f"video rate {options.fps!r} frames/s: give 1 to 120")
+    if not folders:
+        raise ValueError("no bag to render: give at least one bag folder")
+    kind = choose_renderer(options.renderer, progress)
+    bags = [read_bag_frames(folder) for folder in folders]
+    mp4 = Path(mp4) if mp4 else bags[0].folder / "run.mp4"
     gif = None if options.gif_width <= 0 else (Path(gif) if gif else mp4.with_suffix(".gif"))
-    gif_every = max(int(round(fps / options.gif_fps)), 1)
+    gif_every = max(int(round(options.fps / options.gif_fps)), 1)
     mp4.parent.mkdir(parents=True, exist_ok=True)
-    renderer = FrameRenderer(frames, options)
-    if renderer.skeleton_note and frames.scene.get("skeleton.source", "builtin") != "none":
-        progress(f"[render] {renderer.skeleton_note}")
+    plans = []
+    for frames in bags:
+        # a Marker re-sent before the next physics step carries the same state: one frame per state
+        surfaces = [s for k, s in enumerate(frames.surfaces)
+                    if k == 0 or s.stamp_ns != frames.surfaces[k - 1].stamp_ns]
+        shown = video_frames(surfaces, options.fps)
+        plans.append((frames, surfaces, shown[: options.max_frames] if options.max_frames > 0 else shown))
+    total = sum(len(shown) for _, _, shown in plans)
     small = []
+    done = 0
     t_start = t_said = time.perf_counter()
-    try:
-        with imageio.get_writer(mp4, fps=fps, codec="libx264", quality=7, macro_block_size=16,
-                                ffmpeg_log_level="error") as writer:
-            for k, frame in enumerate(surfaces):
-                image = renderer.draw(frame)
-                writer.append_data(image)
-                if gif is not None and k % gif_every == 0:
-                    h = int(round(options.gif_width * image.shape[0] / image.shape[1]))
-                    small.append(np.asarray(Image.fromarray(image).resize((options.gif_width, h), Image.LANCZOS)))
-                now = time.perf_counter()
-                if now - t_said >= 1.0 or k + 1 == len(surfaces):
-                    rate = (k + 1) / max(now - t_start, 1e-9)
-                    progress(f"[render] frame {k + 1}/{len(surfaces)} ({100 * (k + 1) / len(surfaces):3.0f} %), "
-                             f"{rate:.1f} frames/s, {(len(surfaces) - k - 1) / rate:.0f} s left")
-                    t_said = now
-    finally:
-        renderer.close()
+    with imageio.get_writer(mp4, fps=options.fps, codec="libx264", quality=7, macro_block_size=16,
+                            ffmpeg_log_level="error") as writer:
+        for frames, surfaces, shown in plans:
+            if len(bags) > 1:
+                progress(f"[render] {frames.folder}")
+            stress, vmax, cmap, note = run_scale(frames, options, progress)
+            if kind == "vtk":
+                from .render_vtk import VtkFrameRenderer
+                poser, skeleton_note = skeleton_poser(frames)
+                renderer = VtkFrameRenderer(frames, options, stress, vmax, cmap, note, poser)
+            else:
+                renderer = FrameRenderer(frames, options, stress, vmax, note)
+                skeleton_note = renderer.skeleton_note
+            if skeleton_note and frames.scene.get("skeleton.source", "builtin") != "none":
+                progress(f"[render] {skeleton_note}")
+            image, drawn = None, -1
+            try:
+                for index in shown:
+                    if index != drawn:
+                        image, drawn = renderer.draw(surfaces[index]), index
+                    writer.append_data(image)
+                    if gif is not None and done % gif_every == 0:
+                        h = int(round(options.gif_width * image.shape[0] / image.shape[1]))
+                        small.append(np.asarray(Image.fromarray(image).resize((options.gif_width, h), Image.LANCZOS)))
+                    done += 1
+                    now = time.perf_counter()
+                    if now - t_said >= 1.0 or done == total:
+                        rate = done / max(now - t_start, 1e-9)
+                        progress(f"[render] frame {done}/{total} ({100 * done / total:3.0f} %), "
+                                 f"{rate:.1f} frames/s, {(total - done) / rate:.0f} s left")
+                        t_said = now
+            finally:
+                renderer.close()
     if gif is not None:
-        imageio.mimsave(gif, small, duration=1000.0 * gif_every / fps, loop=0)
+        imageio.mimsave(gif, small, duration=1000.0 * gif_every / options.fps, loop=0)
     return mp4, gif
 
 
@@ -314,26 +398,33 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m clusterfem_ros.render",
                                  description="Render a recorded bag to an MP4 and a small GIF: the surface coloured "
                                              "by von Mises stress, the skeleton, the simulated time.")
-    ap.add_argument("bag", help="bag folder (the one scripts/run prints after 'recording') or its .mcap file")
+    ap.add_argument("bag", nargs="+", help="bag folder (the one scripts/run prints after 'recording') or its .mcap "
+                    "file; several bags play one after the other")
     ap.add_argument("--mp4", default=None, help="video file (default: <bag>/run.mp4)")
     ap.add_argument("--gif", default=None, help="GIF file (default: the video's name with .gif)")
     ap.add_argument("--no-gif", action="store_true", help="write the MP4 only")
-    ap.add_argument("--size", type=_size, default=(960, 720), help="video size WIDTHxHEIGHT (default 960x720)")
-    ap.add_argument("--gif-width", type=int, default=400, help="GIF width in pixels (default 400)")
+    ap.add_argument("--size", type=_size, default=(1280, 720), help="video size WIDTHxHEIGHT (default 1280x720)")
+    ap.add_argument("--fps", type=float, default=30.0, help="video frames per simulated second (default 30)")
+    ap.add_argument("--gif-width", type=int, default=480, help="GIF width in pixels (default 480)")
     ap.add_argument("--gif-fps", type=float, default=10.0, help="GIF frame rate (default 10)")
-    ap.add_argument("--max-frames", type=int, default=0, help="render only the first N surface frames (0 = all)")
+    ap.add_argument("--max-frames", type=int, default=0, help="render only the first N video frames (0 = all)")
+    ap.add_argument("--renderer", choices=RENDERERS, default="auto",
+                    help="auto (default): VTK off screen when an OpenGL context can be had, else matplotlib")
+    ap.add_argument("--stress-max", type=float, default=0.0,
+                    help="top of the stress colour scale [Pa] (default 0: the run's 99th percentile)")
     ap.add_argument("--azimuth", type=float, default=Camera.azimuth, help="camera azimuth [deg] (default -60)")
     ap.add_argument("--elevation", type=float, default=Camera.elevation, help="camera elevation [deg] (default 12)")
     args = ap.parse_args(argv)
     from .bag_frames import BagFramesError
-    options = VideoOptions(width=args.size[0], height=args.size[1], max_frames=args.max_frames,
+    options = VideoOptions(width=args.size[0], height=args.size[1], fps=args.fps, max_frames=args.max_frames,
                            gif_width=0 if args.no_gif else args.gif_width, gif_fps=args.gif_fps,
-                           camera=Camera(args.azimuth, args.elevation))
+                           camera=Camera(args.azimuth, args.elevation), renderer=args.renderer,
+                           stress_max=args.stress_max)
     try:
         t0 = time.perf_counter()
-        mp4, gif = render_bag(args.bag, args.mp4, args.gif, options)
+        mp4, gif = render_bags(args.bag, args.mp4, args.gif, options)
     except (BagFramesError, ValueError, OSError) as exc:
-        print(f"[render] cannot render {args.bag}: {exc}", file=sys.stderr)
+        print(f"[render] cannot render {' '.join(args.bag)}: {exc}", file=sys.stderr)
         return 2
     print(f"[render] {mp4}" + (f" and {gif}" if gif else "") + f" in {time.perf_counter() - t0:.1f} s")
     return 0

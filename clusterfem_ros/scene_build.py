@@ -24,6 +24,7 @@ from .method_choice import SHIPPED_POINTS, choose_from_file
 from .skeleton.humanoid import HumanoidSpec, default_humanoid
 from .skeleton.jelly_body import jelly_man_mesh
 from .skeleton.kinematics import Skeleton, UrdfError
+from .skeleton.smooth_body import smooth_jelly_man_mesh
 from .skeleton.link_shapes import prepare_urdf
 from .skeleton.robot_cover import RobotCover, robot_cover
 from .skeleton.urdf_check import UrdfLimits, UrdfRefused, check_urdf, read_urdf_file
@@ -181,8 +182,12 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
             bind_q = jelly_bind_pose(config, skeleton, progress)
             spec = HumanoidSpec(urdf_xml, jelly_radii(skeleton, leaf_shapes, body, progress, bind_q),
                                 leaf_shapes=leaf_shapes)
-        say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
-        mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q)
+        if body.skin == "smooth":
+            say(progress, f"meshing the jelly man (~{body.target_tets} tets): voxels, skin on the blended capsules")
+            mesh = smooth_jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q)
+        else:
+            say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
+            mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q)
     elif kind == "robot_cover":
         say(progress, f"covering the robot's links (~{body.target_tets} tets)")
         urdf_file = (find_data_file(config.skeleton.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")

@@ -1,5 +1,6 @@
-"""The video renderer: the bag decoder against rosbags, the camera, and a few frames of the sample bag
-written to a playable MP4 and GIF, read back with imageio."""
+"""The video renderer: the bag decoders against rosbags, the camera, the run's stress scale, and a few frames of
+the sample bag written to a playable MP4 and GIF (VTK off screen, and the matplotlib fallback), read back with
+imageio, with the body on screen in every frame."""
 from __future__ import annotations
 
 import os
@@ -10,8 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clusterfem_ros.bag_frames import BagFramesError, decode_surface_marker, read_bag_frames
-from clusterfem_ros.render import Camera, VideoOptions, main, render_bag
+from clusterfem_ros.bag_frames import BagFramesError, decode_stress_cloud, decode_surface_marker, read_bag_frames
+from clusterfem_ros.render import Camera, VideoOptions, main, render_bag, video_frames
+from clusterfem_ros.render_vtk import opengl_available
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample_default_scene"
 
@@ -54,22 +56,103 @@ def test_the_camera_axes_are_a_right_handed_orthonormal_frame():
     assert np.allclose(back, [1, 0, 0]) and np.allclose(up, [0, 0, 1])
 
 
-def test_a_few_frames_of_the_sample_bag_make_a_playable_mp4_and_gif(tmp_path):
+def test_the_stress_decoder_equals_rosbags_deserialisation():
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([SAMPLE]) as r:
+        conn = [c for c in r.connections if c.topic == "/clusterfem/stress"]
+        _, _, raw = next(iter(r.messages(connections=conn)))
+        msg = r.deserialize(raw, conn[0].msgtype)
+    with open(next(SAMPLE.glob("*.mcap")), "rb") as fh:
+        _, _, first = next(iter(make_reader(fh).iter_messages(topics=["/clusterfem/stress"])))
+    cloud = decode_stress_cloud(first.data)
+    table = np.frombuffer(bytes(msg.data), dtype=np.float32).reshape(msg.width, -1)
+    assert cloud.stamp_ns == msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+    assert np.array_equal(cloud.points, table[:, :3].astype(np.float64))
+    assert np.array_equal(cloud.von_mises, table[:, 3].astype(np.float64))
+    assert len(cloud.von_mises) > 1000 and "von_mises" in [f.name for f in msg.fields]
+
+
+def test_the_run_scale_is_the_99th_percentile_of_the_surface_stress_over_the_run():
+    from clusterfem_ros.run_stress import RunStress
+    frames = read_bag_frames(SAMPLE)
+    stress = RunStress(frames.surfaces, frames.stresses)
+    # the corners were matched to the cloud's vertices on a state both were published from: float32 round-off
+    assert stress.match_distance_m < 1e-5
+    surface = np.unique(stress.corner_vertex)
+    values = np.concatenate([c.von_mises[surface] for c in frames.stresses])
+    assert stress.vmax == pytest.approx(np.percentile(values, 99), rel=1e-12)
+    assert (values > stress.vmax).mean() == pytest.approx(0.01, abs=0.002)
+    # a corner's stress is its vertex's in the cloud nearest in time
+    frame = frames.surfaces[len(frames.surfaces) // 2]
+    nearest = min(frames.stresses, key=lambda c: abs(c.stamp_ns - frame.stamp_ns))
+    assert np.array_equal(stress.corners(frame), nearest.von_mises[stress.corner_vertex])
+
+
+def test_video_frames_play_the_recording_at_its_simulated_speed():
+    class S:
+        def __init__(self, t):
+            self.stamp_ns = int(round(t * 1e9))
+    ten_hz = [S(0.1 * k) for k in range(11)]                 # 1 s at 10 Hz -> 31 frames at 30 fps, each state 3x
+    shown = video_frames(ten_hz, 30.0)
+    assert len(shown) == 31 and shown[:7] == [0, 0, 0, 1, 1, 1, 2] and shown[-1] == 10
+    sixty_hz = [S(k / 60.0) for k in range(61)]              # 60 Hz -> every other state
+    assert video_frames(sixty_hz, 30.0) == list(range(0, 61, 2))
+
+
+def _body_on_screen(frame: np.ndarray) -> tuple[float, bool]:
+    """(share of the picture that is body, whether the body touches the border): the body is what is strongly
+    coloured (the stress colour map; the floor, background, text and bones are greys or pale blue)."""
+    rgb = frame.astype(int)
+    body = (np.ptp(rgb, axis=2) > 90)
+    body[:, int(0.84 * frame.shape[1]):] = False                   # the colour bar
+    rows, cols = np.flatnonzero(body.any(axis=1)), np.flatnonzero(body.any(axis=0))
+    if not rows.size:
+        return 0.0, False
+    touches = rows[0] == 0 or cols[0] == 0 or rows[-1] == frame.shape[0] - 1 or cols[-1] == frame.shape[1] - 1
+    return float(body.mean()), bool(touches)
+
+
+@pytest.mark.parametrize("renderer", ["vtk", "matplotlib"])
+def test_a_few_frames_of_the_sample_bag_make_a_playable_mp4_and_gif(tmp_path, renderer):
     import imageio.v3 as iio
 
+    if renderer == "vtk" and not opengl_available()[0]:
+        pytest.skip(f"VTK cannot draw off screen here: {opengl_available()[1]}")
     lines = []
     mp4, gif = render_bag(SAMPLE, tmp_path / "clip.mp4",
-                          options=VideoOptions(width=192, height=144, max_frames=5, gif_width=96, gif_fps=10.0),
+                          options=VideoOptions(width=192, height=144, max_frames=9, gif_width=96, gif_fps=10.0,
+                                               renderer=renderer),
                           progress=lines.append)
     video = iio.imread(mp4, index=None)
-    assert video.shape == (5, 144, 192, 3)
+    assert video.shape == (9, 144, 192, 3)
+    assert iio.immeta(mp4)["fps"] == pytest.approx(30.0)
     small = iio.imread(gif, index=None)
-    assert small.shape[0] == 5 and small.shape[1:3] == (72, 96)      # the sample's Markers come at 10 Hz
-    assert lines and lines[-1].startswith("[render] frame 5/5 (100 %)")
-    # the body is drawn (coloured pixels, not just the white background) and moves between frames
-    coloured = np.ptp(video[0].astype(int), axis=2) > 60
-    assert coloured.mean() > 0.01
-    assert np.abs(video[0].astype(int) - video[4].astype(int)).mean() > 0.5
+    # every third frame (10 of 30 per second); the GIF writer merges repeats of one state (the sample is 10 Hz)
+    states = video_frames(read_bag_frames(SAMPLE).surfaces, 30.0)[:9:3]
+    assert small.shape[0] == 1 + sum(a != b for a, b in zip(states, states[1:])) and small.shape[1:3] == (72, 96)
+    assert lines and lines[-1].startswith("[render] frame 9/9 (100 %)")
+    assert any("stress scale 0-" in line and "99th percentile" in line for line in lines), lines
+    # the body is drawn in every frame, whole (not cut by the border), and moves between frames
+    for k, frame in enumerate(video):
+        share, touches = _body_on_screen(frame)
+        assert share > 0.01 and not touches, (k, share, touches)
+    assert np.abs(video[0].astype(int) - video[-1].astype(int)).mean() > 0.5
+
+
+def test_the_body_stays_on_screen_through_the_whole_sample_bag(tmp_path):
+    """Every frame of the sample bag (the camera follows the walk): the body is on screen, never clipped."""
+    import imageio.v3 as iio
+    if not opengl_available()[0]:
+        pytest.skip(f"VTK cannot draw off screen here: {opengl_available()[1]}")
+    mp4, _ = render_bag(SAMPLE, tmp_path / "all.mp4", options=VideoOptions(width=160, height=96, fps=10.0,
+                                                                           gif_width=0), progress=lambda _: None)
+    video = iio.imread(mp4, index=None)
+    assert len(video) == len(video_frames(read_bag_frames(SAMPLE).surfaces, 10.0))
+    for k, frame in enumerate(video):
+        share, touches = _body_on_screen(frame)
+        assert share > 0.004 and not touches, (k, share, touches)
 
 
 def test_a_folder_without_a_bag_is_refused_with_the_way_out(tmp_path, capsys):
@@ -96,8 +179,13 @@ def test_the_main_job_renders_its_recording(tmp_path):
     bag = Path(run.stdout.split("\n  recording")[1].split()[0])
     assert (bag / "run.mp4").exists() and (bag / "run.gif").exists(), out
     frames = iio.imread(bag / "run.mp4", index=None)
-    states = {s.stamp_ns for s in read_bag_frames(bag).surfaces}       # one video frame per recorded state
-    assert frames.shape == (len(states), 720, 960, 3) and len(states) >= 10, out
+    surfaces = read_bag_frames(bag).surfaces                            # 30 video frames per simulated second
+    assert frames.shape == (len(video_frames(surfaces, 30.0)), 720, 1280, 3) and len(surfaces) >= 10, out
+    assert (bag / "final_state.png").exists()
+    # the summary tells the timed run's numbers, as its table does
+    summary = out.split("real-time factor ")[1].split()[0]
+    row = out.split("process CPU\n")[1].split("\n")[0].split()
+    assert summary == row[3] and out.split("physics steps   ")[1].split()[0] == row[2], out
 
 
 def test_the_render_command_on_the_sample_bag(tmp_path, capsys):
@@ -116,7 +204,7 @@ def test_the_drawn_skeleton_is_the_urdf_posed_by_the_latest_joint_state():
     from clusterfem_ros.skeleton.humanoid import humanoid_urdf
     from clusterfem_ros.skeleton.kinematics import Skeleton
     frames = read_bag_frames(SAMPLE)
-    renderer = FrameRenderer(frames, VideoOptions(width=128, height=96))
+    renderer = FrameRenderer(frames, VideoOptions(width=128, height=96))      # the matplotlib fallback
     try:
         assert renderer.skeleton is not None and renderer.skeleton_note is None
         frame = frames.surfaces[len(frames.surfaces) // 2]

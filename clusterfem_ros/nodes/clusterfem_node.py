@@ -65,6 +65,7 @@ class ClusterFemNode(Node):
         self.before_scene = 0                 # joint states received before the scene was built (ignored)
         self.build_error: str | None = None   # why the last robot_description was refused (the demo reports it)
         self.descriptions_refused: dict[str, int] = {}    # robot_description refusals by kind
+        self.building = False                 # a scene is being built from robot_description (meshing may take minutes)
         self._warned: dict[str, float] = {}   # input problem kind -> when it was last logged
         self._stats = {"t_wall": time.perf_counter(), "steps": 0}
         self._rtf = 0.0
@@ -131,12 +132,15 @@ class ClusterFemNode(Node):
             self.get_logger().warning("a new robot_description was received while the body runs on the first one: "
                                       "ignored; restart the node to take it", throttle_duration_sec=2.0)
             return
+        self.building = True
         try:
             self._build(text)
         except Exception as exc:  # a bad URDF must not kill the node: say what and wait for another
             self._refuse_description(getattr(exc, "kind", "build_failed"),
                                      f"cannot build the scene from robot_description: {exc}")
             return
+        finally:
+            self.building = False
         self.build_error = None
         self._record(URDF_TOPIC, data)    # the bag carries its skeleton (the renderer poses it)
 

@@ -52,6 +52,8 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
         if player.poll() is not None:
             raise SystemExit(f"[demo] the mocap player exited with code {player.returncode} before sending a "
                              "joint state: run `python -m clusterfem_ros.nodes.player_node` to see why")
+        if getattr(sim, "building", False):     # the skeleton came; the body is being meshed (once: cached)
+            t0 = time.perf_counter()
         if time.perf_counter() - t0 > PLAYER_START_TIMEOUT_S:
             received = sim.counts.get("joint_states", 0)
             if received:
@@ -234,8 +236,8 @@ def main(argv: list[str] | None = None) -> int:
         for sim in sims:
             sim.stop_physics()                 # the scenes are still from here on
         memory = rss_growth(rss, warm_up_s=min(5.0, args.duration / 4))
-        for sim, ns in zip(sims, names):
-            _final(sim, ns, args)
+        for sim, ns, result in zip(sims, names, results):
+            _final(sim, ns, args, result)
         print_summary(results, memory, "timed run, all bodies in this process")
         if args.summary_json:
             Path(args.summary_json).write_text(json.dumps({"mode": "one_process", "bodies": results, "rss": memory},
@@ -272,27 +274,40 @@ def _progress(sim, ns: str, t: float, last_steps: int, last_wall: float, rss: fl
     return d["steps"], wall
 
 
-def _final(sim, ns: str, args: argparse.Namespace) -> None:
-    """A body's closing lines and its picture (the physics thread is stopped: the scene is still)."""
+def _png_scale(bag) -> tuple[float | None, str]:
+    """(top of the picture's stress scale [Pa], colour bar label): the run's scale, as its video has it
+    (run_stress), when the run was recorded; else None (the picture's own 99th percentile)."""
+    from ..bag_frames import read_bag_frames
+    from ..run_stress import LABEL, run_stress_of
+    stress = run_stress_of(read_bag_frames(bag)) if bag else None
+    if stress is None:
+        return None, f"{LABEL}, 0 to the 99th percentile of this state"
+    return stress.vmax, f"{LABEL}, 0 to the {stress.percentile:g}th percentile of the run"
+
+
+def _final(sim, ns: str, args: argparse.Namespace, result: dict) -> None:
+    """A body's closing lines and its picture (the physics thread is stopped: the scene is still); ``result`` is
+    its timed run (bodies.RunWindow.result), which the summary reports."""
     from ..render import render_surface_png
     d = sim.diagnostics()
     scene, config = sim.scene, sim.config
     bag = getattr(sim, "recording_path", None)
     sim.close()
     png = None
+    timed_s = result["steps"] * scene.h              # simulated time of the timed run
     if not args.no_png:
         verts, tris = scene.surface()
         vm = scene.vertex_von_mises()
         default = Path(args.bags) / (f"final_state_{ns.replace('/', '_')}.png" if ns else "final_state.png")
         png = Path(args.png) if args.png and not ns else (Path(bag) / "final_state.png" if bag else default)
-        render_surface_png(png, verts, tris, vm[scene.surface_vertices], vmax=config.output.stress_max or None,
-                           title=f"{config.body.kind} after {scene.sim_time - scene.start_time:.2f} s "
-                                 f"({config.method}, warping {config.warping})")
+        vmax, label = _png_scale(bag)
+        render_surface_png(png, verts, tris, vm[scene.surface_vertices], vmax=vmax, label=label,
+                           title=f"{config.body.kind} at the end of a {result['seconds']:.1f} s run: {timed_s:.2f} s "
+                                 f"simulated ({config.method}, warping {config.warping})")
     print(f"\n[demo] summary{' of ' + ns if ns else ''}")
     print(f"  body            {scene.model.mesh.n_tets} tets, {scene.model.n_vertices} vertices")
-    mean_ms = scene.step_wall_s / max(scene.steps_done, 1) * 1e3
-    print(f"  physics steps   {d['steps']} of {scene.h * 1e3:g} ms; mean step {mean_ms:.3f} ms over the run; "
-          f"real-time factor {d['real_time_factor']:.2f}")
+    print(f"  physics steps   {result['steps']} of {scene.h * 1e3:g} ms in the {result['seconds']:.1f} s timed run; "
+          f"mean step {result['mean_step_ms']:.3f} ms; real-time factor {result['real_time_factor']:.2f}")
     if d.get("dropped_time_s", 0.0) > 0:
         print(f"  behind          {d['dropped_time_s']:.1f} s of simulated time dropped: physics fell more than "
               f"physics.max_catchup_steps behind its inputs and the body was put back on the skeleton")

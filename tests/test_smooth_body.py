@@ -1,0 +1,95 @@
+"""The smooth jelly man: its skin on the blended capsules, tets kept above their floor, limbs never glued."""
+import numpy as np
+import pytest
+
+from clusterfem_ros.fem.tet_mesh import boundary_triangles, signed_volumes
+from clusterfem_ros.skeleton.humanoid import default_humanoid
+from clusterfem_ros.skeleton.jelly_body import jelly_man_mesh
+from clusterfem_ros.skeleton.smooth_body import (SmoothCapsules, edge_length, min_altitudes, smooth_capsules_of,
+                                                 smooth_min, snap_to_shape, vertex_bones)
+
+
+@pytest.fixture(scope="module")
+def bodies():
+    spec = default_humanoid()
+    voxels = jelly_man_mesh(spec, target_tets=2500)
+    shape = smooth_capsules_of(spec)
+    smooth, facts = snap_to_shape(voxels, shape)
+    return voxels, shape, smooth, facts
+
+
+def test_smooth_min_is_the_minimum_away_from_the_blend_and_below_it_within():
+    a = np.array([0.0, 0.0, 0.0, 1.0])
+    b = np.array([0.5, 0.01, 0.0, -1.0])
+    k = 0.1
+    got = smooth_min(a, b, k)
+    assert got[0] == 0.0 and got[3] == -1.0                       # |a - b| >= k: exactly min
+    assert got[2] == pytest.approx(-k / 4, rel=1e-15)              # equal: lowered by k / 4
+    assert -k / 4 < got[1] < 0.0
+
+
+def test_depth_is_a_capsule_distance_far_from_the_joints():
+    """Two bones, parent and child, along z: a point beside the middle of one is at |r| from its axis."""
+    shape = SmoothCapsules(np.array([[0, 0, 0.0], [0, 0, 1.0]]), np.array([[0, 0, 1.0], [0, 0, 2.0]]),
+                           np.array([0.1, 0.05]), np.array([-1, 0]), np.ones((2, 2), dtype=bool))
+    p = np.array([[0.3, 0, 0.5], [0, 0.2, 1.5]])
+    assert shape.depth(p, np.array([0, 1])) == pytest.approx([0.2, 0.15], abs=1e-14)
+    # at the joint the fillet lies outside both capsules: the depth there is below the plain union's
+    joint = np.array([[0.1, 0, 1.02]])
+    assert shape.depth(joint, np.array([0])) < shape.bone_depths(joint).min()
+    on = shape.project(np.array([[0.3, 0.1, 0.5], [0.0, -0.02, 1.6]]), np.array([0, 1]), max_move=1.0)
+    assert np.abs(shape.depth(on, np.array([0, 1]))).max() < 1e-9
+
+
+def test_the_surface_vertices_lie_on_the_implicit_shape(bodies):
+    """Most surface vertices are on the blended capsules (the rest are held back by the tet floor), far nearer
+    than the voxel body's."""
+    voxels, shape, smooth, facts = bodies
+    h = edge_length(voxels)
+    surface = np.unique(boundary_triangles(voxels))
+    bones = vertex_bones(voxels, shape)
+    before = np.abs(shape.depth(voxels.vertices[surface], bones[surface]))
+    after = np.abs(shape.depth(smooth.vertices[surface], bones[surface]))
+    print(f"|depth| / h before: median {np.median(before) / h:.3f}, p95 {np.percentile(before, 95) / h:.3f}; "
+          f"after: median {np.median(after) / h:.3f}, p95 {np.percentile(after, 95) / h:.3f}, "
+          f"max {after.max() / h:.3f}")
+    assert np.median(after) < 0.15 * h and np.percentile(after, 95) < 0.5 * h and after.max() < h
+    assert np.median(after) < 0.5 * np.median(before)
+    assert (after < 0.05 * h).mean() > 0.3
+
+
+def test_same_tets_positive_and_above_the_altitude_floor(bodies):
+    voxels, shape, smooth, facts = bodies
+    assert np.array_equal(smooth.tets, voxels.tets) and smooth.n_vertices == voxels.n_vertices
+    assert (signed_volumes(smooth.vertices, smooth.tets) > 0).all()
+    share = min_altitudes(smooth.vertices, smooth.tets) / min_altitudes(voxels.vertices, voxels.tets)
+    from clusterfem_ros.skeleton.smooth_body import MIN_ALTITUDE
+    assert share.min() >= MIN_ALTITUDE - 1e-12
+    assert abs(smooth.volumes().sum() / voxels.volumes().sum() - 1.0) < 0.15
+
+
+def test_no_tet_is_glued_across_bones_that_may_not_touch(bodies):
+    """Every tet's corners belong to bones that may touch (the voxel body's rule), and the skin of a vertex is
+    its own bone's: no vertex moved onto a far limb's capsule."""
+    voxels, shape, smooth, facts = bodies
+    bones = vertex_bones(smooth, shape)
+    corner_bones = bones[smooth.tets]
+    for i in range(4):
+        for j in range(i + 1, 4):
+            assert shape.may_touch[corner_bones[:, i], corner_bones[:, j]].all()
+    # a vertex's nearest bone after snapping is one its own bone may touch
+    nearest = shape.bone_of(smooth.vertices)
+    assert shape.may_touch[bones, nearest].all()
+
+
+def test_the_smooth_body_is_the_default_and_the_voxel_body_an_option():
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.scene_build import scene_parts
+    smooth = scene_parts(SceneConfig().with_values(body__target_tets=600))
+    voxel = scene_parts(SceneConfig().with_values(body__target_tets=600, body__skin="voxel"))
+    assert SceneConfig().body.skin == "smooth"
+    assert np.array_equal(smooth.mesh.tets, voxel.mesh.tets)
+    assert not np.array_equal(smooth.mesh.vertices, voxel.mesh.vertices)
+    h = edge_length(voxel.mesh)
+    grid = (voxel.mesh.vertices - voxel.mesh.vertices.min(axis=0)) / h          # voxel corners: on the grid
+    assert np.allclose(grid, np.round(grid), atol=1e-6)
