@@ -22,6 +22,7 @@ from .fem.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSO
 from .fem.warping_models import (ACKNOWLEDGEMENT, AUTO, EXPLICIT_ONLY, WARPING_MODELS, auto_model,
                                  explicit_only_refusal, stretch_plan_refusal, undamped_corotation_refusal,
                                  unacknowledged_undamped, vertex_refusal)
+from .skeleton.bvh_placement import parse_unit
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
 from .skeleton.urdf_check import (CEILING_BYTES, CEILING_DEPTH, CEILING_LINKS, CEILING_MESHES, DEFAULT_MAX_BYTES,
                                   DEFAULT_MAX_DEPTH, DEFAULT_MAX_JOINTS, DEFAULT_MAX_LINKS, DEFAULT_MAX_MESHES)
@@ -112,7 +113,7 @@ PARAMS: tuple[Param, ...] = (
           "a path, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder"),
     Param("skeleton.bvh_unit", "auto", "length unit of the BVH file played (the player's 'unit' unless its own section "
           "sets it) and of skeleton.bind_bvh: auto (found from the skeleton: a standing human), m, cm, mm, inch, cmu "
-          "(0.056444 m) or metres per file unit as a number"),
+          "(0.056444 m) or metres per file unit (a number; a string such as '0.01' in a ROS parameter file)"),
     Param("skeleton.bvh_up", "auto", "up axis of the BVH file played (the player's 'up' unless its own section sets "
           "it) and of skeleton.bind_bvh: auto (found from the legs of the rest pose) or X, Y, Z, -X, -Y, -Z",
           choices=("auto", "X", "Y", "Z", "-X", "-Y", "-Z")),
@@ -239,6 +240,13 @@ def check_value(name: str, value: Any) -> Any:
         raise unknown_name_error(name)
     p = _BY_NAME[name]
     d = p.default
+    if name == "skeleton.bvh_unit":                  # a unit name or metres per unit, checked before the file is read
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            value = repr(float(value))
+        try:
+            parse_unit(value)
+        except ValueError as exc:
+            raise ConfigError(f"{name}: {exc}") from None
     try:
         if isinstance(d, bool):
             if not isinstance(value, bool):

@@ -260,6 +260,10 @@ def test_the_scenes_bvh_unit_reaches_the_player_and_the_player_says_it_was_given
         load_motion("bvh", player["file"], unit=player["unit"], up=player["up"])
     m = load_motion("bvh", clip, unit="inch")
     assert "unit inch (0.0254 m per file unit, given)" in m.placement and m.capture.unit_m == 0.0254
+    from clusterfem_ros.config import ConfigError
+    assert SceneConfig().with_values({"skeleton.bvh_unit": 0.0254})["skeleton.bvh_unit"] == "0.0254"
+    with pytest.raises(ConfigError, match="skeleton.bvh_unit: unit 'furlong': give auto, m, cm"):
+        SceneConfig().with_values({"skeleton.bvh_unit": "furlong"})
 
 
 def test_a_prepended_t_pose_is_skipped_and_a_first_captured_frame_is_kept():

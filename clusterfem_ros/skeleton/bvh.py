@@ -24,8 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ClusterFemError
-
-CMU_UNIT_M = 0.056444
+from .bvh_placement import CMU_UNIT_M, PlacementError, parse_unit, place
 CHANNEL_NAMES = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 _AXIS = {"X": 0, "Y": 1, "Z": 2}
 
@@ -195,7 +194,6 @@ def _parse_joint(tk: _Tokens, name: str, parent: int, joints: list[BvhJoint], co
 def parse_bvh(text: str, source: str = "<bvh>", unit_m: float | str = "auto", up: str = "auto",
               forward: str = "auto", floor: bool = True) -> BvhMotion:
     """Parse BVH text (see ``load_bvh``)."""
-    from .bvh_placement import parse_unit
     parse_unit(unit_m)                           # a bad unit is refused before the file is read
     lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
     motion_line = next((k for k, line in enumerate(lines) if line.strip().upper() == "MOTION"), None)
@@ -246,9 +244,13 @@ def parse_bvh(text: str, source: str = "<bvh>", unit_m: float | str = "auto", up
             raise BvhError(f"{source}:{k + 1}: frame {f} has a non-finite value")
         frames[f] = row
         k += 1
-    from .bvh_placement import place
     motion = BvhMotion(joints, frame_time, frames, source=source)
-    place(motion, unit_m, up, forward, floor)
+    try:
+        p = place(motion, unit_m, up, forward, floor)
+    except PlacementError as exc:
+        raise BvhError(str(exc)) from None
+    motion.unit_m, motion.to_ros, motion.root_shift, motion.placement = (
+        p.unit_m, axes_to_ros(p.up, p.forward), p.root_shift, p.text)
     return motion
 
 

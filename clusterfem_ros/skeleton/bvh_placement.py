@@ -14,21 +14,26 @@ rotation zero; OFFSETs summed from the root) and of its frames, each with an ove
   feet) and from the pelvis height over the feet (a standing adult's hip is at ``HIP_RATIO`` of the stature),
   their geometric mean when both are sound; the unit is the one of ``UNITS`` that makes that stature nearest to
   ``STANDING_HEIGHT`` (by ratio). A skeleton whose height in the unit chosen (or given) is outside
-  ``HEIGHT_RANGE`` is refused with ``BvhError`` naming the parameter.
+  ``HEIGHT_RANGE`` is refused (``PlacementError``, a ``BvhError`` from ``parse_bvh``) naming the parameter.
 * **floor**: the lowest point of the body (joints and end sites, all frames played as the file gives them) is
   put at z = 0; a few frames below the others (``FLOOR_PERCENTILE``: a glitch that kicks a foot through the
   floor) do not count. The shift is applied to the skeleton's root link in the URDF, the joint values are
   untouched. ``floor=False`` keeps the file's own height.
 
-``place(motion, unit, up, forward, floor)`` applies the decisions to a ``BvhMotion`` (``unit_m``, ``to_ros``,
-``root_shift``) and returns the one line that says what was decided (``BvhMotion.placement``).
+``place(motion, unit, up, forward, floor)`` returns the decisions (``Placement``) for a parsed ``BvhMotion``
+(read through its attributes: this module is below ``bvh.py``, which applies them), with the one line that
+says what was decided (``BvhMotion.placement``).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-from .bvh import CMU_UNIT_M, BvhError, BvhMotion, axes_to_ros, joint_rotations
+from ..errors import ClusterFemError
 
+CMU_UNIT_M = 0.056444           # m per unit of the CMU conversions
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "cmu": CMU_UNIT_M}
 STANDING_HEIGHT = 1.7           # m: the prior the unit is chosen by
 HIP_RATIO = 0.53                # hip joint height over stature of a standing adult
@@ -36,6 +41,20 @@ HEIGHT_RANGE = (0.5, 3.0)       # m: a skeleton outside this after the unit is r
 FLOOR_PERCENTILE = 2.0          # the floor is this percentile of the per-frame lowest point
 AXES = ("X", "Y", "Z", "-X", "-Y", "-Z")
 _DEFAULT_FORWARD = {"X": "Z", "Y": "Z", "Z": "X"}
+
+
+class PlacementError(ClusterFemError, ValueError):
+    """A skeleton no unit makes a standing human; the message names the parameters that set it."""
+
+
+@dataclass(frozen=True)
+class Placement:
+    unit_name: str
+    unit_m: float                   # metres per file unit
+    up: str                         # signed file axes, e.g. "Y", "-Z"
+    forward: str
+    root_shift: np.ndarray          # (3,) [m, ROS] added to the root's origin (the floor under the feet)
+    text: str                       # the one log line
 
 
 def parse_unit(value) -> tuple[str, float] | None:
@@ -83,7 +102,7 @@ def _axis_vector(axis: str) -> np.ndarray:
     return e
 
 
-def rest_points(motion: BvhMotion) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
+def rest_points(motion) -> tuple[np.ndarray, np.ndarray, list[list[int]]]:
     """Rest pose in file units: (joint heads (J, 3), end points (J, 3): the end site, or the head of a joint
     without children or end site; NaN for inner joints, children lists)."""
     J = len(motion.joints)
@@ -102,7 +121,7 @@ def rest_points(motion: BvhMotion) -> tuple[np.ndarray, np.ndarray, list[list[in
     return heads, ends, children
 
 
-def find_legs(motion: BvhMotion) -> tuple[int, list[int]] | None:
+def find_legs(motion) -> tuple[int, list[int]] | None:
     """(pelvis joint, the two foot end points as joint indices into ``rest_points``' ends), or None."""
     heads, ends, children = rest_points(motion)
     pelvis = 0
@@ -133,7 +152,7 @@ def find_legs(motion: BvhMotion) -> tuple[int, list[int]] | None:
     return pelvis, feet
 
 
-def detect_axes(motion: BvhMotion, up: str | None = None, forward: str | None = None) -> tuple[str, str, str]:
+def detect_axes(motion, up: str | None = None, forward: str | None = None) -> tuple[str, str, str]:
     """(up, forward, how they were found) as signed file axes; given axes are kept (see the module docstring)."""
     legs = find_legs(motion)
     heads, ends, _ = rest_points(motion)
@@ -154,7 +173,7 @@ def detect_axes(motion: BvhMotion, up: str | None = None, forward: str | None = 
     return up, forward, how
 
 
-def stature_file_units(motion: BvhMotion, up: str) -> tuple[float, float]:
+def stature_file_units(motion, up: str) -> tuple[float, float]:
     """(rest pose extent along ``up``, stature estimate) in file units (see the module docstring)."""
     heads, ends, _ = rest_points(motion)
     u = _axis_vector(up)
@@ -177,7 +196,18 @@ def choose_unit(stature: float) -> tuple[str, float]:
     return name, UNITS[name]
 
 
-def world_points(motion: BvhMotion, frames: np.ndarray | None = None) -> np.ndarray:
+def _local_rotations(motion, k: int, rows: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) joint k's rotation channels in file order (intrinsic: "Zrotation Xrotation" is Rz Rx)."""
+    j = motion.joints[k]
+    rot = [i for i, c in enumerate(j.channels) if c.endswith("rotation")]
+    if not rot:
+        return np.broadcast_to(np.eye(3), (rows.size, 3, 3))
+    order = "".join(j.channels[i][0] for i in rot)
+    angles = motion.frames[np.ix_(rows, [j.channel_start + i for i in rot])]
+    return Rotation.from_euler(order, angles, degrees=True).as_matrix().reshape(rows.size, 3, 3)
+
+
+def world_points(motion, frames: np.ndarray | None = None) -> np.ndarray:
     """(F, P, 3) every joint head and end site in file units and axes over the frames (all by default): the root at
     its position channels (its OFFSET along axes it has no channel for), as the BVH format defines it."""
     rows = np.arange(motion.n_frames) if frames is None else np.asarray(frames)
@@ -187,7 +217,7 @@ def world_points(motion: BvhMotion, frames: np.ndarray | None = None) -> np.ndar
     p = np.zeros((F, J, 3))
     tips = []
     for k, j in enumerate(motion.joints):
-        local = joint_rotations(motion, k)[rows]
+        local = _local_rotations(motion, k, rows)
         if j.parent < 0:
             p[:, k] = root_position(motion)[rows]
             R[:, k] = local
@@ -199,7 +229,7 @@ def world_points(motion: BvhMotion, frames: np.ndarray | None = None) -> np.ndar
     return np.concatenate([p, np.stack(tips, axis=1)], axis=1) if tips else p
 
 
-def root_position(motion: BvhMotion) -> np.ndarray:
+def root_position(motion) -> np.ndarray:
     """(F, 3) the root's position in file units: its position channels, its OFFSET along axes without one."""
     root = motion.joints[0]
     pos = np.broadcast_to(root.offset, (motion.n_frames, 3)).copy()
@@ -209,11 +239,11 @@ def root_position(motion: BvhMotion) -> np.ndarray:
     return pos
 
 
-def place(motion: BvhMotion, unit="auto", up="auto", forward="auto", floor: bool = True) -> str:
-    """Set ``motion.unit_m``, ``to_ros`` and ``root_shift`` (see the module docstring); returns the log line."""
+def place(motion, unit="auto", up="auto", forward="auto", floor: bool = True) -> Placement:
+    """The unit, axes and floor of ``motion`` (see the module docstring); PlacementError for a skeleton that is no
+    standing human in the unit chosen or given."""
     given_unit = parse_unit(unit)
     up_axis, fwd_axis, how = detect_axes(motion, parse_axis(up, "up"), parse_axis(forward, "forward"))
-    motion.to_ros = axes_to_ros(up_axis, fwd_axis)
     extent, stature = stature_file_units(motion, up_axis)
     if given_unit is None:
         name, metres = choose_unit(stature)
@@ -223,18 +253,17 @@ def place(motion: BvhMotion, unit="auto", up="auto", forward="auto", floor: bool
         why = "given"
     height = extent * metres
     if not HEIGHT_RANGE[0] <= height <= HEIGHT_RANGE[1]:
-        raise BvhError(f"{motion.source}: the skeleton is {height:.3g} m tall in unit {name} ({extent:.4g} file units "
-                       f"along {up_axis}): not a human between {HEIGHT_RANGE[0]:g} and {HEIGHT_RANGE[1]:g} m; set the "
-                       "player's 'unit' parameter (the scene's skeleton.bvh_unit) to the file's unit (m, cm, mm, "
-                       "inch, cmu or metres per unit) or 'up' (skeleton.bvh_up) to its up axis")
-    motion.unit_m = float(metres)
-    motion.root_shift = np.zeros(3)
+        raise PlacementError(
+            f"{motion.source}: the skeleton is {height:.3g} m tall in unit {name} ({extent:.4g} file units along "
+            f"{up_axis}): not a human between {HEIGHT_RANGE[0]:g} and {HEIGHT_RANGE[1]:g} m; set the player's 'unit' "
+            "parameter (the scene's skeleton.bvh_unit) to the file's unit (m, cm, mm, inch, cmu or metres per "
+            "unit) or 'up' (skeleton.bvh_up) to its up axis")
     text = (f"{motion.source}: unit {name} ({metres:g} m per file unit, {why}), skeleton {height:.2f} m tall "
             f"(rest pose, feet to head), up {up_axis} forward {fwd_axis} ({how})")
+    shift = np.zeros(3)
     if floor:
-        z = (world_points(motion) @ motion.to_ros.T)[..., 2] * metres
+        z = world_points(motion) @ _axis_vector(up_axis) * metres
         lowest = float(np.percentile(z.min(axis=1), FLOOR_PERCENTILE))
-        motion.root_shift = np.array([0.0, 0.0, -lowest])
+        shift[2] = -lowest
         text += f", floor under the feet (root moved {-lowest:+.3f} m)"
-    motion.placement = text
-    return text
+    return Placement(name, float(metres), up_axis, fwd_axis, shift, text)

@@ -50,6 +50,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bvh import BvhMotion, elementary_rotations, joint_rotations
+from .euler import continuous_euler, euler_nearest
 from .trajectory import JointTrajectory
 from .urdf_builder import UrdfBuilder
 
@@ -126,15 +127,8 @@ def find_spikes(motion: BvhMotion, first_frame: int = 1, spike_deg: float = 90.0
 
 
 def _euler_nearest(R: np.ndarray, order: str, previous: np.ndarray) -> np.ndarray:
-    """Angles [rad] (3,) about the file axes ``order`` (e.g. "ZYX": R = Rz(a) Ry(b) Rx(c)) of rotation R, in the
-    representation (of the two, each shifted by whole turns) nearest to ``previous`` (3,): ``continuous_euler``."""
-    import warnings
-
-    from scipy.spatial.transform import Rotation
-    with warnings.catch_warnings():          # gimbal lock: continuous_euler splits a and c as the frame before
-        warnings.simplefilter("ignore", UserWarning)
-        raw = Rotation.from_matrix(R).as_euler(order.upper(), degrees=False)
-    return continuous_euler(np.vstack([previous, raw]), order)[1]
+    """Angles [rad] (3,) about the file axes ``order`` of rotation R, the triple nearest ``previous`` (3,)."""
+    return euler_nearest(R[None], order, previous)[0]
 
 
 def joint_reach(motion: BvhMotion) -> np.ndarray:
@@ -192,51 +186,6 @@ def _rotation_columns(motion: BvhMotion, ji: int) -> tuple[list[int], str]:
     j = motion.joints[ji]
     rot = [k for k, c in enumerate(j.channels) if c.endswith("rotation")]
     return [j.channel_start + k for k in rot], "".join(j.channels[k][0] for k in rot)
-
-
-LOCK_COS = 1e-6        # |cos b| below this: gimbal lock, only a +- c is defined by the rotation
-
-
-def continuous_euler(angles: np.ndarray, order: str = "") -> np.ndarray:
-    """(F, 3) Euler angles [rad] about three different axes made continuous along F: each frame's triple becomes,
-    of the two triples of its rotation, (a, b, c) and (a + pi, pi - b, c + pi), each shifted by whole turns per
-    channel, the one nearest (least summed change) the previous frame's. A representation flip is no jump. At
-    gimbal lock (|cos b| < LOCK_COS) the rotation fixes only a combination of a and c: with the axes ``order``
-    given, a keeps the previous frame's value and c is solved for."""
-    a = np.asarray(angles, dtype=np.float64)
-    out = a.copy()
-    if a.shape[0] < 2:
-        return out
-    twin = a + np.array([np.pi, 0.0, np.pi])
-    twin[:, 1] = np.pi - a[:, 1]
-    two_pi = 2.0 * np.pi
-    prev = out[0].tolist()
-    rows_a, rows_t = a.tolist(), twin.tolist()
-    for f in range(1, a.shape[0]):
-        best, best_cost = None, np.inf
-        for cand in (rows_a[f], rows_t[f]):
-            shifted = [x + two_pi * round((p - x) / two_pi) for x, p in zip(cand, prev)]
-            cost = sum(abs(x - p) for x, p in zip(shifted, prev))
-            if cost < best_cost:
-                best, best_cost = shifted, cost
-        if order and abs(np.cos(best[1])) < LOCK_COS:
-            best[0], best[2] = prev[0], _third_angle(rows_a[f], order, prev[0], best[1], prev[2])
-        out[f] = best
-        prev = best
-    return out
-
-
-def _third_angle(triple, order: str, a: float, b: float, near: float) -> float:
-    """The angle c [rad] about ``order[2]`` with R1(a) R2(b) R3(c) equal to the rotation of ``triple``, nearest
-    ``near`` by whole turns."""
-    deg = np.rad2deg
-    R = elementary_rotations(order[0], deg(triple[0])) @ elementary_rotations(order[1], deg(triple[1])) @ \
-        elementary_rotations(order[2], deg(triple[2]))
-    M = (elementary_rotations(order[0], deg(a)) @ elementary_rotations(order[1], deg(b))).T @ R
-    k = "XYZ".index(order[2])
-    i, j = [(1, 2), (2, 0), (0, 1)][k]
-    c = float(np.arctan2(M[j, i], M[i, i]))
-    return c + 2 * np.pi * round((near - c) / (2 * np.pi))
 
 
 def make_continuous(motion: BvhMotion, frames: np.ndarray) -> None:

@@ -21,12 +21,12 @@ file's frame; positions in metres.
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .euler import euler_nearest
 from .trajectory import JointTrajectory
 
 
@@ -38,16 +38,6 @@ class Ball:
 
 def _rotations(q: np.ndarray, ball: Ball) -> Rotation:
     return Rotation.from_euler(ball.order, q[:, list(ball.columns)])
-
-
-def _nearest_triples(R: Rotation, order: str, previous: np.ndarray) -> np.ndarray:
-    """(F, 3) Euler triples of R (F rotations) about ``order``, each the representation nearest the one before
-    (the first nearest ``previous``)."""
-    from .bvh_to_urdf import continuous_euler
-    with warnings.catch_warnings():          # gimbal lock: continuous_euler splits a and c as the frame before
-        warnings.simplefilter("ignore", UserWarning)
-        raw = R.as_euler(order)
-    return continuous_euler(np.vstack([previous, raw]), order)[1:]
 
 
 def twist(R: Rotation, axis: np.ndarray) -> np.ndarray:
@@ -99,7 +89,7 @@ class CaptureLoop(JointTrajectory):
                 goal = R[0] if k != root_ball else self.turn * R[0]
                 gap = (R[-1].inv() * goal).as_rotvec()
                 Rw = R[window] * Rotation.from_rotvec(ramp[window, None] * gap)
-                p[window[:, None], list(b.columns)] = _nearest_triples(Rw, b.order, p[window[0] - 1, list(b.columns)])
+                p[window[:, None], list(b.columns)] = euler_nearest(Rw, b.order, p[window[0] - 1, list(b.columns)])
         # non-root joints end on their start rotation: each loop adds the whole turns their triples gained; a ball
         # whose end triple is the other representation of its start rotation is re-extracted in each loop instead
         self._offset = np.zeros(p.shape[1])
@@ -159,9 +149,9 @@ class CaptureLoop(JointTrajectory):
             R = _rotations(self.positions, b)
             R = A * R if kb == self.root_ball else R
             if k > 0:                                            # on from the previous loop's end
-                p[:, cols] = _nearest_triples(R, b.order, join[cols])
+                p[:, cols] = euler_nearest(R, b.order, join[cols])
             else:                                                # back from the next loop's start
-                p[::-1, cols] = _nearest_triples(R[::-1], b.order, join[cols])
+                p[::-1, cols] = euler_nearest(R[::-1], b.order, join[cols])
         tr = JointTrajectory(self.times, self.names, p, revolute=self.revolute, interpolation=self.interpolation)
         self._joins[k] = p[-1] if k > 0 else p[0]
         if len(self._loops) >= 4:
