@@ -107,8 +107,9 @@ PARAMS: tuple[Param, ...] = (
     Param("skeleton.root_joint", "auto", "'free': add root_x/y/z and root_yaw/pitch/roll joints above the URDF's "
           "root (the players' root pose moves it); 'fixed': use the URDF's joints as they are; 'auto': free when "
           "the URDF has no prismatic joint", choices=ROOT_JOINTS),
-    Param("skeleton.bind_pose", "neutral", "pose a surface body was modelled in: the URDF's zero pose, or frame 0 of "
-          "skeleton.bind_bvh (the capture the player plays)", choices=("neutral", "first_frame")),
+    Param("skeleton.bind_pose", "neutral", "pose a surface body was modelled in, or a jelly body on a skeleton other "
+          "than the built-in one is built in: the URDF's zero pose, or frame 0 of skeleton.bind_bvh (the capture "
+          "the player plays)", choices=("neutral", "first_frame")),
     Param("skeleton.bind_bvh", "", "BVH file whose frame 0 is the bind pose when skeleton.bind_pose is 'first_frame': "
           "a path, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder"),
     Param("skeleton.bvh_unit", "auto", "length unit of the BVH file played (the player's 'unit' unless its own section "

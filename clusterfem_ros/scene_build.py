@@ -13,7 +13,7 @@ from typing import Callable
 
 import numpy as np
 
-from .body.fit import find_data_file
+from .body.fit import bind_configuration, find_data_file
 from .body.surface_body import SurfaceBody, build_surface_body
 from .config import SceneConfig
 from .fem.material import Material
@@ -21,6 +21,7 @@ from .fem.mesh_io import read_mesh
 from .fem.tet_mesh import TetMesh
 from .fem.voxel_mesh import paper_mesh
 from .method_choice import SHIPPED_POINTS, choose_from_file
+from .skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
 from .skeleton.humanoid import HumanoidSpec, default_humanoid
 from .skeleton.jelly_body import jelly_man_mesh
 from .skeleton.kinematics import Skeleton, UrdfError
@@ -51,6 +52,7 @@ class SceneParts:
     bind_all: bool = False          # the outermost binding level reaches every vertex (a capsule body)
     cover: RobotCover | None = None     # of a robot cover: each vertex's link bone and depth
     bind_q: np.ndarray | None = None    # (nq,) the skeleton's configuration the jelly body was built in (None: q = 0)
+    bare_bones: tuple[str, ...] = ()    # bones of a jelly body without flesh: they bind none (bone_roles.flesh_radii)
 
 
 def material_of(c: SceneConfig) -> Material:
@@ -129,7 +131,6 @@ def jelly_bind_pose(config: SceneConfig, skeleton: Skeleton, progress: Callable[
     s = config.skeleton
     if s.bind_pose == "neutral" and not s.bind_joints:
         return None
-    from .body.fit import bind_configuration
     q = bind_configuration(skeleton, s.bind_pose, s.bind_joints, s.bind_angles, s.bind_bvh)
     say(progress, f"jelly body built in the bind pose (skeleton.bind_pose {s.bind_pose!r}"
                   + (f", {len(s.bind_joints)} joints set" if s.bind_joints else "") + ")")
@@ -137,15 +138,15 @@ def jelly_bind_pose(config: SceneConfig, skeleton: Skeleton, progress: Callable[
 
 
 def jelly_radii(skeleton: Skeleton, leaf_shapes: dict, body, progress: Callable[[str], None] | None = None,
-                q: np.ndarray | None = None) -> dict[str, float]:
-    """{bone: capsule radius [m]} of a jelly body on ``skeleton`` (not the built-in humanoid): with body.flesh 'auto',
-    radii by each bone's role in a human (skeleton/bone_roles.py), bare bones left out and named in one line;
+                q: np.ndarray | None = None) -> tuple[dict[str, float], list[str]]:
+    """({bone: capsule radius [m]}, bare bones) of a jelly body on ``skeleton`` (not the built-in humanoid): with
+    body.flesh 'auto', radii by each bone's role in a human (skeleton/bone_roles.py), bare bones left out (they bind
+    no flesh either: a vertex of the thigh must not follow the fingers of a hand hanging beside it) and named in one line;
     with 'uniform', or when the skeleton is not a human's (said in one line), body.bone_radius for every bone. A
     leaf with URDF shapes has radius 0 (its shapes are its flesh). The roles are read in the configuration ``q``
     (None: the zero pose)."""
-    from .skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
     r = float(body.bone_radius)
-    radii = {name: r for name in skeleton.bone_names}
+    radii, bare = {name: r for name in skeleton.bone_names}, []
     if body.flesh == "auto":
         try:
             roles = label_skeleton(skeleton, q)
@@ -153,13 +154,14 @@ def jelly_radii(skeleton: Skeleton, leaf_shapes: dict, body, progress: Callable[
             say(progress, f"body.flesh 'auto': not a human skeleton ({exc}); every bone gets body.bone_radius "
                           f"{r:g} m (set body.flesh 'uniform' to skip this test)")
         else:
-            radii, bare = flesh_radii(roles)
-            say(progress, roles.summary() + " (body.flesh 'uniform' gives every bone body.bone_radius instead)")
+            radii, bare = flesh_radii(roles, body.target_tets)
+            say(progress, roles.summary() + f"; thinnest flesh {min(radii.values()):.3g} m (1.25 voxels of "
+                          f"~{body.target_tets} tets); body.flesh 'uniform' gives every bone body.bone_radius instead")
             for note in roles.notes:
                 say(progress, f"warning: {note}")
             say(progress, f"bones left bare ({len(bare)}, covered by their neighbours' flesh): "
                           + (", ".join(f"{n} ({roles.role_of(n)})" for n in bare) if bare else "none"))
-    return {name: 0.0 if name in leaf_shapes else radius for name, radius in radii.items()}
+    return {name: 0.0 if name in leaf_shapes else radius for name, radius in radii.items()}, bare
 
 
 def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
@@ -172,6 +174,7 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
     body = config.body
     kind = body.kind
     fixed = bind_q = None
+    bare: list[str] = []
     if kind == "jelly_man":
         if skeleton is None:
             raise ValueError("body.kind 'jelly_man' is built around a skeleton, but skeleton.source is 'none': "
@@ -180,8 +183,8 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
             spec = default_humanoid()
         else:
             bind_q = jelly_bind_pose(config, skeleton, progress)
-            spec = HumanoidSpec(urdf_xml, jelly_radii(skeleton, leaf_shapes, body, progress, bind_q),
-                                leaf_shapes=leaf_shapes)
+            radii, bare = jelly_radii(skeleton, leaf_shapes, body, progress, bind_q)
+            spec = HumanoidSpec(urdf_xml, radii, leaf_shapes=leaf_shapes)
         if body.skin == "smooth":
             say(progress, f"meshing the jelly man (~{body.target_tets} tets): voxels, skin on the blended capsules")
             mesh = smooth_jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q)
@@ -214,4 +217,5 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
     # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
     # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
     bind_all = kind == "jelly_man" and source != "builtin"
-    return SceneParts(config, mesh, fixed, skeleton, urdf_xml, bind_all=bind_all, bind_q=bind_q)
+    return SceneParts(config, mesh, fixed, skeleton, urdf_xml, bind_all=bind_all, bind_q=bind_q,
+                      bare_bones=tuple(bare))

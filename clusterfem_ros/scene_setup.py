@@ -72,7 +72,8 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     if skeleton is not None:
         q0 = parts.surface.bind_q if parts.surface is not None else \
             parts.bind_q if parts.bind_q is not None else skeleton.neutral()
-        binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress)
+        binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress,
+                        bare=parts.bare_bones)
                    if parts.cover is None else bind_cover(config, model, skeleton, q0, parts.cover, progress))
         driver = skeleton_driver(config, binding, model.rest, skeleton, anchors)
         joints, stream = joint_inputs(config, skeleton, q0)
@@ -113,10 +114,11 @@ def anchor(config: SceneConfig, rest: np.ndarray, skeleton: Skeleton | None,
 
 
 def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarray, anchors: list,
-         surface: SurfaceBody | None, bind_all: bool, progress: Callable[[str], None] | None = None) -> Binding:
+         surface: SurfaceBody | None, bind_all: bool, progress: Callable[[str], None] | None = None,
+         bare: tuple[str, ...] = ()) -> Binding:
     """The body's vertices bound to the bones of ``skeleton`` posed at ``q0`` (its bind pose), in the levels of
     binding.level_radii (fractions of the flesh's depth with binding.relative_levels), without the bones of
-    binding.skip_bones. ``bind_all``: the outermost level is widened to reach every vertex. A surface body's
+    binding.skip_bones nor the ``bare`` bones of a jelly body (they have no flesh). ``bind_all``: the outermost level is widened to reach every vertex. A surface body's
     pieces that no bone and no anchor reaches are refused (refuse_islands)."""
     b = config.binding
     poses = skeleton.forward(q0, np.zeros(skeleton.nv))
@@ -130,9 +132,13 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
             raise ValueError(f"binding.skip_bones names {unknown}, which are not bones of this skeleton; its bones "
                              f"are {', '.join(skeleton.bone_names)}")
         mask = np.array([name not in b.skip_bones for name in skeleton.bone_names])
+    if bare:
+        mask = (np.ones(len(skeleton.bone_names), dtype=bool) if mask is None else mask) & \
+            np.array([name not in bare for name in skeleton.bone_names])
     radii = list(b.level_radii)
     if bind_all:
-        reach = float(segment_distance(model.rest, starts, ends).min(axis=1).max()) * (1 + 1e-9)
+        kept = np.ones(len(skeleton.bone_names), dtype=bool) if mask is None else mask
+        reach = float(segment_distance(model.rest, starts[kept], ends[kept]).min(axis=1).max()) * (1 + 1e-9)
         if reach > radii[-1]:
             say(progress, f"the outermost binding level reaches {reach:.3f} m instead of {radii[-1]:g} m: every "
                           "vertex of the capsule body is bound (no one-tet flaps left free)")

@@ -179,8 +179,8 @@ def test_the_jelly_body_on_a_mixamo_rig_has_flesh_on_every_major_bone():
             "<joint name='j' type='revolute'><parent link='a'/><child link='b'/><origin xyz='0 0 0.3'/>" \
             "<axis xyz='0 1 0'/><limit lower='-1' upper='1' effort='1' velocity='1'/></joint></robot>"
     said = []
-    radii = jelly_radii(Skeleton.from_urdf_string(chain), {}, SceneConfig().body, said.append)
-    assert radii == {"a": 0.05, "b": 0.05} and "not a human skeleton" in said[0]
+    radii, bare = jelly_radii(Skeleton.from_urdf_string(chain), {}, SceneConfig().body, said.append)
+    assert radii == {"a": 0.05, "b": 0.05} and bare == [] and "not a human skeleton" in said[0]
 
 
 def test_a_rig_whose_zero_pose_is_no_standing_human_gets_its_flesh_in_frame_0():
@@ -206,7 +206,7 @@ def test_a_rig_whose_zero_pose_is_no_standing_human_gets_its_flesh_in_frame_0():
     have = {roles.role_of(n) for n in sk.bone_names}
     assert {f"{s}_{r}" for s in "lr" for r in MAJOR[3:]} <= have and {"pelvis", "spine", "head"} <= have
     assert all(roles.sides[k] == name_side(n) for k, n in enumerate(sk.bone_names) if name_side(n))
-    config = on_capture_skeleton(SceneConfig().with_values({"body.target_tets": 1500}), bandai)
+    config = on_capture_skeleton(SceneConfig(), bandai)
     assert config.skeleton.bind_pose == "first_frame"
     scene = Scene.build(config, urdf_xml=load_motion("bvh", bandai).urdf)
     assert flesh_check(scene)[1] == "none"

@@ -351,10 +351,13 @@ def _role_fractions() -> dict[str, float]:
     return {k: v / skeleton_height for k, v in out.items()}
 
 
-def flesh_radii(roles: BoneRoles) -> tuple[dict[str, float], list[str]]:
+def flesh_radii(roles: BoneRoles, target_tets: int | None = None, voxels_across: float = 1.25
+                ) -> tuple[dict[str, float], list[str]]:
     """({bone: capsule radius in the skeleton's units}, the bones left bare): radius = the role's fraction of the
     standing height; bare are the BARE_ROLES and bones of zero length that are not the pelvis (a zero-length pelvis
-    is a ball where the legs and the spine meet)."""
+    is a ball where the legs and the spine meet). With ``target_tets``, no radius is below ``voxels_across`` voxel
+    spacings of a body of that many tets (``voxel_spacing``): a hand one voxel thick is a flap that tears on the
+    first fast turn."""
     frac = _role_fractions()
     radii, bare = {}, []
     for n, r, length in zip(roles.names, roles.roles, roles.lengths):
@@ -362,7 +365,20 @@ def flesh_radii(roles: BoneRoles) -> tuple[dict[str, float], list[str]]:
             bare.append(n)
         else:
             radii[n] = frac[r] * roles.height
+    if target_tets:
+        lengths = dict(zip(roles.names, roles.lengths))
+        for _ in range(3):                      # the floor thickens the body, which widens the voxels a little
+            floor = voxels_across * voxel_spacing([lengths[n] for n in radii], list(radii.values()), target_tets)
+            radii = {n: max(r, floor) for n, r in radii.items()}
     return radii, bare
+
+
+def voxel_spacing(lengths, radii, target_tets: int) -> float:
+    """The voxel spacing of a jelly body of about ``target_tets`` tets (five per voxel) around capsules of these
+    lengths and radii, their volumes summed (overlaps counted twice: a slight overestimate)."""
+    L, r = np.asarray(lengths, dtype=np.float64), np.asarray(radii, dtype=np.float64)
+    volume = float(np.sum(np.pi * r ** 2 * L + 4.0 / 3.0 * np.pi * r ** 3))
+    return (5.0 * volume / target_tets) ** (1.0 / 3.0)
 
 
 __all__ = ["BoneRoles", "NotHumanoid", "flesh_radii", "label_bones", "label_skeleton", "name_side", "stands"]
