@@ -99,3 +99,30 @@ def test_the_live_view_is_off_by_default_and_a_taken_port_is_one_clear_error():
         with RosWorld() as world, pytest.raises(RuntimeError, match=f"{port}.*output.live_port"):
             ClusterFemNode(context=world.context, parameter_overrides=[
                 Parameter(k, value=v) for k, v in {**values, "output.live_port": port}.items()])
+
+
+def test_the_main_job_serves_its_topics_live():
+    """`scripts/run --live PORT` (the README's command): the main job's node serves its topics on 127.0.0.1:PORT."""
+    import os
+    import subprocess
+    import sys
+    port = _free_port()
+    env = dict(os.environ, PYTHONPATH=str(ROOT), FASTDDS_BUILTIN_TRANSPORTS="SHM",
+               ROS_DOMAIN_ID=str(100 + os.getpid() % 20))
+    job = subprocess.Popen([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--duration", "30", "--no-record",
+                            "--no-png", "--no-video", "--live", str(port)], cwd=ROOT, env=env,
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        for line in job.stdout:                         # the node says where it serves once it does
+            if f"live view on ws://127.0.0.1:{port}" in line or "timed run starts" in line:
+                break
+        with client.connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], open_timeout=30) as ws:
+            topics = set()
+            while not _layout_topics() <= topics:
+                msg = ws.recv(timeout=30)
+                if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
+                    topics |= {c["topic"] for c in json.loads(msg)["channels"]}
+    finally:
+        job.terminate()
+        job.wait(timeout=60)
+    assert {"/clusterfem/surface", "/clusterfem/stress", "/diagnostics", "/joint_states"} <= topics
