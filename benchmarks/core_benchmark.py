@@ -3,7 +3,9 @@
     python -m benchmarks.core_benchmark [--step 1e-3] [--scale 1.0] [--sizes 1,2,4] [--warping-only]
 
 First table: the warped step's cost against the linear one (per-element and per-vertex warping) on the jelly
-man (the default scene's body, free, from a twisted state) and the paper's shapes (``warping_cost``).
+man (the default scene's body, free, from a twisted state) and the paper's shapes (``warping_cost``); under it
+one roofline line: the Neo-Hookean step per tet against the floor its flops and bytes set on this host
+(benchmarks/roofline.py).
 
 Every method runs the same scene (the object's bottom fixed, gravity, same material and step) and
 is timed after warm-up (JIT compilation excluded). All methods and kernel pieces of a shape are timed in
@@ -101,6 +103,7 @@ from clusterfem_ros.fem.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.numba_config import contains_threads
 from clusterfem_ros.fem.voxel_mesh import PAPER_SHAPES, paper_mesh
+from .roofline import roofline_line
 from .timing import interleaved_seconds, paired_ratio, table
 
 PAPER_MS = {"sphere": (1.60, 0.73, 0.83), "cube": (1.89, 0.92, 1.09), "torus": (2.15, 0.97, 1.12)}
@@ -321,8 +324,9 @@ def jelly_man_model(target_tets: int):
         return None
 
 
-def warping_rows(h: float, target_tets: int) -> list[list[object]]:
-    """warping_cost on the jelly man and the paper's shapes, as table rows."""
+def warping_rows(h: float, target_tets: int, timed: dict | None = None) -> list[list[object]]:
+    """warping_cost on the jelly man and the paper's shapes, as table rows; ``timed`` gets each body's
+    (tets, warping_cost)."""
     bodies = [("jelly man", jelly_man_model(target_tets))]
     for name in PAPER_SHAPES:
         mesh = paper_mesh(name)
@@ -333,6 +337,8 @@ def warping_rows(h: float, target_tets: int) -> list[list[object]]:
             continue
         print(f"  timing warping on {name} ...", file=sys.stderr, flush=True)
         t = warping_cost(model, h)
+        if timed is not None:
+            timed[name] = (model.mesh.n_tets, t)
         us = lambda k: f"{t[k] * 1e6:.1f}"  # noqa: E731
         rows.append([name, model.n_vertices, model.mesh.n_tets, us("linear"),
                      f"{us('warped, element')} ({t['warped, element', 'linear']:.2f}x)",
@@ -391,8 +397,13 @@ def main(argv: list[str] | None = None) -> int:
           "us per step, ratio to the linear step in brackets (paired medians of interleaved rounds); 'element': "
           "per-element corotation (fem/element_warping.py), 'vertex': the paper's per-vertex warping (fem/warping.py), "
           "'neohookean': stable Neo-Hookean elements (fem/neohookean.py)")
+    timed = {}
     print(table(["body", "verts", "tets", "linear us", "warped, element us", "warped, vertex us", "neohookean us"],
-                warping_rows(args.step, args.tets)))
+                warping_rows(args.step, args.tets, timed)))
+    body = "jelly man" if "jelly man" in timed else next(iter(timed), None)
+    if body is not None:
+        tets, t = timed[body]
+        print(roofline_line(body, tets, t["neohookean"], t["linear"]))
     if args.warping_only:
         return 0
     rows, rows_raw, ok = [], [], True

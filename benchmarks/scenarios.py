@@ -147,9 +147,9 @@ def simulate(sc: Scenario, integ, h: float, timed: bool = True) -> Run:
 
 
 def reference(sc: Scenario, kind: str) -> Run:
-    """The converged reference of the model kind ('linear' or 'corotated'); why it is converged enough:
-    speed_error_report's module docstring."""
-    integ = make_integrator("clustered", sc.model, safety=REF_SAFETY, max_substeps=10 ** 6,
-                            warp=(kind == "corotated"))
+    """The converged reference of the model kind ('linear', 'corotated' or 'neohookean'); why it is converged
+    enough: speed_error_report's module docstring."""
+    integ = make_integrator("clustered", sc.model, safety=REF_SAFETY, max_substeps=10 ** 6, warp=(kind != "linear"),
+                            warping_model="neohookean" if kind == "neohookean" else "element")
     h = sc.sample_dt if sc.carried is None else REF_INPUT_STEP
     return simulate(sc, integ, h, timed=False)

@@ -12,7 +12,10 @@ seen running. "+warp" is the per-element warping (fem/element_warping.py), "+neo
 Neo-Hookean elements (fem/neohookean.py); "+warp vertex", the paper's
 per-vertex one (fem/warping.py), is refused at set-up unless acknowledged (fem/warping_models.py), so it runs
 here with ``allow_unbounded_warping=True``, in a table of its own, for comparison only. The sliver cases hold
-one tet at 1e-3 .. 1e-5 of a regular tet's volume (one vertex moved towards its opposite face) at h = 1 ms.
+one tet at 1e-3 .. 1e-6 of its volume (one vertex moved towards its opposite face; the 1e-6 one has shape
+quality 9e-7, fem/tet_quality.py) at h = 1 ms. "inverted start": the bar's outer half folded back through
+x = L / 2, every element there inverted (det F = -1), released at rest. "teleport clamp 1 m": the clamped face
+held by prescribed vertices instead of fixed ones, all moved 1 m along z at step 1 and held there.
 
 Energy. Per run we track E against the budget: initial energy + work of gravity and external forces (f . du
 per step) + the energy a prescribed vertex injects when it is set (E after - E before). For the implicit and
@@ -30,8 +33,12 @@ measured shadow-energy error of the element-warped step where nothing is torn: o
 180 deg twist |E - budget| reaches 0.7 % of the budget (either sign; 1.1 % for the synchronised energy;
 tests/test_shadow_energy.py), on the gentle cases 1e-8 .. 1e-6; linear runs conserve it to 1e-10. With
 damping E stays below the budget. Refused = StabilityError when the method is set up (per-vertex warping
-without the acknowledgement; implicit per-vertex warping on nu > 0.49) or at the first step, before the state
-is touched (the explicit step would need more than --max-substeps sub-steps). Implicit with warping sub-steps
+without the acknowledgement; implicit per-vertex warping on nu > 0.49) or at a step, before that step touches
+the state (the explicit step would need more than --max-substeps sub-steps: at the first step, or later where
+the stretch plan asks for more, the message then says at which step). A step refused after the energy has
+grown past the tolerance, or after a vertex has moved more than BLOWUP = 10 bar lengths beyond the teleport,
+is a blow-up the stretch plan was following, not a refusal: "diverged", the message giving the energy and the
+displacement reached (the per-vertex model's runs of 14-264 m). Implicit with warping sub-steps
 where rotations turn fast (fem/integrators/standard_implicit.py); the sub-step counts are in the table ("a-b"
 where the stretch plan changed them during the run). Volume error = max over the run of |sum of signed tet
 volumes / rest - 1|.
@@ -113,6 +120,9 @@ EXPLICIT_KINDS = ("clustered", "standard_explicit")          # symplectic Euler,
 EXPLICIT = tuple(m for m, (kind, _) in METHODS.items() if kind in EXPLICIT_KINDS)
 DAMPING = {"undamped": (0.0, 0.0), "default": (DEFAULT_MASS_DAMPING, DEFAULT_STIFFNESS_DAMPING)}
 RETRY_STEPS = (10.0, 100.0)                 # a refused explicit method runs again at h / 10, h / 100
+# A step refused after the run has started is a blow-up (reported as diverged) when the energy had already
+# grown past the tolerance or a vertex had moved further than BLOWUP bar lengths beyond the teleport.
+BLOWUP = 10.0
 
 
 def bar_mesh(scale: float = 1.0) -> TetMesh:
@@ -154,6 +164,15 @@ def one_sliver_mesh(ratio: float, scale: float = 1.0) -> TetMesh:
     raise ValueError(f"no tet of the bar at scale {scale} can be squashed to {ratio} of its volume alone")
 
 
+def inverted_state(model: FemModel) -> State:
+    """The bar's outer half folded back through the plane x = L / 2: every element there starts inverted
+    (det F = -1), at rest."""
+    s = State.rest(model)
+    x = model.rest[:, 0]
+    s.u[:, 0] = np.where(x > LENGTH / 2, LENGTH - 2.0 * x, 0.0)
+    return s
+
+
 def twist_state(model: FemModel, angle: float = np.pi) -> State:
     """The bar's cross-sections rotated about x by angle * x / L (the free end by ``angle``)."""
     s = State.rest(model)
@@ -190,11 +209,14 @@ class Case:
     clamped: bool = True
     h: float = 0.01
     initial: Callable[[FemModel], State] | None = None
-    teleport: float = 0.0                    # metres a prescribed end vertex jumps at step 1
+    teleport: float = 0.0                    # metres the prescribed vertices jump (along z) at step 1
+    teleported: str = "end"                  # which: "end" (one vertex of the free end, torn) or "clamp" (the
+                                             # clamped face, prescribed instead of fixed, moved as a whole)
 
     def model(self, scale: float, damping: str = "default") -> FemModel:
         mesh = self.mesh(scale)
-        fixed = np.isclose(mesh.vertices[:, 0], 0.0) if self.clamped else None
+        clamped = self.clamped and not (self.teleport and self.teleported == "clamp")
+        fixed = np.isclose(mesh.vertices[:, 0], 0.0) if clamped else None
         xi, zeta = DAMPING[damping]
         return build_model(mesh, replace(self.material, xi=xi, zeta=zeta), fixed=fixed)
 
@@ -211,6 +233,9 @@ CASES = [
     Case("sliver 1e-3, h=1ms", mesh=lambda scale: one_sliver_mesh(1e-3, scale), h=1e-3),
     Case("sliver 1e-4, h=1ms", mesh=lambda scale: one_sliver_mesh(1e-4, scale), h=1e-3),
     Case("sliver 1e-5, h=1ms", mesh=lambda scale: one_sliver_mesh(1e-5, scale), h=1e-3),
+    Case("sliver 1e-6, h=1ms", mesh=lambda scale: one_sliver_mesh(1e-6, scale), h=1e-3),
+    Case("inverted start", initial=inverted_state),
+    Case("teleport clamp 1 m", teleport=1.0, teleported="clamp"),
 ]
 
 
@@ -283,7 +308,10 @@ def _run(method: str, case: Case, model: FemModel, steps: int, max_substeps: int
     frames = ElementFrames.from_model(model) if element else None
 
     held = model.fixed.copy()
-    end = np.flatnonzero(np.isclose(model.rest[:, 0], LENGTH))[:1]
+    if case.teleported == "clamp":
+        end = np.flatnonzero(np.isclose(model.rest[:, 0], 0.0))
+    else:
+        end = np.flatnonzero(np.isclose(model.rest[:, 0], LENGTH))[:1]
     if case.teleport:
         held[end] = True
     gravity = model.gravity_force()
@@ -319,8 +347,8 @@ def _run(method: str, case: Case, model: FemModel, steps: int, max_substeps: int
     for k in range(steps):
         control = Control()
         if case.teleport:
-            pu = np.array([[0.0, 0.0, case.teleport if k >= 1 else 0.0]])
-            control = Control(prescribed_index=end, prescribed_u=pu, prescribed_v=np.zeros((1, 3)))
+            pu = np.tile([0.0, 0.0, case.teleport if k >= 1 else 0.0], (end.size, 1))
+            control = Control(prescribed_index=end, prescribed_u=pu, prescribed_v=np.zeros((end.size, 3)))
             before = energy(state, h_sub)
             state.u[end], state.v[end] = pu, 0.0
             budget += energy(state, h_sub) - before              # work done by moving the constraint
@@ -328,7 +356,12 @@ def _run(method: str, case: Case, model: FemModel, steps: int, max_substeps: int
         try:
             info = integ.step(state, control, h)
         except StabilityError as exc:
-            return Result(method, case.name, "refused", message=str(exc))
+            reach = float(np.abs(state.u).max())
+            if k > 0 and (ratio > ENERGY_SLACK or reach > BLOWUP * LENGTH + case.teleport):
+                return Result(method, case.name, "diverged", ratio, vol_err, *_span(subs),
+                              message=f"blew up (max |u| {reach:.3g} m, max E / budget {ratio:.3g} after {k} steps), "
+                                      f"then: {exc}")
+            return Result(method, case.name, "refused", message=str(exc) if k == 0 else f"at step {k}: {exc}")
         except DivergenceError as exc:
             return Result(method, case.name, "diverged", ratio, vol_err, *_span(subs), message=str(exc))
         subs.append(info.substeps)

@@ -589,11 +589,6 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
         raise ConfigError(undamped_corotation_refusal(out["method"]))
     if out["warping"] and out["warping_model"] in EXPLICIT_ONLY and not out["physics.plan_stretch"]:
         raise ConfigError(stretch_plan_refusal(out["warping_model"]))
-    if out["warping_model"] in EXPLICIT_ONLY and out["budget.max_error_mm"] > 0:
-        raise ConfigError(f"budget.max_error_mm = {out['budget.max_error_mm']:g} chooses among points measured with "
-                          f"warping_model 'element', and may choose an implicit method, which warping_model "
-                          f"{out['warping_model']!r} does not run: set budget.max_error_mm 0, or warping_model "
-                          "'element'")
     if out["body.kind"] in ("jelly_man", "robot_cover") and out["skeleton.source"] == "none":
         raise ConfigError(f"body.kind = {out['body.kind']!r} is built around a skeleton: set skeleton.source")
     return SceneConfig(out)

@@ -7,7 +7,7 @@ reads and writes that file and chooses from it:
 
     points = read_points(SHIPPED_POINTS)
     choice = choose(points, budget=2.0, metric="max_mm", scene="jelly_man")
-    choice.overrides   # {'method': 'clustered', 'physics.step': 0.002, 'modal.k': 30, 'warping': False}
+    choice.overrides   # {'method': 'clustered', 'physics.step': 0.002, 'warping': True, 'warping_model': 'neohookean'}
 
 Cost is compute per simulated second (ms/step divided by the step h), not ms/step: a method taking
 steps twice as long needs half as many of them. Ties in cost go to the smaller error.
@@ -31,6 +31,8 @@ METRICS = {
     "volume_pct": "max |V - V_ref| / V0 over the run [%]",
 }
 REQUIRED = ("scene", "method", "h", "k", "ms_per_step") + tuple(METRICS)
+# the label suffix of a warped point -> the warping_model it ran
+WARPED_LABELS = {"_warp": "element", "_neohookean": "neohookean"}
 # the measured points the package ships (package data: found beside this file in a wheel or a source tree)
 SHIPPED_POINTS = Path(__file__).resolve().parent / "data" / "speed_error.csv"
 
@@ -42,7 +44,8 @@ class ChoiceError(ClusterFemError, ValueError):
 @dataclass(frozen=True)
 class MeasuredPoint:
     scene: str                  # 'sphere', 'cube', 'torus', 'jelly_man' (the scene file's body.kind)
-    method: str                 # report label: clustered, clustered_warp, standard_explicit, implicit_direct, ...
+    method: str                 # report label: clustered, clustered_warp (per-element corotation), clustered_neohookean,
+                                # standard_explicit, implicit_direct, ... (benchmarks/speed_error_report.py METHODS)
     h: float                    # step [s]
     k: int                      # modes (modal only; 0 otherwise)
     ms_per_step: float          # median wall time of one step after warm-up [ms]
@@ -60,12 +63,17 @@ class MeasuredPoint:
 
     @property
     def overrides(self) -> dict:
-        """The scene parameters (config.PARAMS names) that select this point."""
-        warp = self.method.endswith("_warp")
-        base = self.method[: -len("_warp")] if warp else self.method
+        """The scene parameters (config.PARAMS names) that select this point: a warped point's label ends in its
+        model (WARPED_LABELS), and the point sets warping_model too."""
+        base, model = self.method, None
+        for suffix, name in WARPED_LABELS.items():
+            if base.endswith(suffix):
+                base, model = base[: -len(suffix)], name
         if base.startswith("modal"):
             base = "modal"
-        out = {"method": base, "physics.step": self.h, "warping": warp}
+        out = {"method": base, "physics.step": self.h, "warping": model is not None}
+        if model is not None:
+            out["warping_model"] = model
         if base == "modal":
             out["modal.k"] = self.k
         return out

@@ -103,7 +103,10 @@ def test_pareto_front_is_non_dominated_and_dominates_the_rest():
 
 def test_overrides_name_scene_parameters():
     assert POINTS[3].overrides == {"method": "clustered", "physics.step": 5e-3, "warping": False}
-    assert POINTS[4].overrides == {"method": "clustered", "physics.step": 2e-3, "warping": True}
+    assert POINTS[4].overrides == {"method": "clustered", "physics.step": 2e-3, "warping": True,
+                                   "warping_model": "element"}
+    nh = MeasuredPoint("jelly_man", "clustered_neohookean", 1e-3, 0, 0.3, POINTS[4].errors)
+    assert nh.overrides == {"method": "clustered", "physics.step": 1e-3, "warping": True, "warping_model": "neohookean"}
     assert POINTS[5].overrides == {"method": "modal", "physics.step": 5e-3, "warping": False, "modal.k": 30}
 
 

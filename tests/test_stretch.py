@@ -75,5 +75,8 @@ def test_the_neohookean_plan_reads_the_force_passs_bound():
     for _ in range(5):
         assert plan.neohookean_factor(rest, 0.01) == 128.0
     assert plan.neohookean_factor(rest, 0.01) == 1.0
+    fresh = StretchPlan(model, hold=0.05, energy="neohookean")
+    assert fresh.neohookean_factor(rest, 0.01, inverted=True) == StretchPlan.INVERTED   # an inverted element
+    assert fresh.neohookean_factor(8.0 * rest, 0.01, inverted=True) == 8.0 * StretchPlan.INVERTED
     with pytest.raises(ValueError, match="neohookean_factor"):
         plan.factor(np.zeros_like(model.rest), 0.01)

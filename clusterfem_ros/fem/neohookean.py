@@ -43,7 +43,9 @@ mu + lambda_s I2 + sqrt(2) lambda_s |J - alpha| |F|_F, the smaller of the two. A
 motion it is 3 lambda + 2 mu, the linear material's largest modulus, exactly; elsewhere within 1.6 x of the
 tangent's largest eigenvalue (tests/test_neohookean.py). The force pass computes it beside each element's force
 from the same F (``ElementFrames.bounds``; four square roots an element, about a seventh of the pass on the
-jelly man), so the step gets it with its first force; ``tangent_bounds`` runs the pass without the forces.
+jelly man), so the step gets it with its first force; ``tangent_bounds`` runs the pass without the forces. The
+bound is kept with the sign of J: negative for an inverted (or flat) element, which the step plan takes a
+shorter step for (fem/stretch.py, ``largest_bound``).
 
 The compiled pass has the element warping's layout (fem/element_warping.py: ``ElementFrames``, chunks of
 LANES elements by lane, element corner forces gathered per vertex in element order, so serial and threaded
@@ -172,8 +174,9 @@ def _chunk_forces(D, DW, grad, vol, lam, mu, fe, bound):
         z20, z21, z22 = G20 - f20, G21 - f21, G22 - f22
         c00, c01, c02, c10, c11, c12, c20, c21, c22 = lane_cofactor(f00, f01, f02, f10, f11, f12, f20, f21, f22)
         j = f00 * c00 + f01 * c01 + f02 * c02
-        bound[l] = lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
-                                      c00, c01, c02, c10, c11, c12, c20, c21, c22, j, lam_s, alpha, mu)
+        b = lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
+                               c00, c01, c02, c10, c11, c12, c20, c21, c22, j, lam_s, alpha, mu)
+        bound[l] = b if j > 0.0 else -b                             # the sign says: inverted (or flat)
         k = lam_s * (j - alpha)
         e00 = f00 * z00 + f10 * z10 + f20 * z20                     # E' = sym(F^T Z)
         e11 = f01 * z01 + f11 * z11 + f21 * z21
@@ -206,8 +209,9 @@ def _chunk_bounds(D, grad, lam, mu, bound):
         f00, f01, f02, f10, f11, f12, f20, f21, f22 = lane_gradient(D, grad, l, 1.0)
         c00, c01, c02, c10, c11, c12, c20, c21, c22 = lane_cofactor(f00, f01, f02, f10, f11, f12, f20, f21, f22)
         j = f00 * c00 + f01 * c01 + f02 * c02
-        bound[l] = lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
-                                      c00, c01, c02, c10, c11, c12, c20, c21, c22, j, lam_s, alpha, mu)
+        b = lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
+                               c00, c01, c02, c10, c11, c12, c20, c21, c22, j, lam_s, alpha, mu)
+        bound[l] = b if j > 0.0 else -b
 
 
 @numba.njit(**SERIAL)
@@ -247,15 +251,19 @@ def neohookean_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None
 @numba.njit(**HOLDS_GIL)
 def _largest_bound(kept):
     worst = 0.0
+    inverted = False
     for c in range(kept.shape[0]):
         for l in range(LANES):
-            worst = max(worst, kept[c, l])
-    return worst
+            b = kept[c, l]
+            inverted |= b < 0.0
+            worst = max(worst, abs(b))
+    return worst, inverted
 
 
-def largest_bound(frames: ElementFrames) -> float:
-    """The largest tangent bound the last pass left (ElementFrames.bounds; padding lanes give the rest value):
-    what the step plans for, without numpy's reduction over the strided view (3.7 us a step)."""
+def largest_bound(frames: ElementFrames) -> tuple[float, bool]:
+    """(the largest tangent bound the last pass left, whether an element is inverted or flat): what the step
+    plans for (ElementFrames.bounds holds each bound with the sign of det F, a flat element's negative; padding
+    lanes give the rest value), without numpy's reduction over the strided view (3.7 us a step)."""
     return _largest_bound(frames.rot_lanes)
 
 
@@ -267,4 +275,4 @@ def tangent_bounds(model: FemModel, u: np.ndarray, frames: ElementFrames | None 
     frames = ElementFrames.from_model(model) if frames is None else frames
     kern = pick_build(model.n_vertices, threads, neohookean_pass_serial, neohookean_pass_parallel)
     kern(frames.elems, u, frames.w, frames.work, False)
-    return frames.bounds.reshape(-1)[:frames.m].copy()
+    return np.abs(frames.bounds.reshape(-1)[:frames.m])

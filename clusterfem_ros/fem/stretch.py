@@ -36,7 +36,16 @@ stiffness over a step, at second order in the step. Where an element has stiffen
 material (KNEE), the plan takes (1 + g) times min(4, (1 + g) / 4) (ACCURACY): up to half the sub-step,
 reached at 16x. The walking jelly man stays under the knee once placed; the bar with a vertex torn 0.5 m away
 and held, undamped, gains 0.8-1 % of the work put in with it and 3-4 % without
-(benchmarks/stability_table.py).
+(benchmarks/stability_table.py). While an element is inverted (the force pass says so by the sign of its bound)
+the plan takes INVERTED = 16 in place of the accuracy factor, a quarter of the sub-step: the bar released with
+its outer half folded through itself, undamped, gains 6 % over 3 s with the stiffness alone, 1.5 % with 4 and
+0.3 % with 16; the fine bar diverges in its first step with the stiffness alone and gains 0.7 % / 0.04 % with 4
+/ 16 ("inverted start" of ``python -m benchmarks.stability_table --scales 1 2 --steps 300``, with INVERTED set
+to each; tests/test_hard_cases.py checks the coarse bar). The walking jelly man has inverted elements in the three steps after it is
+placed on its skeleton and none after; the hold keeps the factor for 0.5 s more, so a 4 s walk takes 1.5
+sub-steps a step on average instead of 1.125 (0.50 against 0.41 ms a step on a loaded host) and an 8 s one
+1.25: a cost paid once, at placement (benchmarks/physics_alone.py's scene and walk, back to back, counting the
+steps whose pass reports an inverted element).
 """
 from __future__ import annotations
 
@@ -104,6 +113,7 @@ class StretchPlan:
     EVERY = 0.005
     HOLD = {"corotated": 5.0, "neohookean": 0.5}
     KNEE, ACCURACY = 4.0, 4.0      # Neo-Hookean: beyond 4x the linear stiffness, up to 4x more (half the sub-step)
+    INVERTED = 16.0                # Neo-Hookean: 16x while an element is inverted (a quarter of the sub-step)
 
     def __init__(self, model, hold: float | None = None, every: float = EVERY, energy: str = "corotated"):
         if energy not in self.HOLD:
@@ -134,12 +144,13 @@ class StretchPlan:
         self._due += max(self.every, h)
         return self._settle(1.0 + stiffening(self.tets, self.gradients, self.rest, u, self._x), h)
 
-    def neohookean_factor(self, bound: float, h: float) -> float:
+    def neohookean_factor(self, bound: float, h: float, inverted: bool = False) -> float:
         """The Neo-Hookean factor for a step of h whose elements' largest tangent bound is ``bound``
         (fem/neohookean.py; the force pass leaves it in ElementFrames.bounds): >= 1 + g times the accuracy factor,
         rounded up to a quarter octave."""
         stiffer = max(1.0, bound / self.rest_modulus)
-        return self._settle(stiffer * min(self.ACCURACY, max(1.0, stiffer / self.KNEE)), h)
+        accuracy = self.INVERTED if inverted else min(self.ACCURACY, max(1.0, stiffer / self.KNEE))
+        return self._settle(stiffer * accuracy, h)
 
     def _settle(self, stiffer: float, h: float) -> float:
         """The factor for ``stiffer`` after rounding: it rises at once and falls after ``hold`` without need."""

@@ -65,8 +65,9 @@ def explicit_only_refusal(name: str, method: str) -> str:
 def auto_model(method: str, error_budget: bool, plan_stretch: bool) -> str:
     """The model a scene's ``warping_model: auto`` runs: 'neohookean' on method 'clustered' (smooth through
     inversion, and the cheaper step: benchmarks/core_benchmark.py, benchmarks/stability_table.py); 'element' on
-    the other methods, which do not run it, when an error budget chooses the method among points measured with
-    'element', and when the step is planned without the stretch (``stretch_plan_refusal``)."""
+    the other methods, which do not run it, while an error budget is to choose the method (the point it chooses
+    then sets warping_model: method_choice.WARPED_LABELS), and when the step is planned without the stretch
+    (``stretch_plan_refusal``)."""
     return "neohookean" if method == "clustered" and not error_budget and plan_stretch else "element"
 
 

@@ -361,7 +361,8 @@ class ClusteredExplicit:
             return stretch.factor(state.u, h), False
         _neohookean_first[parallel](*self._model_args, self._common.fixed_index, state.u, state.v, self._zeta,
                                     self._w)
-        return stretch.neohookean_factor(largest_bound(self.frames), h), True
+        bound, inverted = largest_bound(self.frames)
+        return stretch.neohookean_factor(bound, h, inverted), True
 
     def compiled_step(self, state: State, control: Control, h: float) -> tuple:
         """(function, arguments) of one step's compiled part for a body without attachments or prescribed

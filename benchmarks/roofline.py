@@ -1,0 +1,82 @@
+"""The Neo-Hookean pass's arithmetic and memory floor on this host: what a tet's force must cost at least.
+
+Flops per tet, counted from the source of the pass (fem/neohookean.py ``_chunk_forces`` and the element passes'
+shared steps in fem/element_warping.py; a multiply or an add is one flop, a fused multiply-add two, a square root
+or a min/max one), for one element of one sub-step:
+
+    differences of u and of w at three corners         18
+    F = I + grad u and G = grad w (lane_gradient x 2)  96
+    Z = G - F                                            9
+    cof F and J                                         32
+    the tangent bound (4 square roots)                  76
+    E' = sym(F^T Z), its trace, S_d                     72
+    P = F (mu I + S_d) + k cof F, times V               74
+    corner forces P g_c and the fourth corner           54
+    gather of the 12 corner forces into vertex rows     12
+                                                       ---
+                                                       443
+
+of which the elastic force alone (no damping, no bound: differences of u, F, cof F and J, mu F + k cof F
+times V, the corner forces and the gather) is about 190. Bytes per tet streamed from memory or
+L2 each sub-step: the corner indices (4 x 8), the rest gradients (9 x 8) and volume (8), the corner forces
+written and read back by the gather (2 x 12 x 8), the gather's indices (4 x 8): 336; the vertex rows of u and
+w it gathers (4 corners x 2 x 3 x 8 = 192) come from L1/L2 (a vertex is shared by about 20 tets).
+
+The host's peak is counted, not measured: vector lanes (4 with AVX2, 8 with AVX-512) x 2 flops per FMA x 2 FMA
+pipes x the clock /proc/cpuinfo gives; its bandwidth is measured, a numpy copy of 1 MB (L2) and of 64 MB
+(memory), read plus write bytes over the median time. The floor is the larger of flops / peak and bytes /
+bandwidth; a pass of adds and multiplies that do not pair into FMAs reaches at most half the peak.
+"""
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+
+FLOPS = {"differences of u and w": 18, "F and G": 96, "Z = G - F": 9, "cof F and J": 32, "tangent bound": 76,
+         "damping stress": 72, "stress P times V": 74, "corner forces": 54, "gather": 12}
+FLOPS_PER_TET = sum(FLOPS.values())
+BYTES_PER_TET = 4 * 8 + 9 * 8 + 8 + 2 * 12 * 8 + 4 * 8
+
+
+def host_peak() -> tuple[float, int, float]:
+    """(peak flops per second of one core, vector lanes, clock GHz) from /proc/cpuinfo (nan where unreadable)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return float("nan"), 0, float("nan")
+    flags = set(re.search(r"^flags\s*:(.*)$", text, re.M).group(1).split()) if "flags" in text else set()
+    lanes = 8 if "avx512f" in flags else 4 if "avx2" in flags else 2
+    mhz = re.search(r"^cpu MHz\s*:\s*([\d.]+)", text, re.M)
+    ghz = float(mhz.group(1)) / 1e3 if mhz else float("nan")
+    return lanes * 2 * 2 * ghz * 1e9, lanes, ghz
+
+
+def copy_bandwidth(nbytes: int, reps: int = 20) -> float:
+    """Bytes per second of a numpy copy of ``nbytes`` (read + write), median of ``reps``."""
+    a = np.ones(nbytes // 8)
+    b = np.empty_like(a)
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        np.copyto(b, a)
+        times.append(time.perf_counter() - t0)
+    return 2.0 * a.nbytes / float(np.median(times))
+
+
+def roofline_line(body: str, tets: int, seconds: float, linear_seconds: float) -> str:
+    """One line: the Neo-Hookean step on ``body`` (``seconds`` per step, serial) against its floor."""
+    peak, lanes, ghz = host_peak()
+    l2, memory = copy_bandwidth(1 << 20), copy_bandwidth(64 << 20, reps=5)
+    compute = FLOPS_PER_TET / peak
+    stream = BYTES_PER_TET / l2
+    floor = max(compute, stream)
+    per_tet = seconds / tets
+    return (f"roofline, Neo-Hookean step on the {body} ({tets} tets): {FLOPS_PER_TET} flops and {BYTES_PER_TET} "
+            f"bytes per tet (benchmarks/roofline.py); this host {lanes} lanes x 2 FMA pipes at {ghz:.2f} GHz = "
+            f"{peak / 1e9:.0f} Gflop/s, copy {l2 / 1e9:.0f} GB/s in L2, {memory / 1e9:.0f} GB/s from memory; floor "
+            f"{floor * 1e9:.1f} ns per tet (compute {compute * 1e9:.1f}, L2 {stream * 1e9:.1f}; all-FMA peak, so "
+            f"{2 * compute * 1e9:.1f} at half of it); measured {per_tet * 1e9:.1f} ns per tet = "
+            f"{per_tet / floor:.1f}x the floor, {(seconds - linear_seconds) / tets * 1e9:.1f} ns over the linear step")
