@@ -19,7 +19,8 @@ from .skeleton.trajectory import JointTrajectory
 
 SOURCES = ("builtin_walk", "bvh", "keyframes", "joint_sweep")
 PLAYER_NODE = "mocap_player"
-PLAYER_PARAMS = ("source", "file", "rate_hz", "speed", "start_offset", "loop", "loop_blend", "unit", "up")
+PLAYER_PARAMS = ("source", "file", "rate_hz", "speed", "start_offset", "start_delay", "loop", "loop_blend", "unit",
+                 "up")
 WALK_CYCLES = 4          # the built-in walk is this many whole gait periods, so looping is seamless
 
 

@@ -262,13 +262,20 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
+MAX_GAP_S = 1.0             # simulated time skipped by the node (physics fell behind): shown as one frame
+
+
 def video_frames(surfaces, fps: float) -> list[int]:
     """For every video frame at ``fps`` per simulated second, the index of the surface frame shown: the latest
-    one recorded at or before its time (a recording slower than ``fps`` repeats frames, a faster one skips)."""
+    one recorded at or before its time (a recording slower than ``fps`` repeats frames, a faster one skips).
+    A gap of more than MAX_GAP_S between recorded states (time the node dropped) plays as one frame."""
     stamps = np.array([s.stamp_ns for s in surfaces], dtype=np.int64)
-    n = int(np.floor((stamps[-1] - stamps[0]) * 1e-9 * fps + 1e-9)) + 1
-    times = stamps[0] + np.round(np.arange(n) * 1e9 / fps).astype(np.int64)
-    return list(np.searchsorted(stamps, times, side="right") - 1)
+    step = int(round(1e9 / fps))
+    gaps = np.diff(stamps)
+    play = np.concatenate([[0], np.cumsum(np.where(gaps > MAX_GAP_S * 1e9, step, gaps))])
+    n = int(np.floor(play[-1] * 1e-9 * fps + 1e-9)) + 1
+    times = np.round(np.arange(n) * 1e9 / fps).astype(np.int64)
+    return list(np.searchsorted(play, times, side="right") - 1)
 
 
 def run_scale(frames, options: VideoOptions, progress=print):

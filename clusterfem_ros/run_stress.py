@@ -23,6 +23,8 @@ class RunStress:
         if not surfaces or not stresses:
             raise ValueError("a run's stress needs surface Markers and stress clouds: record with "
                              "output.stress_rate_hz > 0")
+        # a cloud re-sent before the next physics step carries the same state: one per state
+        stresses = [c for k, c in enumerate(stresses) if k == 0 or c.stamp_ns != stresses[k - 1].stamp_ns]
         self.stresses = stresses
         self.cloud_ns = np.array([c.stamp_ns for c in stresses], dtype=np.int64)
         # match corners to cloud vertices on the closest (surface, cloud) pair in time: the same state when a

@@ -99,6 +99,8 @@ def test_video_frames_play_the_recording_at_its_simulated_speed():
     assert len(shown) == 31 and shown[:7] == [0, 0, 0, 1, 1, 1, 2] and shown[-1] == 10
     sixty_hz = [S(k / 60.0) for k in range(61)]              # 60 Hz -> every other state
     assert video_frames(sixty_hz, 30.0) == list(range(0, 61, 2))
+    dropped = [S(0.0), S(0.1), S(0.2), S(12.2), S(12.3)]      # 12 s the node dropped: one frame, not a still
+    assert video_frames(dropped, 10.0) == [0, 1, 2, 3, 4]
 
 
 def _body_on_screen(frame: np.ndarray) -> tuple[float, bool]:

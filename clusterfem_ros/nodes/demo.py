@@ -42,7 +42,7 @@ PLAYER_START_TIMEOUT_S = 60.0
 LIVE_PORT = 8765            # Foxglove's default WebSocket port
 
 
-def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
+def _wait_for_first_input(sim, player: subprocess.Popen, delay_s: float = 0.0) -> None:
     """Hold the timed run until the player's first joint state has arrived: its process start (imports,
     kernels) took 1-3 s on a fresh clone, which would otherwise eat into --duration with a body at rest."""
     t0 = time.perf_counter()
@@ -54,7 +54,7 @@ def _wait_for_first_input(sim, player: subprocess.Popen) -> None:
                              "joint state: run `python -m clusterfem_ros.nodes.player_node` to see why")
         if getattr(sim, "building", False):     # the skeleton came; the body is being meshed (once: cached)
             t0 = time.perf_counter()
-        if time.perf_counter() - t0 > PLAYER_START_TIMEOUT_S:
+        if time.perf_counter() - t0 > PLAYER_START_TIMEOUT_S + delay_s:     # delay_s: the player's start_delay
             received = sim.counts.get("joint_states", 0)
             if received:
                 rejected = dict(sim.scene.inputs.rejected) if sim.scene is not None else {}
@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[demo] player: {', '.join(f'{k} {v}' for k, v in player_params.items())}; skeleton from "
                   f"{config.skeleton.source}", flush=True)
     rclpy.init()
-    sims, players, spin = [], [], None
+    sims, players, delays, spin = [], [], [], None
     executor = SingleThreadedExecutor()
     try:
         t_build = time.perf_counter()
@@ -206,13 +206,14 @@ def main(argv: list[str] | None = None) -> int:
                 if offset:
                     player_params["start_offset"] = float(player_params.get("start_offset", 0.0)) + offset
                 players.append((sims[-1], start_player(ns, player_params)))
+                delays.append(float(player_params.get("start_delay", 0.0)))
         print(f"[demo] simulation ready in {time.perf_counter() - t_build:.1f} s", flush=True)
         for sim in sims:
             executor.add_node(sim)
         spin = threading.Thread(target=executor.spin, daemon=True)
         spin.start()
-        for sim, player in players:
-            _wait_for_first_input(sim, player)
+        for (sim, player), delay in zip(players, delays):
+            _wait_for_first_input(sim, player, delay)
         if not players:
             print("[demo] the scene has no skeleton (skeleton.source = none): no mocap player; the body moves under "
                   "gravity and its anchors", flush=True)

@@ -53,6 +53,9 @@ class MocapPlayer(Node):
         self.declare_parameter("rate_hz", 120.0, _range(1.0, 2000.0, "JointState publish rate [Hz]"))
         self.declare_parameter("speed", 1.0, _range(0.01, 100.0, "playback speed factor"))
         self.declare_parameter("start_offset", 0.0, _range(0.0, 1e6, "start this far into the motion [s]"))
+        self.declare_parameter("start_delay", 0.0, _range(0.0, 3600.0, (
+            "wait this long before playing, the skeleton latched at once: a node that builds its body from "
+            "robot_description (a new mesh takes minutes) then gets the motion from its start [s]")))
         self.declare_parameter("loop", True, ParameterDescriptor(description="loop the motion at its end"))
         self.declare_parameter("loop_blend", 0.5, _range(0.0, 60.0, (
             "looping a motion that does not end where it starts: its last seconds are blended into its start "
@@ -76,6 +79,7 @@ class MocapPlayer(Node):
         self._urdf_pub = self.create_publisher(String, "robot_description", LATCHED)
         self._urdf_pub.publish(String(data=self.motion.urdf))
         self._t0 = None
+        self._created_s = self.get_clock().now().nanoseconds * 1e-9
         self.published = 0
         self.finished = False
         self.create_timer(1.0 / p["rate_hz"], self._tick)
@@ -91,6 +95,8 @@ class MocapPlayer(Node):
         if self.finished:
             return
         now = self.get_clock().now()
+        if now.nanoseconds * 1e-9 - self._created_s < self.params["start_delay"]:
+            return
         t = self.motion_time(now.nanoseconds * 1e-9)
         duration = self.motion.trajectory.duration
         if t > duration and not self.params["loop"]:

@@ -32,6 +32,7 @@ NEWTON_STEPS = 8
 RELAX_SWEEPS = 4
 HALVINGS = 30
 ROUNDS = 6
+RELAX_RINGS = 1
 
 
 def smooth_min(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -165,12 +166,19 @@ def snap_to_shape(mesh: TetMesh, shape: SmoothCapsules, min_altitude: float = MI
         move[interior] = (mean / np.maximum(count, 1.0)[:, None])[interior]
     x = _held_above(x0, x0 + move, tets, min_altitude * alt0)
     target = x0 + move
+    # the rounds relax only the interior within RELAX_RINGS tets of the surface: the flesh near the bones, which
+    # the innermost binding level holds, keeps its voxel positions
+    near = np.zeros(mesh.n_vertices, dtype=bool)
+    near[surface] = True
+    for _ in range(RELAX_RINGS):
+        near[np.unique(tets[near[tets].any(axis=1)])] = True
+    relaxable = interior & near
     for _ in range(ROUNDS):
         # make room: each interior vertex to its neighbours' mean, then the surface again towards its target
         mean = np.zeros_like(x)
         np.add.at(mean, edges[:, 0], x[edges[:, 1]])
         relaxed = x.copy()
-        relaxed[interior] = (mean / np.maximum(count, 1.0)[:, None])[interior]
+        relaxed[relaxable] = (mean / np.maximum(count, 1.0)[:, None])[relaxable]
         x = _held_above(x, relaxed, tets, min_altitude * alt0)
         wanted = x.copy()
         wanted[surface] = target[surface]
