@@ -177,7 +177,9 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
             radii, bare = jelly_radii(skeleton, leaf_shapes, body, progress, bind_q)
             spec = HumanoidSpec(urdf_xml, radii, leaf_shapes=leaf_shapes)
         say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
-        mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q)
+        # radii by role differ from bone to bone: keep each voxel nearest its own bone's axis (the binding's rule)
+        mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q,
+                              axis_consistent=source != "builtin" and body.flesh == "auto")
     elif kind == "mesh":
         mesh = read_mesh(body.mesh_file)
     elif kind == "surface":
