@@ -71,10 +71,11 @@ def nearest_capsule(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, ra
 
 
 def axis_conflicts(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, label: np.ndarray,
-                   may_touch: np.ndarray, margin: float) -> np.ndarray:
-    """(k,) bool: points that lie nearer (by ``margin`` or less farther) the axis of a bone they may not touch than
-    the axis of their own bone ``label`` (k,). The binding takes each vertex to the nearest bone axis; such a point,
-    in a thick bone's flesh beside a thin limb (a pelvis beside a hanging forearm), would follow the limb."""
+                   may_touch: np.ndarray, margin: np.ndarray) -> np.ndarray:
+    """(k,) bool: points that lie nearer the axis of a bone they may not touch than the axis of their own bone
+    ``label`` (k,), or less than ``margin[own, other]`` (nb, nb) farther. The binding takes each vertex to the
+    nearest bone axis; such a point, in a thick bone's flesh beside a thin limb (a pelvis beside a hanging
+    forearm), would follow the limb."""
     x = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     d = ends - starts
     L2 = np.einsum("bj,bj->b", d, d)
@@ -85,7 +86,7 @@ def axis_conflicts(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, lab
         dist = np.linalg.norm(rel - t[..., None] * d[None], axis=2)
         lab = label[a:a + 20000]
         own = dist[np.arange(lab.size), lab]
-        out[a:a + 20000] = ((dist <= own[:, None] + margin) & ~may_touch[lab]).any(axis=1)
+        out[a:a + 20000] = ((dist <= own[:, None] + margin[lab]) & ~may_touch[lab]).any(axis=1)
     return out
 
 
@@ -191,15 +192,18 @@ def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue
     """Tet mesh of the capsules of ``spec`` (and of its leaf shapes, if it has ``leaf_shapes``) with about
     ``target_tets`` tets (nearest count found by bisection); voxels of bones more than ``glue_hops`` apart never
     touch (None: every touching voxel is glued). ``q``: the skeleton's configuration to build it in (None: q = 0).
-    ``axis_consistent``: also leave out the voxels within a voxel of being nearer the axis of a bone they may not
-    touch than their own bone's axis (``axis_conflicts``), for bodies whose radii differ much from bone to bone
-    on skeletons with limbs against the trunk at rest."""
+    ``axis_consistent``: also leave out the voxels nearer the axis of a bone they may not touch than their own
+    bone's axis, or within a voxel of it for bones 4 or more hops apart (their corners are the vertices bound;
+    ``axis_conflicts``), for bodies whose radii differ much from bone to bone on skeletons with limbs against the
+    trunk at rest (nearer bones keep the margin 0: a clavicle beside the head must not be cut off)."""
     from ..fem.voxel_mesh import grid_mesh, voxel_centres
     if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
         raise ValueError(f"target_tets = {target_tets!r}: give a whole number >= 50")
     s, e, r, parents = humanoid_capsules(spec, with_parents=True, q=q)
     shapes = leaf_shapes_placed(spec, q)
-    may_touch = None if glue_hops is None else bone_hops(parents) <= glue_hops
+    hops = bone_hops(parents)
+    may_touch = None if glue_hops is None else hops <= glue_hops
+    far = hops >= 4
     lo = np.minimum(s, e).min(axis=0) - r.max()
     hi = np.maximum(s, e).max(axis=0) + r.max()
     for shape in shapes:                        # the shape's bounding box in the world
@@ -234,7 +238,8 @@ def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue
                 label[inside_] = _label(centres[inside_], s, e, r, shapes)
                 if axis_consistent:
                     keep = inside_.copy()
-                    keep[inside_] = ~axis_conflicts(centres[inside_], s, e, label[inside_], may_touch, h)
+                    keep[inside_] = ~axis_conflicts(centres[inside_], s, e, label[inside_], may_touch,
+                                                    np.where(far, h, 0.0))
                     mask = keep.reshape(n)
                 mask = separate_limbs(mask, label.reshape(n), may_touch)
             cache[h] = grid_mesh(mask, lo, np.full(3, h))
