@@ -185,12 +185,14 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
             bind_q = jelly_bind_pose(config, skeleton, progress)
             radii, bare = jelly_radii(skeleton, leaf_shapes, body, progress, bind_q)
             spec = HumanoidSpec(urdf_xml, radii, leaf_shapes=leaf_shapes)
+        # radii by role differ from bone to bone: keep each voxel nearest its own bone's axis (the binding's rule)
+        axis_consistent = source != "builtin" and body.flesh == "auto"
         if body.skin == "smooth":
             say(progress, f"meshing the jelly man (~{body.target_tets} tets): voxels, skin on the blended capsules")
-            mesh = smooth_jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q)
+            mesh = smooth_jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
         else:
             say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
-            mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q)
+            mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
     elif kind == "robot_cover":
         say(progress, f"covering the robot's links (~{body.target_tets} tets)")
         urdf_file = (find_data_file(config.skeleton.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")

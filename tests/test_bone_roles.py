@@ -210,3 +210,20 @@ def test_a_rig_whose_zero_pose_is_no_standing_human_gets_its_flesh_in_frame_0():
     assert config.skeleton.bind_pose == "first_frame"
     scene = Scene.build(config, urdf_xml=load_motion("bvh", bandai).urdf)
     assert flesh_check(scene)[1] == "none"
+
+
+def test_a_voxel_nearer_the_axis_of_a_limb_it_may_not_touch_is_a_conflict():
+    """A thick trunk capsule (r 0.12) beside a thin forearm (r 0.05) hanging 0.16 m from its axis: a trunk voxel
+    at 0.09 m from the trunk axis and 0.07 m from the forearm's would be bound to the forearm (nearest axis) and
+    follow it: a conflict when the two may not touch, none when they may, and none for a voxel nearer its own
+    axis; the margin widens the test by its value."""
+    from clusterfem_ros.skeleton.jelly_body import axis_conflicts
+    starts = np.array([[0.0, 0, 0], [0.16, 0, 0]])
+    ends = np.array([[0.0, 0, 0.5], [0.16, 0, 0.5]])
+    points = np.array([[0.09, 0, 0.25], [0.05, 0, 0.25]])
+    label = np.array([0, 0])
+    apart, together = np.eye(2, dtype=bool), np.ones((2, 2), dtype=bool)     # a bone always touches itself
+    zero = np.zeros((2, 2))
+    assert axis_conflicts(points, starts, ends, label, apart, zero).tolist() == [True, False]
+    assert axis_conflicts(points, starts, ends, label, together, zero).tolist() == [False, False]
+    assert axis_conflicts(points, starts, ends, label, apart, np.full((2, 2), 0.07)).tolist() == [True, True]

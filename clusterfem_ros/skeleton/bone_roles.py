@@ -154,15 +154,15 @@ def label_bones(names: list[str], parent, starts, ends) -> BoneRoles:
     root = int(np.flatnonzero(parent < 0)[0])
     dist_to_taken = np.array([tree_dist(root, b) for b in range(nb)])
     taken: set[int] = {root}
-    ends_: list[int] = []
+    limb_ends: list[int] = []
     gaps: list[float] = []
     for _ in range(5):
-        cand = [b for b in leaves if b not in ends_]
+        cand = [b for b in leaves if b not in limb_ends]
         if not cand:
             raise NotHumanoid(f"{len(leaves)} leaf bones: a human skeleton has at least 5 (hands, feet, head)")
         score = [dist_to_taken[b] + reach[b] for b in cand]
         e = cand[int(np.argmax(score))]
-        ends_.append(e)
+        limb_ends.append(e)
         gaps.append(float(max(score)))
         new = set(_path(parent, e, root)) - taken
         taken |= new
@@ -171,7 +171,7 @@ def label_bones(names: list[str], parent, starts, ends) -> BoneRoles:
                 dist_to_taken[b] = min(dist_to_taken[b], tree_dist(n, b))
     span = gaps[0]
     if gaps[4] < 0.05 * span:
-        raise NotHumanoid(f"the fifth limb end ({names[ends_[4]]}) reaches only {gaps[4] / span:.2f} of the body's "
+        raise NotHumanoid(f"the fifth limb end ({names[limb_ends[4]]}) reaches only {gaps[4] / span:.2f} of the body's "
                           "span from the rest: the tree has fewer than two arms, two legs and a head")
 
     # 2. mirror pairs: where each end's path meets the others', how long its limb is
@@ -192,15 +192,15 @@ def label_bones(names: list[str], parent, starts, ends) -> BoneRoles:
 
     best = None
     for h in range(5):
-        four = [e for k, e in enumerate(ends_) if k != h]
+        four = [e for k, e in enumerate(limb_ends) if k != h]
         for p1 in ((0, 1), (0, 2), (0, 3)):
             p2 = tuple(k for k in range(4) if k not in p1)
             a, b = [four[k] for k in p1], [four[k] for k in p2]
-            ca = pair_cost(a[0], a[1], b + [ends_[h]])
-            cb = pair_cost(b[0], b[1], a + [ends_[h]])
+            ca = pair_cost(a[0], a[1], b + [limb_ends[h]])
+            cb = pair_cost(b[0], b[1], a + [limb_ends[h]])
             total = ca[0] + cb[0]
             if best is None or total < best[0]:
-                best = (total, ends_[h], a, b, ca, cb)
+                best = (total, limb_ends[h], a, b, ca, cb)
     _, head_end, pa, pb, ca, cb = best
     head_tip = ends[head_end]
     far_a = np.mean([np.linalg.norm(ends[e] - head_tip) for e in pa])

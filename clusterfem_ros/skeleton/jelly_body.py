@@ -70,6 +70,26 @@ def nearest_capsule(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, ra
     return out
 
 
+def axis_conflicts(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, label: np.ndarray,
+                   may_touch: np.ndarray, margin: np.ndarray) -> np.ndarray:
+    """(k,) bool: points that lie nearer the axis of a bone they may not touch than the axis of their own bone
+    ``label`` (k,), or less than ``margin[own, other]`` (nb, nb) farther. The binding takes each vertex to the
+    nearest bone axis; such a point, in a thick bone's flesh beside a thin limb (a pelvis beside a hanging
+    forearm), would follow the limb."""
+    x = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    d = ends - starts
+    L2 = np.einsum("bj,bj->b", d, d)
+    out = np.zeros(x.shape[0], dtype=bool)
+    for a in range(0, x.shape[0], 20000):
+        rel = x[a:a + 20000, None, :] - starts[None]
+        t = np.clip(np.einsum("kbj,bj->kb", rel, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+        dist = np.linalg.norm(rel - t[..., None] * d[None], axis=2)
+        lab = label[a:a + 20000]
+        own = dist[np.arange(lab.size), lab]
+        out[a:a + 20000] = ((dist <= own[:, None] + margin[lab]) & ~may_touch[lab]).any(axis=1)
+    return out
+
+
 def bone_hops(parent: np.ndarray) -> np.ndarray:
     """(nb, nb) number of parent-child steps between bones in the tree given by ``parent`` (nb,) (-1: a root;
     bones of different roots are ``nb`` apart)."""
@@ -168,16 +188,22 @@ def _label(points: np.ndarray, s, e, r, shapes: list) -> np.ndarray:
 
 
 def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue_hops: int | None = 2,
-                   q: np.ndarray | None = None):
+                   q: np.ndarray | None = None, axis_consistent: bool = False):
     """Tet mesh of the capsules of ``spec`` (and of its leaf shapes, if it has ``leaf_shapes``) with about
     ``target_tets`` tets (nearest count found by bisection); voxels of bones more than ``glue_hops`` apart never
-    touch (None: every touching voxel is glued). ``q``: the skeleton's configuration to build it in (None: q = 0)."""
+    touch (None: every touching voxel is glued). ``q``: the skeleton's configuration to build it in (None: q = 0).
+    ``axis_consistent``: also leave out the voxels nearer the axis of a bone they may not touch than their own
+    bone's axis, or within a voxel of it for bones 4 or more hops apart (their corners are the vertices bound;
+    ``axis_conflicts``), for bodies whose radii differ much from bone to bone on skeletons with limbs against the
+    trunk at rest (nearer bones keep the margin 0: a clavicle beside the head must not be cut off)."""
     from ..fem.voxel_mesh import grid_mesh, voxel_centres
     if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
         raise ValueError(f"target_tets = {target_tets!r}: give a whole number >= 50")
     s, e, r, parents = humanoid_capsules(spec, with_parents=True, q=q)
     shapes = leaf_shapes_placed(spec, q)
-    may_touch = None if glue_hops is None else bone_hops(parents) <= glue_hops
+    hops = bone_hops(parents)
+    may_touch = None if glue_hops is None else hops <= glue_hops
+    far = hops >= 4
     lo = np.minimum(s, e).min(axis=0) - r.max()
     hi = np.maximum(s, e).max(axis=0) + r.max()
     for shape in shapes:                        # the shape's bounding box in the world
@@ -208,7 +234,13 @@ def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue
             mask = inside(centres).reshape(n)
             if may_touch is not None:
                 label = np.zeros(mask.size, dtype=np.int64)
-                label[mask.ravel()] = _label(centres[mask.ravel()], s, e, r, shapes)
+                inside_ = mask.ravel()
+                label[inside_] = _label(centres[inside_], s, e, r, shapes)
+                if axis_consistent:
+                    keep = inside_.copy()
+                    keep[inside_] = ~axis_conflicts(centres[inside_], s, e, label[inside_], may_touch,
+                                                    np.where(far, h, 0.0))
+                    mask = keep.reshape(n)
                 mask = separate_limbs(mask, label.reshape(n), may_touch)
             cache[h] = grid_mesh(mask, lo, np.full(3, h))
         return cache[h]
