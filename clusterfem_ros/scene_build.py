@@ -22,7 +22,7 @@ from .fem.tet_mesh import TetMesh
 from .fem.voxel_mesh import paper_mesh
 from .method_choice import SHIPPED_POINTS, choose_from_file
 from .skeleton.humanoid import HumanoidSpec, default_humanoid
-from .skeleton.jelly_body import jelly_man_mesh
+from .skeleton.jelly_body import jelly_man_mesh, voxel_bones
 from .skeleton.kinematics import Skeleton, UrdfError
 from .skeleton.link_shapes import prepare_urdf
 from .skeleton.robot_cover import RobotCover, robot_cover
@@ -48,6 +48,7 @@ class SceneParts:
     surface: SurfaceBody | None = None   # of a surface body: its bind pose and depth under the skin
     bind_all: bool = False          # the outermost binding level reaches every vertex (a capsule body)
     cover: RobotCover | None = None     # of a robot cover: each vertex's link bone and depth
+    vertex_bones: np.ndarray | None = None  # (n, nb) bool: the bones a vertex may bind to (a jelly body on a URDF)
 
 
 def material_of(c: SceneConfig) -> Material:
@@ -122,7 +123,7 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
     source = config.skeleton.source
     body = config.body
     kind = body.kind
-    fixed = None
+    fixed = allowed = None
     if kind == "jelly_man":
         if skeleton is None:
             raise ValueError("body.kind 'jelly_man' is built around a skeleton, but skeleton.source is 'none': "
@@ -135,6 +136,7 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
                                 leaf_shapes=leaf_shapes)
         say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
         mesh = jelly_man_mesh(spec, target_tets=body.target_tets)
+        allowed = voxel_bones(spec, mesh) if source != "builtin" else None
     elif kind == "robot_cover":
         say(progress, f"covering the robot's links (~{body.target_tets} tets)")
         urdf_file = (find_data_file(config.skeleton.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")
@@ -161,4 +163,5 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
     # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
     # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
     bind_all = kind == "jelly_man" and source != "builtin"
-    return SceneParts(config, mesh, fixed, skeleton, urdf_xml, bind_all=bind_all)
+    return SceneParts(config, mesh, fixed, skeleton, urdf_xml, bind_all=bind_all,
+                      vertex_bones=allowed)

@@ -70,7 +70,8 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     anchored = binding = driver = joints = stream = None
     if skeleton is not None:
         q0 = skeleton.neutral() if parts.surface is None else parts.surface.bind_q
-        binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress)
+        binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress,
+                        parts.vertex_bones)
                    if parts.cover is None else bind_cover(config, model, skeleton, q0, parts.cover, progress))
         driver = skeleton_driver(config, binding, model.rest, skeleton, anchors)
         joints, stream = joint_inputs(config, skeleton, q0, parts.urdf_xml)
@@ -111,10 +112,12 @@ def anchor(config: SceneConfig, rest: np.ndarray, skeleton: Skeleton | None,
 
 
 def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarray, anchors: list,
-         surface: SurfaceBody | None, bind_all: bool, progress: Callable[[str], None] | None = None) -> Binding:
+         surface: SurfaceBody | None, bind_all: bool, progress: Callable[[str], None] | None = None,
+         allowed: np.ndarray | None = None) -> Binding:
     """The body's vertices bound to the bones of ``skeleton`` posed at ``q0`` (its bind pose), in the levels of
     binding.level_radii (fractions of the flesh's depth with binding.relative_levels), without the bones of
-    binding.skip_bones. ``bind_all``: the outermost level is widened to reach every vertex. A surface body's
+    binding.skip_bones. ``bind_all``: the outermost level is widened to reach every vertex. ``allowed`` (n, nb):
+    the bones each vertex may bind to (a jelly body on a URDF: the bones of its own voxels). A surface body's
     pieces that no bone and no anchor reaches are refused (refuse_islands)."""
     b = config.binding
     poses = skeleton.forward(q0, np.zeros(skeleton.nv))
@@ -130,14 +133,17 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
         mask = np.array([name not in b.skip_bones for name in skeleton.bone_names])
     radii = list(b.level_radii)
     if bind_all:
-        reach = float(segment_distance(model.rest, starts, ends).min(axis=1).max()) * (1 + 1e-9)
+        dist = segment_distance(model.rest, starts, ends)
+        if allowed is not None:
+            dist = np.where(allowed | ~allowed.any(axis=1, keepdims=True), dist, np.inf)
+        reach = float(dist.min(axis=1).max()) * (1 + 1e-9)
         if reach > radii[-1]:
             say(progress, f"the outermost binding level reaches {reach:.3f} m instead of {radii[-1]:g} m: every "
                           "vertex of the capsule body is bound (no one-tet flaps left free)")
             radii[-1] = reach
     binding = bind_to_skeleton(model.rest, starts, ends, radii, mask,
                                rest_rotation=poses.rotation, rest_translation=poses.translation,
-                               bone_names=skeleton.bone_names, warn=False, surface_depth=depth)
+                               bone_names=skeleton.bone_names, warn=False, surface_depth=depth, allowed=allowed)
     if surface is not None:
         refuse_islands(model, binding, anchors)
     return binding
