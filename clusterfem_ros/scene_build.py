@@ -23,7 +23,7 @@ from .fem.voxel_mesh import paper_mesh
 from .method_choice import SHIPPED_POINTS, choose_from_file
 from .skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
 from .skeleton.humanoid import HumanoidSpec, default_humanoid
-from .skeleton.jelly_body import jelly_man_mesh
+from .skeleton.jelly_body import jelly_man_mesh, voxel_bones
 from .skeleton.kinematics import Skeleton, UrdfError
 from .skeleton.smooth_body import smooth_jelly_man_mesh
 from .skeleton.link_shapes import prepare_urdf
@@ -53,6 +53,7 @@ class SceneParts:
     cover: RobotCover | None = None     # of a robot cover: each vertex's link bone and depth
     bind_q: np.ndarray | None = None    # (nq,) the skeleton's configuration the jelly body was built in (None: q = 0)
     bare_bones: tuple[str, ...] = ()    # bones of a jelly body without flesh: they bind none (bone_roles.flesh_radii)
+    vertex_bones: np.ndarray | None = None  # (n, nb) bool: the bones a vertex may bind to (a jelly body on a URDF)
 
 
 def material_of(c: SceneConfig) -> Material:
@@ -173,7 +174,7 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
     source = config.skeleton.source
     body = config.body
     kind = body.kind
-    fixed = bind_q = None
+    fixed = allowed = bind_q = None
     bare: list[str] = []
     if kind == "jelly_man":
         if skeleton is None:
@@ -193,6 +194,7 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
         else:
             say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
             mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
+        allowed = voxel_bones(spec, mesh, bind_q) if source != "builtin" else None
     elif kind == "robot_cover":
         say(progress, f"covering the robot's links (~{body.target_tets} tets)")
         urdf_file = (find_data_file(config.skeleton.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")
@@ -220,4 +222,4 @@ def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
     # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
     bind_all = kind == "jelly_man" and source != "builtin"
     return SceneParts(config, mesh, fixed, skeleton, urdf_xml, bind_all=bind_all, bind_q=bind_q,
-                      bare_bones=tuple(bare))
+                      bare_bones=tuple(bare), vertex_bones=allowed)

@@ -73,7 +73,7 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
         q0 = parts.surface.bind_q if parts.surface is not None else \
             parts.bind_q if parts.bind_q is not None else skeleton.neutral()
         binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress,
-                        bare=parts.bare_bones)
+                        bare=parts.bare_bones, allowed=parts.vertex_bones)
                    if parts.cover is None else bind_cover(config, model, skeleton, q0, parts.cover, progress))
         driver = skeleton_driver(config, binding, model.rest, skeleton, anchors)
         joints, stream = joint_inputs(config, skeleton, q0)
@@ -115,10 +115,12 @@ def anchor(config: SceneConfig, rest: np.ndarray, skeleton: Skeleton | None,
 
 def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarray, anchors: list,
          surface: SurfaceBody | None, bind_all: bool, progress: Callable[[str], None] | None = None,
-         bare: tuple[str, ...] = ()) -> Binding:
+         bare: tuple[str, ...] = (), allowed: np.ndarray | None = None) -> Binding:
     """The body's vertices bound to the bones of ``skeleton`` posed at ``q0`` (its bind pose), in the levels of
     binding.level_radii (fractions of the flesh's depth with binding.relative_levels), without the bones of
-    binding.skip_bones nor the ``bare`` bones of a jelly body (they have no flesh). ``bind_all``: the outermost level is widened to reach every vertex. A surface body's
+    binding.skip_bones nor the ``bare`` bones of a jelly body (they have no flesh). ``bind_all``: the outermost
+    level is widened to reach every vertex. ``allowed`` (n, nb): the bones each vertex may bind to (a jelly body
+    on a URDF: the bones of its own voxels). A surface body's
     pieces that no bone and no anchor reaches are refused (refuse_islands)."""
     b = config.binding
     poses = skeleton.forward(q0, np.zeros(skeleton.nv))
@@ -138,14 +140,19 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
     radii = list(b.level_radii)
     if bind_all:
         kept = np.ones(len(skeleton.bone_names), dtype=bool) if mask is None else mask
-        reach = float(segment_distance(model.rest, starts[kept], ends[kept]).min(axis=1).max()) * (1 + 1e-9)
+        ok = np.broadcast_to(kept, (model.n_vertices, kept.size))
+        if allowed is not None:
+            mine = allowed & kept
+            ok = mine | (~mine.any(axis=1, keepdims=True) & kept)
+        dist = np.where(ok, segment_distance(model.rest, starts, ends), np.inf)
+        reach = float(dist.min(axis=1).max()) * (1 + 1e-9)
         if reach > radii[-1]:
             say(progress, f"the outermost binding level reaches {reach:.3f} m instead of {radii[-1]:g} m: every "
                           "vertex of the capsule body is bound (no one-tet flaps left free)")
             radii[-1] = reach
     binding = bind_to_skeleton(model.rest, starts, ends, radii, mask,
                                rest_rotation=poses.rotation, rest_translation=poses.translation,
-                               bone_names=skeleton.bone_names, warn=False, surface_depth=depth)
+                               bone_names=skeleton.bone_names, warn=False, surface_depth=depth, allowed=allowed)
     if surface is not None:
         refuse_islands(model, binding, anchors)
     return binding

@@ -219,3 +219,44 @@ def test_a_mimic_joint_left_out_follows_its_master():
     np.testing.assert_allclose(r.q, [0.5, 0.3, 0.2])
     r = jm.update(["c"], [0.0])                          # the master not set: the mimic keeps its value
     np.testing.assert_allclose(r.q, [0.5, 0.3, 0.0])
+
+
+def test_binding_keeps_each_vertex_on_the_bones_it_may_take():
+    from clusterfem_ros.body.binding import bind_to_skeleton
+    starts = np.array([[0.0, 0, 0], [0.1, 0, 0]])
+    ends = np.array([[0.0, 0, 1], [0.1, 0, 1]])
+    x = np.array([[0.04, 0, 0.5], [0.06, 0, 0.5], [0.2, 0, 0.5]])
+    free = bind_to_skeleton(x, starts, ends, [0.1], warn=False)
+    np.testing.assert_array_equal(free.bone, [0, 1, 1])
+    allowed = np.array([[False, True], [True, False], [False, False]])      # the last row: every bone
+    kept = bind_to_skeleton(x, starts, ends, [0.1], warn=False, allowed=allowed)
+    np.testing.assert_array_equal(kept.bone, [1, 0, 1])
+    np.testing.assert_allclose(kept.distance, [0.06, 0.06, 0.1])
+
+
+def test_the_panda_on_the_jelly_body_plays_its_sweep_with_no_reset():
+    """The issue's case: example-robot-data's Panda as the skeleton of the default jelly body, its joints swept. At
+    q = 0 its hand hangs 5 cm beside its forearm; bound by the nearest segment alone, vertices of the forearm's
+    voxels went to the fingers and the sweep tore those tets (116 resets in 4 s). Bound to the bones of their own
+    voxels, the body holds."""
+    _need_robot_data()
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.fem.stability import DivergenceError
+    from clusterfem_ros.motion import load_motion
+    from clusterfem_ros.scene import Scene
+    urdf = "package://example-robot-data/robots/panda_description/urdf/panda.urdf"
+    tr = load_motion("joint_sweep", urdf).trajectory
+    scene = Scene.build(SceneConfig().with_values({"skeleton.source": "urdf_file", "skeleton.urdf_file": urdf}))
+    names = scene.skeleton.bone_names
+    bones = scene.binding.bone[scene.model.mesh.tets]
+    forearm, finger = names.index("panda_link4"), names.index("panda_rightfinger")
+    assert not ((bones == forearm).any(axis=1) & (bones == finger).any(axis=1)).any(), \
+        "a tet holds vertices bound to the forearm and to a finger"
+    for k in range(3 * 120 + 1):
+        t = 1000.0 + k / 120
+        q, v = tr.sample(k / 120 + 2.0)            # from 2 s on: the stretch of the sweep that tore the body
+        scene.push_joint_state(t, tr.names, q, v)
+        try:
+            scene.advance_to(t)
+        except DivergenceError as exc:
+            pytest.fail(f"reset at {k / 120:.2f} s: {exc}")

@@ -90,7 +90,7 @@ def bind_to_skeleton(rest_vertices: np.ndarray, starts: np.ndarray, ends: np.nda
                      level_radii: Sequence[float], bone_mask: np.ndarray | None = None, *,
                      rest_rotation: np.ndarray | None = None, rest_translation: np.ndarray | None = None,
                      bone_names: Sequence[str] | None = None, warn: bool = True,
-                     surface_depth: np.ndarray | None = None) -> Binding:
+                     surface_depth: np.ndarray | None = None, allowed: np.ndarray | None = None) -> Binding:
     """Bind every vertex to its nearest bone and sort it into nested levels by distance.
 
     ``starts``/``ends`` (nb, 3) are the bone segments in the rest pose; ``bone_mask`` (nb,) bool picks the
@@ -99,7 +99,8 @@ def bind_to_skeleton(rest_vertices: np.ndarray, starts: np.ndarray, ends: np.nda
     bad radii or when no vertex at all is within the outermost radius; a bone without any vertex in the
     innermost level, or a level that adds no vertex, is reported in ``Binding.warnings`` (and as a
     ``UserWarning`` when ``warn``). With ``surface_depth`` (n,) [m] the radii are fractions in (0, 1] of the
-    flesh thickness (see the module docstring).
+    flesh thickness (see the module docstring). ``allowed`` (n, nb) bool limits the bones each vertex may bind to
+    (a voxel body's vertex to the bones of its own voxels; a row without any True allows every bone).
     """
     x = _check_array("rest_vertices", rest_vertices, (None, 3))
     s = _check_array("bone starts", starts, (None, 3))
@@ -140,6 +141,12 @@ def bind_to_skeleton(rest_vertices: np.ndarray, starts: np.ndarray, ends: np.nda
 
     dist = segment_distance(x, s, e)
     dist[:, ~mask] = np.inf
+    if allowed is not None:
+        allowed = np.asarray(allowed, dtype=bool)
+        if allowed.shape != dist.shape:
+            raise ValueError(f"allowed has shape {allowed.shape}, expected {dist.shape} (vertices, bones)")
+        limit = allowed & mask
+        dist[limit.any(axis=1)[:, None] & ~limit] = np.inf
     bone = np.argmin(dist, axis=1).astype(np.int64)
     d = dist[np.arange(x.shape[0]), bone]
     rel = d
