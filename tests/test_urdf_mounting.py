@@ -18,7 +18,8 @@ def _y_up_scene(folder) -> tuple[Scene, list[str]]:
     path.write_text(y_up_humanoid())
     config = SceneConfig().with_values({"skeleton.source": "urdf_file", "skeleton.urdf_file": str(path),
                                         "skeleton.up_axis": "y", "body.target_tets": 3000,
-                                        "body.flesh": "uniform"})     # capsules of body.bone_radius around the shapes
+                                        "body.flesh": "uniform",   # capsules of body.bone_radius around the shapes
+                                        "body.skin": "voxel"})     # sizes measured on the voxel grid
     notes = []
     return Scene.build(config, progress=notes.append), notes
 
