@@ -37,7 +37,7 @@ def test_a_latched_bad_description_is_refused_then_a_good_one_builds_and_later_b
     from sensor_msgs.msg import JointState
     from visualization_msgs.msg import Marker
 
-    from clusterfem_ros.skeleton.humanoid import default_humanoid
+    from tests.test_joint_limits import ARM
     publish = _latched(world)
     publish(self_loop())                                   # latched before the node starts (a restart)
     sim = _sim(world)
@@ -50,7 +50,7 @@ def test_a_latched_bad_description_is_refused_then_a_good_one_builds_and_later_b
     assert values["robot_description_refused_self_loop"] == "1"
     assert sim.scene is None
 
-    publish(default_humanoid().urdf)
+    publish(ARM)                                           # a fixed-base arm whose joints have limits
     world.wait_for(lambda: sim.scene is not None, 120, "the scene built from the good description")
     scene = sim.scene
     markers = world.collect(Marker, "clusterfem/surface")
@@ -73,7 +73,7 @@ def test_a_latched_bad_description_is_refused_then_a_good_one_builds_and_later_b
     world.wait_for(lambda: (send(), len(markers) > seen + 3)[1], 30, "markers after the hostile descriptions")
     assert scene.inputs.accepted > 0 and sim.divergences == 0
     q = np.zeros(len(names))
-    q[names.index("root_x")] = 1e308                       # a prismatic joint far past its URDF limit
+    q[names.index("elbow")] = 1e308                        # a revolute joint far past its URDF limits
 
     def send_far():
         msg = JointState(name=names, position=q.tolist())
