@@ -123,6 +123,9 @@ def test_hostile_urdf_benchmark_on_a_running_node():
                          text=True, timeout=1200)
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
     assert "NOT REFUSED" not in out.stdout and "node alive: True" in out.stdout
-    rows = [x.split() for x in out.stdout.splitlines() if x and x.split()[-1].isdigit() and "MB" not in x]
+    lines = out.stdout.splitlines()
+    start = next(k for k, x in enumerate(lines) if x.startswith("URDF ")) + 1
+    rows = [x.split() for x in lines[start:lines.index("", start)]]
+    assert len(rows) == len(hostile_set(small=False)), out.stdout
     assert all(float(r[-2]) < 1024 for r in rows), out.stdout
     assert np.all([int(r[-3]) > 0 for r in rows]), out.stdout          # markers kept coming after each
