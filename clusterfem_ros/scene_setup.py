@@ -203,7 +203,7 @@ def joint_inputs(config: SceneConfig, skeleton: Skeleton, q0: np.ndarray) -> tup
     """(joint map starting at ``q0``, joint stream): what takes the skeleton's joint states, checked as the
     input.* parameters say (and against the URDF's joint limits: skeleton/joint_limits.py)."""
     c = config.input
-    limits = joint_limits(skeleton.urdf, skeleton.joint_names, c.joint_limit_margin)
+    limits = joint_limits(skeleton.urdf, skeleton.joint_names, c.joint_limit_margin, skeleton.root_joint_mask())
     joints = JointMap(skeleton.joint_names, q0, max_names=c.max_names, limits=limits)
     stream = JointStreamInterpolator(skeleton.joint_names, revolute=skeleton.revolute_mask(),
                                      max_age=c.max_age, max_future=c.max_future,

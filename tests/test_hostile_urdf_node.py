@@ -37,7 +37,7 @@ def test_a_latched_bad_description_is_refused_then_a_good_one_builds_and_later_b
     from sensor_msgs.msg import JointState
     from visualization_msgs.msg import Marker
 
-    from clusterfem_ros.skeleton.humanoid import default_humanoid
+    from tests.test_joint_limits import ARM
     publish = _latched(world)
     publish(self_loop())                                   # latched before the node starts (a restart)
     sim = _sim(world)
@@ -50,7 +50,7 @@ def test_a_latched_bad_description_is_refused_then_a_good_one_builds_and_later_b
     assert values["robot_description_refused_self_loop"] == "1"
     assert sim.scene is None
 
-    publish(default_humanoid().urdf)
+    publish(ARM)                                           # a fixed-base arm whose joints have limits
     world.wait_for(lambda: sim.scene is not None, 120, "the scene built from the good description")
     scene = sim.scene
     markers = world.collect(Marker, "clusterfem/surface")
@@ -73,7 +73,7 @@ def test_a_latched_bad_description_is_refused_then_a_good_one_builds_and_later_b
     world.wait_for(lambda: (send(), len(markers) > seen + 3)[1], 30, "markers after the hostile descriptions")
     assert scene.inputs.accepted > 0 and sim.divergences == 0
     q = np.zeros(len(names))
-    q[names.index("root_x")] = 1e308                       # a prismatic joint far past its URDF limit
+    q[names.index("elbow")] = 1e308                        # a revolute joint far past its URDF limits
 
     def send_far():
         msg = JointState(name=names, position=q.tolist())
@@ -123,6 +123,9 @@ def test_hostile_urdf_benchmark_on_a_running_node():
                          text=True, timeout=1200)
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
     assert "NOT REFUSED" not in out.stdout and "node alive: True" in out.stdout
-    rows = [x.split() for x in out.stdout.splitlines() if x and x.split()[-1].isdigit() and "MB" not in x]
+    lines = out.stdout.splitlines()
+    start = next(k for k, x in enumerate(lines) if x.startswith("URDF ")) + 1
+    rows = [x.split() for x in lines[start:lines.index("", start)]]
+    assert len(rows) == len(hostile_set(small=False)), out.stdout
     assert all(float(r[-2]) < 1024 for r in rows), out.stdout
     assert np.all([int(r[-3]) > 0 for r in rows]), out.stdout          # markers kept coming after each

@@ -96,6 +96,20 @@ def test_a_mimic_joint_follows_its_master_unless_named(arm):
     assert r.problems[0][0] == "joint_range" and "'finger2'" in r.problems[0][1]
 
 
+def test_the_root_s_joints_are_wrapped_and_left_to_max_root_distance():
+    """Decided from the tree: the joints with no bone above them move the root (here the free root the mounting
+    adds); their angles wrap whatever their URDF limits, their translations have no URDF range (the joint
+    stream's input.max_root_distance bounds them, a limit users raise)."""
+    from clusterfem_ros.skeleton.mounting import FREE_ROOT, mount_urdf
+    sk = Skeleton.from_urdf_string(mount_urdf(ARM, root_joint="free").urdf)
+    root = sk.root_joint_mask()
+    assert sorted(np.asarray(sk.joint_names)[root]) == sorted(n for n, _, _ in FREE_ROOT)
+    lim = joint_limits(sk.urdf, sk.joint_names, MARGIN, root)
+    r = JointMap(sk.joint_names, limits=lim).update(["root_x", "root_yaw", "elbow"], [5e3, 1e15, 0.5])
+    assert r.accepted and r.problems == []
+    assert r.q[sk.joint_index("root_x")] == 5e3 and -np.pi <= r.q[sk.joint_index("root_yaw")] < np.pi
+
+
 def test_without_limits_the_map_takes_values_as_before():
     jm = JointMap(["a", "b"], limits=JointLimits.none(2))
     r = jm.update(["a", "b"], [1e300, -5.0])

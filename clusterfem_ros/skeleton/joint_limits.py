@@ -2,10 +2,13 @@
 
 A joint value from the world is taken when it makes sense for the joint (skeleton/joint_map.py applies this):
 
-* a ``continuous`` joint, and a ``revolute`` joint whose URDF range spans a full turn or more (every angle is
-  reachable: the root's yaw, pitch and roll of our generated skeletons span [-pi, pi], a BVH's channels
-  [-1e4, 1e4] rad), is an angle: any finite value is wrapped to [-pi, pi) on arrival (the joint stream then
-  unwraps it against the previous sample, so motion stays continuous);
+* a ``continuous`` joint, a ``revolute`` joint whose URDF range spans a full turn or more (every angle is
+  reachable: our generated skeletons' joints span [-pi, pi], a BVH's channels [-1e4, 1e4] rad) and a revolute
+  joint of the root (``root``: no bone above it, ``Skeleton.root_joint_mask``) is an angle: any finite value
+  is wrapped to [-pi, pi) on arrival (the joint stream then unwraps it against the previous sample, so motion
+  stays continuous);
+* a prismatic joint of the root has no range here: the joint stream bounds the root's distance from the
+  origin by input.max_root_distance (root_range), which a user raises for a scene that needs it;
 * any other ``revolute`` or ``prismatic`` joint must lie within its URDF ``<limit lower upper>`` widened by
   ``margin`` times the range (upper - lower) on each side, plus ``LIMIT_FLOOR`` (so a joint whose limits
   coincide takes its own value despite round-off); beyond, the value is refused;
@@ -49,8 +52,9 @@ def _float(element: ET.Element | None, attr: str, default: float) -> float:
     return value if np.isfinite(value) else default
 
 
-def joint_limits(xml: str, joint_names: Sequence[str], margin: float) -> JointLimits:
-    """The limits of ``joint_names`` (a skeleton's scalar joints) from the URDF text (see the module docstring)."""
+def joint_limits(xml: str, joint_names: Sequence[str], margin: float, root: np.ndarray | None = None) -> JointLimits:
+    """The limits of ``joint_names`` (a skeleton's scalar joints) from the URDF text; ``root`` (n,) bool marks the
+    root's joints (see the module docstring)."""
     if not (np.isfinite(margin) and margin >= 0):
         raise ValueError(f"joint limit margin = {margin!r}: give a finite fraction of the range >= 0")
     joints = {j.get("name"): j for j in ET.fromstring(xml).findall("joint")}
@@ -64,8 +68,11 @@ def joint_limits(xml: str, joint_names: Sequence[str], margin: float) -> JointLi
             continue
         kind = j.get("type")
         limit = j.find("limit")
-        if kind == "continuous":
+        at_root = root is not None and bool(root[k])
+        if kind == "continuous" or (kind == "revolute" and at_root):
             out.wrap[k] = True
+        elif at_root:
+            pass                                    # a root translation: input.max_root_distance bounds it
         elif kind in ("revolute", "prismatic") and limit is not None:
             lo, hi = _float(limit, "lower", 0.0), _float(limit, "upper", 0.0)
             span = hi - lo

@@ -184,6 +184,9 @@ class Skeleton:
             return out
 
         self.bone_parent = np.array([parent_bone(n) for n in self.bone_names], dtype=np.int64)
+        # the root's joints: no bone between the tree's root and them (a free root, a capture's root channels)
+        self._root_joint = np.array([joints[n]["parent"] not in index and parent_bone(joints[n]["parent"]) < 0
+                                     for n in self.joint_names], dtype=bool)
         self._frame = [int(m.getFrameId(n, pin.BODY)) for n in self.bone_names]
         self._ends: list[list[int]] = []
         for n in self.bone_names:
@@ -264,6 +267,12 @@ class Skeleton:
         if not found:
             return np.zeros((0, 3), np.int64), np.zeros((0, 3, 3))
         return np.array([c for c, _ in found], dtype=np.int64), np.array([a for _, a in found])
+
+    def root_joint_mask(self) -> np.ndarray:
+        """(n,) bool: the joints that move the root, with no bone above them (decided from the tree: the free
+        root's or a capture's root channels); their angles wrap and their translation is bounded by
+        input.max_root_distance instead of URDF limits (skeleton/joint_limits.py)."""
+        return self._root_joint.copy()
 
     def _check(self, q: np.ndarray, v: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """Contiguous float64 copies-or-views of q and v (v defaults to zeros), shapes checked (the kernel checks
