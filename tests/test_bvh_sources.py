@@ -34,7 +34,7 @@ def test_the_unit_is_found_from_the_skeleton_and_the_body_stands_on_the_floor(un
     z = np.concatenate([s[:, 2], e[:, 2]])
     assert z.min() == pytest.approx(0.0, abs=1e-9) and z.max() == pytest.approx(HEIGHT, abs=1e-6)
     assert _bone(sk, s, "mixamorig:Hips")[2] == pytest.approx(HIP_HEIGHT, abs=1e-6)
-    assert f"{HEIGHT:.2f} m tall" in m.placement
+    assert f"{HEIGHT:.2f} m tall" in m.placement and m.unit_name == unit and m.height_m == pytest.approx(HEIGHT)
 
 
 def test_a_unit_given_is_used_and_a_skeleton_no_unit_makes_human_is_refused():

@@ -186,6 +186,14 @@ def main(argv: list[str] | None = None) -> int:
         if config.skeleton.source != "none":
             print(f"[demo] player: {', '.join(f'{k} {v}' for k, v in player_params.items())}; skeleton from "
                   f"{config.skeleton.source}", flush=True)
+        if player_params.get("source") == "bvh":             # what the player (logging warnings only) decides
+            from ..skeleton.bvh import load_bvh
+            try:
+                capture = load_bvh(player_params["file"], player_params.get("unit", "auto"),
+                                   player_params.get("up", "auto"))
+            except ValueError as exc:
+                raise SystemExit(f"[demo] {exc}") from None
+            print(f"[demo] {capture.placement}", flush=True)
     rclpy.init()
     sims, players, delays, spin = [], [], [], None
     executor = SingleThreadedExecutor()

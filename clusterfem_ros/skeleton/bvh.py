@@ -53,6 +53,8 @@ class BvhMotion:
     source: str = ""
     root_shift: np.ndarray = field(default_factory=lambda: np.zeros(3))     # [m, ROS] added to the root's origin
     placement: str = ""                       # what unit, axes and floor were decided, one line
+    unit_name: str = "cmu"                    # the unit's name (m, cm, mm, inch, cmu, or "<metres> m")
+    height_m: float = 0.0                     # the rest pose's height, feet to head [m]
 
     @property
     def joint_names(self) -> list[str]:
@@ -251,6 +253,7 @@ def parse_bvh(text: str, source: str = "<bvh>", unit_m: float | str = "auto", up
         raise BvhError(str(exc)) from None
     motion.unit_m, motion.to_ros, motion.root_shift, motion.placement = (
         p.unit_m, axes_to_ros(p.up, p.forward), p.root_shift, p.text)
+    motion.unit_name, motion.height_m = p.unit_name, p.height_m
     return motion
 
 

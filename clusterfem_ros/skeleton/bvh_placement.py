@@ -55,6 +55,7 @@ class Placement:
     forward: str
     root_shift: np.ndarray          # (3,) [m, ROS] added to the root's origin (the floor under the feet)
     text: str                       # the one log line
+    height_m: float                 # the rest pose's extent along up [m]
 
 
 def parse_unit(value) -> tuple[str, float] | None:
@@ -266,4 +267,4 @@ def place(motion, unit="auto", up="auto", forward="auto", floor: bool = True) ->
         lowest = float(np.percentile(z.min(axis=1), FLOOR_PERCENTILE))
         shift[2] = -lowest
         text += f", floor under the feet (root moved {-lowest:+.3f} m)"
-    return Placement(name, float(metres), up_axis, fwd_axis, shift, text)
+    return Placement(name, float(metres), up_axis, fwd_axis, shift, text, float(height))
