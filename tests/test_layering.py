@@ -24,14 +24,14 @@ INSTALLED = ("clusterfem_ros", "msg_adapters")
 # part of the core -> the parts it may import besides itself ('' = the modules directly in clusterfem_ros/)
 ALLOWED = {
     "errors": set(),
-    "data_dirs": set(),                           # where data files are looked for (a leaf: os and platformdirs)
     "numba_cache": set(),                         # where numba's cache lives (the package keys it at import)
     "numba_config": set(),                        # numba build flags for every part that compiles code
+    "data_dirs": set(),                           # where data files given by name are looked for
     "recording": {"errors"},                      # a leaf: it records bytes, knows no physics and no scene
     "fem": {"errors", "numba_config"},
-    "skeleton": {"errors", "data_dirs", "numba_config", "fem"},      # the jelly body's mesh
-    "body": {"errors", "data_dirs", "numba_config", "fem", "skeleton"},
-    "": {"errors", "data_dirs", "numba_cache", "numba_config", "recording", "fem", "skeleton", "body", ""},  # config, scene, ...
+    "skeleton": {"errors", "numba_config", "data_dirs", "fem"},      # the jelly body's mesh; URDF mesh files
+    "body": {"errors", "numba_config", "data_dirs", "fem", "skeleton"},
+    "": {"errors", "numba_cache", "numba_config", "data_dirs", "recording", "fem", "skeleton", "body", ""},  # config, ...
 }
 PHYSICS = {"numba", "scipy", "pinocchio", "llvmlite"}
 def module_files(root: Path = ROOT, packages=PACKAGES) -> dict[str, Path]:
