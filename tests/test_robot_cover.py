@@ -209,8 +209,12 @@ def test_robot_scene_plays_its_sweep_with_no_reset(scene_file):
 
 
 def test_a_mimic_joint_left_out_follows_its_master():
+    from dataclasses import replace
+
+    from clusterfem_ros.skeleton.joint_limits import JointLimits
     from clusterfem_ros.skeleton.joint_map import JointMap
-    jm = JointMap(["a", "b", "c"], mimic={"b": ("a", -2.0, 0.1), "x": ("a", 1.0, 0.0)})
+    limits = replace(JointLimits.none(3), mimic=((1, 0, -2.0, 0.1),))        # b = -2 a + 0.1
+    jm = JointMap(["a", "b", "c"], limits=limits)
     r = jm.update(["a", "c"], [0.5, 0.2], [1.0, 3.0])
     np.testing.assert_allclose(r.q, [0.5, -0.9, 0.2])
     np.testing.assert_allclose(r.v, [1.0, -2.0, 3.0])
