@@ -18,13 +18,15 @@ ROSDEP = {"numpy": "python3-numpy", "scipy": "python3-scipy", "numba": "python3-
           "imageio-ffmpeg": "python3-imageio-ffmpeg-pip", "trimesh": "python3-trimesh", "rtree": "python3-rtree",
           "pytetwild": "python3-pytetwild-pip", "pyvista": "python3-pyvista",
           "fast_simplification": "python3-fast-simplification-pip", "rosbags": "python3-rosbags-pip",
-          "foxglove-sdk": "python3-foxglove-sdk-pip", "platformdirs": "python3-platformdirs"}
+          "foxglove-sdk": "python3-foxglove-sdk-pip", "platformdirs": "python3-platformdirs",
+          "pycollada": "python3-collada"}
 # imported module -> pip name
 MODULES = {"numpy": "numpy", "scipy": "scipy", "numba": "numba", "llvmlite": "numba", "pinocchio": "pin",
            "mcap": "mcap", "meshio": "meshio", "yaml": "pyyaml", "matplotlib": "matplotlib",
            "mpl_toolkits": "matplotlib", "PIL": "pillow", "imageio": "imageio", "imageio_ffmpeg": "imageio-ffmpeg",
            "trimesh": "trimesh", "rtree": "rtree", "pytetwild": "pytetwild", "pyvista": "pyvista",
            "fast_simplification": "fast_simplification", "rosbags": "rosbags", "foxglove": "foxglove-sdk",
+           "collada": "pycollada",
            "platformdirs": "platformdirs"}
 OURS = {"clusterfem_ros", "msg_adapters"}
 
