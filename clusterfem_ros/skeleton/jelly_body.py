@@ -260,14 +260,17 @@ def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue
 
 
 def voxel_bones(spec, mesh, q: np.ndarray | None = None) -> np.ndarray:
-    """(n, nb) bool: for each vertex of ``mesh`` (a ``jelly_man_mesh`` of ``spec``), the bones of the voxels around
+    """(n, nb) bool, nb the skeleton's bones (those without flesh never set): for each vertex of ``mesh`` (a ``jelly_man_mesh`` of ``spec``), the bones of the voxels around
     it (each tet's centroid labelled as the voxels were: the capsule or leaf shape it lies deepest in). Binding a
     vertex only to these keeps a limb's flesh on its own bone where another bone passes close at rest (a robot's
     hand folded beside its forearm): the nearest segment alone would give part of one limb's tets to the other.
     ``q``: the configuration the mesh was built in (None: q = 0)."""
+    from .kinematics import Skeleton
     s, e, r = humanoid_capsules(spec, q=q)
     centroid = mesh.vertices[mesh.tets].mean(axis=1)
     label = _label(centroid, s, e, r, leaf_shapes_placed(spec, q))
-    out = np.zeros((mesh.n_vertices, s.shape[0]), dtype=bool)
-    out[mesh.tets.ravel(), np.repeat(label, 4)] = True
+    names = Skeleton.from_urdf_string(spec.urdf).bone_names
+    bone = np.array([b for b, n in enumerate(names) if n in spec.bone_radius])   # capsule -> skeleton bone
+    out = np.zeros((mesh.n_vertices, len(names)), dtype=bool)
+    out[mesh.tets.ravel(), np.repeat(bone[label], 4)] = True
     return out
