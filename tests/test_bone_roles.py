@@ -168,8 +168,7 @@ def test_the_jelly_body_on_a_mixamo_rig_has_flesh_on_every_major_bone():
     from clusterfem_ros.scene_build import jelly_radii
     lines = []
     motion = load_motion("bvh", DATA / "mixamo_rig_freebvh.bvh")
-    scene = Scene.build(on_capture_skeleton(SceneConfig()).with_values({"body.target_tets": 1500}),
-                        urdf_xml=motion.urdf, progress=lines.append)
+    scene = Scene.build(on_capture_skeleton(SceneConfig()), urdf_xml=motion.urdf, progress=lines.append)
     assert flesh_check(scene)[1] == "none"
     bare = [line for line in lines if line.startswith("bones left bare")]
     assert len(bare) == 1 and "mixamorig:LeftHandThumb1 (l_finger)" in bare[0] and "mixamorig:LeftEye" in bare[0]

@@ -6,12 +6,14 @@ rotation zero; OFFSETs summed from the root) and of its frames, each with an ove
 * **up / forward** (``up``: ``auto``, ``X``, ``Y``, ``Z``, ``-X`` ...): the *pelvis* is the first joint below
   the root with two or more child chains; its legs are the two child chains with the fewest end points (a leg
   ends in a toe, the spine in a head and two hands); each foot is the end point of its leg farthest from the
-  pelvis. Up is the file axis nearest to pelvis - mean(feet). Forward is the horizontal axis nearest to the
+  pelvis. Up is the file axis nearest to pelvis - mean(feet) as the frames pose them (the median direction over
+  up to 200 frames spread over the clip; the rest pose's when the file has none): the capture's world decides,
+  whatever pose the rig rests in. Forward is the horizontal axis nearest to the
   horizontal part of mean(feet) - pelvis: the hips' sideways offsets cancel left against right and the toes
   point forward. A skeleton without two legs keeps the BVH convention, Y up and Z forward, and says so.
 * **unit** (``auto``, ``m``, ``cm``, ``mm``, ``inch``, ``cmu`` (0.056444 m, the CMU conversions) or metres per
-  unit as a number): the stature in file units is estimated from the rest pose's extent along up (head to
-  feet) and from the pelvis height over the feet (a standing adult's hip is at ``HIP_RATIO`` of the stature),
+  unit as a number): the stature in file units is estimated from the rest pose's extent along its own
+  feet-to-pelvis axis (head to feet) and from the pelvis height over the feet (a standing adult's hip is at ``HIP_RATIO`` of the stature),
   their geometric mean when both are sound; the unit is the one of ``UNITS`` that makes that stature nearest to
   ``STANDING_HEIGHT`` (by ratio). A skeleton whose height in the unit chosen (or given) is outside
   ``HEIGHT_RANGE`` is refused (``PlacementError``, a ``BvhError`` from ``parse_bvh``) naming the parameter.
@@ -153,6 +155,34 @@ def find_legs(motion) -> tuple[int, list[int]] | None:
     return pelvis, feet
 
 
+def posed_down(motion, pelvis: int, feet: list[int], samples: int = 200) -> np.ndarray | None:
+    """The median unit direction from the pelvis to the middle of the feet over up to ``samples`` frames spread
+    over the clip, in file axes (None without frames): where the capture's world has its floor, whatever pose the
+    rig rests in (a rig whose bones lie along their parents' axes until the frames pose them)."""
+    if motion.n_frames == 0:
+        return None
+    rows = np.unique(np.linspace(0, motion.n_frames - 1, min(samples, motion.n_frames)).round().astype(int))
+    points = world_points(motion, rows)
+    J = len(motion.joints)
+    with_end = [k for k, j in enumerate(motion.joints) if j.end_site is not None]
+    tips = [J + with_end.index(k) if motion.joints[k].end_site is not None else k for k in feet]
+    down = points[:, tips].mean(axis=1) - points[:, pelvis]
+    length = np.linalg.norm(down, axis=1, keepdims=True)
+    if not (length > 0).any():
+        return None
+    return np.median(down[length[:, 0] > 0] / length[length[:, 0] > 0], axis=0)
+
+
+def rest_up(motion) -> str:
+    """The signed file axis from the feet to the pelvis in the rest pose (Y without a pair of legs): the axis the
+    rest pose's stature is measured along."""
+    legs = find_legs(motion)
+    if legs is None:
+        return "Y"
+    heads, ends, _ = rest_points(motion)
+    return _signed_axis(heads[legs[0]] - ends[legs[1]].mean(0))
+
+
 def detect_axes(motion, up: str | None = None, forward: str | None = None) -> tuple[str, str, str]:
     """(up, forward, how they were found) as signed file axes; given axes are kept (see the module docstring)."""
     legs = find_legs(motion)
@@ -162,7 +192,11 @@ def detect_axes(motion, up: str | None = None, forward: str | None = None) -> tu
         pelvis, feet = legs
         down = ends[feet].mean(0) - heads[pelvis]
         if up is None:
-            up, how = _signed_axis(-down), "from the legs"
+            posed = posed_down(motion, pelvis, feet)
+            if posed is not None and np.linalg.norm(posed) > 0.5:
+                up, how = _signed_axis(-posed), "from the legs in the frames"
+            else:
+                up, how = _signed_axis(-down), "from the legs"
         if forward is None:
             horizontal = down - np.dot(down, _axis_vector(up)) * _axis_vector(up)
             if np.linalg.norm(horizontal) > 0.05 * np.linalg.norm(down):
@@ -245,7 +279,7 @@ def place(motion, unit="auto", up="auto", forward="auto", floor: bool = True) ->
     standing human in the unit chosen or given."""
     given_unit = parse_unit(unit)
     up_axis, fwd_axis, how = detect_axes(motion, parse_axis(up, "up"), parse_axis(forward, "forward"))
-    extent, stature = stature_file_units(motion, up_axis)
+    extent, stature = stature_file_units(motion, rest_up(motion) if parse_axis(up, "up") is None else up_axis)
     if given_unit is None:
         name, metres = choose_unit(stature)
         why = "found from the skeleton"
