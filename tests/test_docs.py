@@ -26,6 +26,7 @@ SAMPLE = ROOT / "bags" / "sample_default_scene"
 # outputs redirected out of the repository where the command would write into it).
 RUN_BY = {
     "scripts/run": "tests/test_render.py::test_the_main_job_renders_its_recording",
+    "scripts/run --live 8765": "tests/test_live_view.py::test_the_main_job_serves_its_topics_live",
     "python -m clusterfem_ros.render bags/sample_default_scene": "tests/test_render.py::test_the_render_command_on_the_sample_bag",
     "python -m clusterfem_ros.replay bags/sample_default_scene":
         "tests/test_recording.py::test_the_sample_recording_replays_to_round_off_and_a_changed_physics_is_reported",

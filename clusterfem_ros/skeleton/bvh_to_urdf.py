@@ -7,7 +7,9 @@ are the *file's* axes; the joint axes are those axes expressed in ROS coordinate
 default file (x, y, z) -> ROS (z, x, y)), and offsets are scaled by ``BvhMotion.unit_m``, so the URDF is
 in metres, Z up, X forward. The root's OFFSET is dropped along the axes it has a position channel for (the
 channels are its position, as the format defines them) and its origin is moved by ``BvhMotion.root_shift``
-(the floor under the feet). The chain runs position channels first (BVH positions are in the parent
+(the floor under the feet). A joint below the root keeps its OFFSET as its origin; its position channels,
+where it has them, give its whole place in the parent (some rigs repeat every OFFSET there), so its prismatic
+joints take the channel less the OFFSET. The chain runs position channels first (BVH positions are in the parent
 frame), then rotations in file order: "Zrotation Yrotation Xrotation" gives R = Rz Ry Rx. The root joint's
 chain starts at the helper link ``bvh_world``; a 6-channel root is the 3 prismatic + 3 revolute floating
 base. Each End Site becomes the tip link ``J_tip``, so leaf bones have a length.
@@ -251,11 +253,14 @@ def bvh_trajectory(motion: BvhMotion, skip_tpose: bool | str = "auto", interpola
                    despike: bool = True, spike_deg: float = 90.0, max_spike_frames: int = 5,
                    max_rotation_speed: float | None = MAX_ROTATION_SPEED) -> JointTrajectory:
     """The capture as a trajectory over ``bvh_joint_names(motion)`` (see the module docstring)."""
-    cols, revolute = [], []
+    cols, revolute, rest = [], [], []
     for j in motion.joints:
         for c in _chain_order(j.channels):
             cols.append(j.channel_start + j.channels.index(c))
             revolute.append(c.endswith("rotation"))
+            # a joint below the root whose position channels give its whole place in the parent (a rig that
+            # repeats every OFFSET there) moves by the channel less its OFFSET, which the URDF's origin holds
+            rest.append(j.offset["XYZ".index(c[0])] if j.parent >= 0 and c.endswith("position") else 0.0)
     if skip_tpose == "auto":
         skip_tpose = prepended_pose(motion)
     first = 1 if skip_tpose else 0
@@ -272,7 +277,7 @@ def bvh_trajectory(motion: BvhMotion, skip_tpose: bool | str = "auto", interpola
     rev = np.array(revolute, dtype=bool)
     q = frames[:, cols].copy()
     q[:, rev] = np.deg2rad(q[:, rev])
-    q[:, ~rev] *= motion.unit_m
+    q[:, ~rev] = (q[:, ~rev] - np.array(rest)[~rev]) * motion.unit_m
     times = np.arange(frames.shape[0]) * motion.frame_time
     return JointTrajectory(times, bvh_joint_names(motion), q, revolute=rev, interpolation=interpolation)
 
