@@ -36,8 +36,10 @@ stiffness over a step, at second order in the step. Where an element has stiffen
 material (KNEE), the plan takes (1 + g) times min(4, (1 + g) / 4) (ACCURACY): up to half the sub-step,
 reached at 16x. The walking jelly man stays under the knee once placed; the bar with a vertex torn 0.5 m away
 and held, undamped, gains 0.8-1 % of the work put in with it and 3-4 % without
-(benchmarks/stability_table.py). While an element is inverted (the force pass says so by the sign of its bound)
-the plan takes INVERTED = 16 in place of the accuracy factor, a quarter of the sub-step: the bar released with
+(benchmarks/stability_table.py). While an element of an undamped body is inverted (the force pass says so by the
+sign of its bound) the plan takes INVERTED = 16 in place of the accuracy factor, a quarter of the sub-step (a
+damped body dissipates the drift, and the quartered sub-step would take real motion that inverts elements, a
+robot's sweep or a capture, past physics.max_substeps): the bar released with
 its outer half folded through itself, undamped, gains 6 % over 3 s with the stiffness alone, 1.5 % with 4 and
 0.3 % with 16; the fine bar diverges in its first step with the stiffness alone and gains 0.7 % / 0.04 % with 4
 / 16 ("inverted start" of ``python -m benchmarks.stability_table --scales 1 2 --steps 300``, with INVERTED set
