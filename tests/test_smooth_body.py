@@ -82,12 +82,12 @@ def test_no_tet_is_glued_across_bones_that_may_not_touch(bodies):
     assert shape.may_touch[bones, nearest].all()
 
 
-def test_the_smooth_body_is_the_default_and_the_voxel_body_an_option():
+def test_the_voxel_body_is_the_default_and_the_smooth_body_an_option():
     from clusterfem_ros.config import SceneConfig
     from clusterfem_ros.scene_build import scene_parts
-    smooth = scene_parts(SceneConfig().with_values(body__target_tets=600))
-    voxel = scene_parts(SceneConfig().with_values(body__target_tets=600, body__skin="voxel"))
-    assert SceneConfig().body.skin == "smooth"
+    smooth = scene_parts(SceneConfig().with_values(body__target_tets=600, body__skin="smooth"))
+    voxel = scene_parts(SceneConfig().with_values(body__target_tets=600))
+    assert SceneConfig().body.skin == "voxel"
     assert np.array_equal(smooth.mesh.tets, voxel.mesh.tets)
     assert not np.array_equal(smooth.mesh.vertices, voxel.mesh.vertices)
     h = edge_length(voxel.mesh)
