@@ -15,7 +15,7 @@ capture with other joint names) is listed with the refusal. Columns:
   |V/V0 - 1| and the largest distance of a surface vertex to the segment of its bone [m];
 - inverted: over the same states, the share of them with an inverted element (det F < 0: signed volume
   below zero), the most elements inverted at once, and the smallest det F (V / V0 of a linear tet). The
-  corotated energy has no smooth rotation through inversion (fem/element_warping.py), so these are the states
+  corotated energy has no smooth rotation through inversion (fem/materials/element_warping.py), so these are the states
   where the warped force is least trustworthy;
 - step: mean wall time of a physics step (measured under whatever load the machine has);
 - joint speed: the fastest revolute joint in the played trajectory (after the BVH loader's despiking) and
@@ -43,7 +43,7 @@ import yaml
 
 from clusterfem_ros.config import SceneConfig
 from clusterfem_ros.fem.stability import DivergenceError, StabilityError
-from clusterfem_ros.fem.tet_mesh import signed_volumes
+from clusterfem_ros.fem.mesh.tet_mesh import signed_volumes
 from .clips import clip_config, find_clip, load_manifest, missing_message
 from .timing import table
 

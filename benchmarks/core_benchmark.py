@@ -94,15 +94,16 @@ from numba import types
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from clusterfem_ros.fem.cluster_force_kernel import (cluster_args, force_kernel_serial, scratch, slice_force_intrinsic,
-                                                     stiffness_around, stiffness_slices_serial)
-from clusterfem_ros.fem.cluster_slices import aligned_zeros, host_slices
+from clusterfem_ros.fem.kernels.cluster_force_kernel import (cluster_args, force_kernel_serial, scratch,
+                                                             slice_force_intrinsic, stiffness_around,
+                                                             stiffness_slices_serial)
+from clusterfem_ros.fem.kernels.cluster_slices import aligned_zeros, host_slices
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.llvm_ir import accumulating_loop, i64, vector_at
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.kernels.llvm_ir import accumulating_loop, i64, vector_at
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.numba_config import contains_threads
-from clusterfem_ros.fem.voxel_mesh import PAPER_SHAPES, paper_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import PAPER_SHAPES, paper_mesh
 from .roofline import roofline_line
 from .timing import interleaved_seconds, paired_ratio, table
 
@@ -395,8 +396,8 @@ def main(argv: list[str] | None = None) -> int:
           f"zeta={MATERIAL.zeta:g}; h = {args.step:g} s; numba threads off (serial kernels)", flush=True)
     print("\nwarped step cost: the clustered step's compiled part (serial, timed inside numba) from a twisted state, "
           "us per step, ratio to the linear step in brackets (paired medians of interleaved rounds); 'element': "
-          "per-element corotation (fem/element_warping.py), 'vertex': the paper's per-vertex warping (fem/warping.py), "
-          "'neohookean': stable Neo-Hookean elements (fem/neohookean.py)")
+          "per-element corotation (fem/materials/element_warping.py), 'vertex': the paper's per-vertex warping "
+          "(fem/materials/warping.py), 'neohookean': stable Neo-Hookean elements (fem/materials/neohookean.py)")
     timed = {}
     print(table(["body", "verts", "tets", "linear us", "warped, element us", "warped, vertex us", "neohookean us"],
                 warping_rows(args.step, args.tets, timed)))

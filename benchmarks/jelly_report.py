@@ -22,9 +22,9 @@ import numpy as np
 from clusterfem_ros.body import LevelGains, SkeletonDriver, bind_to_skeleton
 from clusterfem_ros.config import PARAMS
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import State, build_model
-from clusterfem_ros.fem.tet_mesh import signed_volumes
+from clusterfem_ros.fem.mesh.tet_mesh import signed_volumes
 from .timing import table
 
 PAPER_STEPS_PER_S = 1000 / 2.0

@@ -9,7 +9,7 @@ the error it gave. TetGen is not a dependency of the package (AGPL): install it 
 (pip install tetgen); the row says so when it is missing.
 
 A second table runs fTetWild ``--repeat`` times on the clean capsule with one edge length: it is not
-repeatable, and the spread of its counts is what the edge-length search in fem/tetrahedralize.py steers
+repeatable, and the spread of its counts is what the edge-length search in fem/mesh/tetrahedralize.py steers
 through.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from clusterfem_ros.fem.tetrahedralize import _mesh_once, read_surface, tet_quality
+from clusterfem_ros.fem.mesh.tetrahedralize import _mesh_once, read_surface, tet_quality
 from .timing import table
 
 

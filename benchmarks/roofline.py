@@ -1,8 +1,8 @@
 """The Neo-Hookean pass's arithmetic and memory floor on this host: what a tet's force must cost at least.
 
-Flops per tet, counted from the source of the pass (fem/neohookean.py ``_chunk_forces`` and the element passes'
-shared steps in fem/element_warping.py; a multiply or an add is one flop, a fused multiply-add two, a square root
-or a min/max one), for one element of one sub-step:
+Flops per tet, counted from the source of the pass (fem/materials/neohookean.py ``_chunk_forces`` and the element
+passes' shared steps in fem/materials/element_warping.py; a multiply or an add is one flop, a fused multiply-add two, a
+square root or a min/max one), for one element of one sub-step:
 
     differences of u and of w at three corners         18
     F = I + grad u and G = grad w (lane_gradient x 2)  96

@@ -8,7 +8,7 @@ cost of one step of each method at the same h (at a fixed h the explicit cost gr
 n ~ tets^(1/3), since h_crit ~ 1/n).
 
 Methods: clustered (serial kernel and the threaded build on both cores), clustered + warping (same),
-standard implicit (direct: SuperLU in symmetric mode, factorized once, fem/spd_factor.py; CG:
+standard implicit (direct: SuperLU in symmetric mode, factorized once, fem/integrators/spd_factor.py; CG:
 Jacobi-preconditioned, warm-started) and modal 30. Each (size, method) runs in its own process so its
 memory can be measured: 'model MB' is the resident memory the assembled model adds, 'method MB' the peak
 resident memory of the method's set-up and stepping above that (Linux peak-RSS counter reset with
@@ -60,10 +60,10 @@ def _reset_peak() -> bool:
 def measure_one(n: int, label: str) -> dict:
     """One (size, method) in this process; returns the numbers as a dict (printed as JSON by --one)."""
     from clusterfem_ros.fem.integrators import make_integrator
-    from clusterfem_ros.fem.cluster_slices import host_slices_nbytes
+    from clusterfem_ros.fem.kernels.cluster_slices import host_slices_nbytes
     from clusterfem_ros.fem.model import Control, State, build_model
     from clusterfem_ros.fem.stability import critical_step, max_eigenvalue
-    from clusterfem_ros.fem.voxel_mesh import box_mesh
+    from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
     from .core_benchmark import MATERIAL
     from .timing import median_seconds
     method, opts = METHODS[label]

@@ -15,7 +15,7 @@ import numpy as np
 
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.model import Control, FemModel, State, build_model
-from clusterfem_ros.fem.voxel_mesh import paper_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
 
 from .core_benchmark import MATERIAL
 

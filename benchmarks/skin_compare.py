@@ -26,7 +26,7 @@ from .timing import table
 
 def surface_depth(mesh, shape) -> np.ndarray:
     """|depth| [m] of the mesh's surface vertices to the blended capsules of their bones' neighbourhoods."""
-    from clusterfem_ros.fem.tet_mesh import boundary_triangles
+    from clusterfem_ros.fem.mesh.tet_mesh import boundary_triangles
     from clusterfem_ros.skeleton.smooth_body import vertex_bones
     surface = np.unique(boundary_triangles(mesh))
     return np.abs(shape.depth(mesh.vertices[surface], vertex_bones(mesh, shape)[surface]))

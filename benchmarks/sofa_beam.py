@@ -28,9 +28,9 @@ import time
 import numpy as np
 
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
-from clusterfem_ros.fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
 from .timing import table
 
 SOFA_FPS = {"CPU": 23.5, "CUDA": 158.0}

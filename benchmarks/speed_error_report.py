@@ -9,11 +9,11 @@ Every method of a scene sees the same model, start state and inputs (the same tr
 sampled at each method's own step times).
 
 Methods: implicit_direct and implicit_cg (eq. 3), standard_explicit, clustered (the linear model),
-clustered_warp (the per-element corotated model, fem/element_warping.py), clustered_neohookean (the stable
-Neo-Hookean elements every scene runs by default, fem/neohookean.py), modal_10 / 30 / 60. Each table row names
+clustered_warp (the per-element corotated model, fem/materials/element_warping.py), clustered_neohookean (the stable
+Neo-Hookean elements every scene runs by default, fem/materials/neohookean.py), modal_10 / 30 / 60. Each table row names
 the model its method runs (linear, corotated, neohookean). Explicit methods take the requested step h as their
 outer step and sub-step inside it below their critical step (safety 0.8; a warped one also for the stretch,
-fem/stretch.py), as the node does.
+fem/materials/stretch.py), as the node does.
 
 Timing: the median wall time of one physics step (inputs excluded) over the run, after three warm-up
 steps on a throw-away copy of the state (numba compiled, the implicit factor and modal basis built);
@@ -67,8 +67,8 @@ import numpy as np
 
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.stability import DivergenceError
-from clusterfem_ros.fem.stress import compute_stress
-from clusterfem_ros.fem.tet_mesh import boundary_triangles, signed_volumes
+from clusterfem_ros.fem.materials.stress import compute_stress
+from clusterfem_ros.fem.mesh.tet_mesh import boundary_triangles, signed_volumes
 from clusterfem_ros.method_choice import METRICS, SHIPPED_POINTS, MeasuredPoint, choose, pareto_front, write_points
 from .core_benchmark import MATERIAL, PAPER_MS
 from .scenarios import Run, RunInProgress, Scenario, make_scenario, reference

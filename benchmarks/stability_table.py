@@ -6,14 +6,14 @@
 
 Scene: a 0.4 x 0.1 x 0.1 m bar clamped at x = 0 under gravity, h = 10 ms, E = 1 MPa, nu = 0.3 (tip sag about
 4 cm), unless the case changes it. Every case runs on the coarse (scale 1, 160 tets) and the fine bar (scale 2,
-1280 tets), undamped (xi = zeta = 0) and at the scene's default damping (fem/material.py). A method refused at
+1280 tets), undamped (xi = zeta = 0) and at the scene's default damping (fem/linear/material.py). A method refused at
 the case's step is run again at h / 10, h / 100 (the step where it is accepted), so every hard case is also
-seen running. "+warp" is the per-element warping (fem/element_warping.py), "+neohookean" the stable
-Neo-Hookean elements (fem/neohookean.py); "+warp vertex", the paper's
-per-vertex one (fem/warping.py), is refused at set-up unless acknowledged (fem/warping_models.py), so it runs
-here with ``allow_unbounded_warping=True``, in a table of its own, for comparison only. The sliver cases hold
+seen running. "+warp" is the per-element warping (fem/materials/element_warping.py), "+neohookean" the stable
+Neo-Hookean elements (fem/materials/neohookean.py); "+warp vertex", the paper's
+per-vertex one (fem/materials/warping.py), is refused at set-up unless acknowledged (fem/materials/warping_models.py),
+so it runs here with ``allow_unbounded_warping=True``, in a table of its own, for comparison only. The sliver cases hold
 one tet at 1e-3 .. 1e-6 of its volume (one vertex moved towards its opposite face; the 1e-6 one has shape
-quality 9e-7, fem/tet_quality.py) at h = 1 ms. "inverted start": the bar's outer half folded back through
+quality 9e-7, fem/mesh/tet_quality.py) at h = 1 ms. "inverted start": the bar's outer half folded back through
 x = L / 2, every element there inverted (det F = -1), released at rest. "teleport clamp 1 m": the clamped face
 held by prescribed vertices instead of fixed ones, all moved 1 m along z at step 1 and held there.
 
@@ -25,7 +25,7 @@ h_sub / 2 v.(f_ext + f_elastic(u)), with v the integrator's own velocity and h_s
 just taken. For a linear force it is conserved exactly, so an undamped linear explicit run reads 1 to
 round-off (1e-10 measured; tests/test_shadow_energy.py); the energy at the synchronised velocity used before
 is only O(h^2) right and read 1.12-1.26 ("energy grew") on bounded linear runs. For the corotated force it is
-not exact but O(h^2) closer, and a change of sub-step count (the stretch plan, fem/stretch.py) moves it by
+not exact but O(h^2) closer, and a change of sub-step count (the stretch plan, fem/materials/stretch.py) moves it by
 (h2 - h1) / 2 v.F, which stays in E (changes of step are one way energy is pumped in), never in the budget.
 
 Criterion. Bounded = no NaN / divergence and max E / budget <= ENERGY_SLACK = 1 + 0.01. The tolerance is the
@@ -44,12 +44,12 @@ where the stretch plan changed them during the run). Volume error = max over the
 volumes / rest - 1|.
 
 The element-warped explicit step without damping is refused at set-up unless acknowledged
-(fem/warping_models.py, ``undamped_corotation_refusal``); the table runs it acknowledged, rows marked "(ack.)",
-counted apart, to show why. Of those runs the one over the tolerance is the torn vertex (about 1.05 on the coarse
-and 1.08 on the fine bar after 1 s, and growing: 1.17 / 1.27 at 2 / 4 s on the coarse bar). The tear inverts
+(fem/materials/warping_models.py, ``undamped_corotation_refusal``); the table runs it acknowledged, rows marked
+"(ack.)", counted apart, to show why. Of those runs the one over the tolerance is the torn vertex (about 1.05 on the
+coarse and 1.08 on the fine bar after 1 s, and growing: 1.17 / 1.27 at 2 / 4 s on the coarse bar). The tear inverts
 tens of elements (8-64, det F down to -13) for the rest of the run, and the corotated energy has no smooth
 rotation there: the warm-started kernel follows one rotation branch through inversion, which gains ~1 % in
-the tear step at 59 to 236 sub-steps (fem/corotational.py's force with the SVD's max-trace rotation, taken
+the tear step at 59 to 236 sub-steps (fem/materials/corotational.py's force with the SVD's max-trace rotation, taken
 afresh every sub-step, does not), and the max-trace rotation jumps where two singular values cross, so its
 shadow energy drifts too (4.6 %, 1.6 %, 0 % over 1 s at 59, 118, 236 sub-steps). Neither the stretch plan
 (the exact tangent's largest eigenvalue stayed under 2.3x the linear one; the plan takes 16x) nor the
@@ -64,7 +64,7 @@ the given safety factors (1 s, 100 steps), with the corotated and the Neo-Hookea
 the sub-steps on the coarse bar and more than 32x on the fine one, for as long as elements stay inverted
 (the rest of the run). The Neo-Hookean energy is smooth through inversion: it gains only in the tear's
 first steps, then keeps its energy, and the gain falls at second order in the sub-step, which the plan's
-accuracy factor (fem/stretch.py) halves where elements have stiffened past 4x: bounded at every safety factor.
+accuracy factor (fem/materials/stretch.py) halves where elements have stiffened past 4x: bounded at every safety factor.
 """
 from __future__ import annotations
 
@@ -75,25 +75,25 @@ from typing import Callable
 
 import numpy as np
 
-from clusterfem_ros.fem.corotational import ElementCorotation
-from clusterfem_ros.fem.element_warping import ElementFrames, element_force, element_rotations
-from clusterfem_ros.fem import neohookean
+from clusterfem_ros.fem.materials.corotational import ElementCorotation
+from clusterfem_ros.fem.materials.element_warping import ElementFrames, element_force, element_rotations
+from clusterfem_ros.fem.materials import neohookean
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import DEFAULT_MASS_DAMPING, DEFAULT_STIFFNESS_DAMPING, Material
+from clusterfem_ros.fem.linear.material import DEFAULT_MASS_DAMPING, DEFAULT_STIFFNESS_DAMPING, Material
 from clusterfem_ros.fem.model import Control, FemModel, State, build_model
 from clusterfem_ros.fem.stability import DivergenceError, StabilityError
-from clusterfem_ros.fem.tet_mesh import TetMesh, signed_volumes
-from clusterfem_ros.fem.voxel_mesh import box_mesh
-from clusterfem_ros.fem.warping import warped_force
-from clusterfem_ros.fem.warping_models import (ACKNOWLEDGEMENT, undamped_corotation_refusal, unacknowledged_undamped,
-                                               vertex_refusal)
+from clusterfem_ros.fem.mesh.tet_mesh import TetMesh, signed_volumes
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
+from clusterfem_ros.fem.materials.warping import warped_force
+from clusterfem_ros.fem.materials.warping_models import (ACKNOWLEDGEMENT, undamped_corotation_refusal,
+                                                         unacknowledged_undamped, vertex_refusal)
 from .timing import table
 
 ENERGY_SLACK = 1.01           # 1 + the tolerance (module docstring: the measured shadow-energy error)
 LENGTH, WIDTH = 0.4, 0.1
 
-# The per-vertex model is refused at set-up unless acknowledged (fem/warping_models.py): it runs here, with the
-# acknowledgement, in the comparison section only.
+# The per-vertex model is refused at set-up unless acknowledged (fem/materials/warping_models.py): it runs here, with
+# the acknowledgement, in the comparison section only.
 ACK = {"allow_unbounded_warping": True}
 METHODS: dict[str, tuple[str, dict]] = {
     "clustered": ("clustered", {}),
@@ -286,7 +286,7 @@ def run_accepted(method: str, case: Case, scale: float = 1.0, steps: int = 100, 
 def _run(method: str, case: Case, model: FemModel, steps: int, max_substeps: int, h: float,
          safety: float | None, acknowledged: bool) -> Result:
     """``run``'s run on the case's ``model``; ``acknowledged``: an undamped element-warped explicit run, which
-    the integrator refuses unless acknowledged (fem/warping_models.py): run with the acknowledgement."""
+    the integrator refuses unless acknowledged (fem/materials/warping_models.py): run with the acknowledgement."""
     kind, options = METHODS[method]
     options = dict(options)
     explicit = kind in EXPLICIT_KINDS

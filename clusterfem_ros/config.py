@@ -17,11 +17,11 @@ from typing import Any
 import yaml
 
 from .errors import ClusterFemError
-from .fem.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSON_RATIO, DEFAULT_STIFFNESS_DAMPING,
-                           DEFAULT_YOUNG_MODULUS)
-from .fem.warping_models import (ACKNOWLEDGEMENT, AUTO, EXPLICIT_ONLY, WARPING_MODELS, auto_model,
-                                 explicit_only_refusal, stretch_plan_refusal, undamped_corotation_refusal,
-                                 unacknowledged_undamped, vertex_refusal)
+from .fem.linear.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSON_RATIO,
+                                  DEFAULT_STIFFNESS_DAMPING, DEFAULT_YOUNG_MODULUS)
+from .fem.materials.warping_models import (ACKNOWLEDGEMENT, AUTO, EXPLICIT_ONLY, WARPING_MODELS, auto_model,
+                                           explicit_only_refusal, stretch_plan_refusal, undamped_corotation_refusal,
+                                           unacknowledged_undamped, vertex_refusal)
 from .skeleton.bvh_placement import parse_unit
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
 from .skeleton.urdf_check import (CEILING_BYTES, CEILING_DEPTH, CEILING_LINKS, CEILING_MESHES, DEFAULT_MAX_BYTES,
@@ -65,12 +65,13 @@ PARAMS: tuple[Param, ...] = (
           "'collision' or 'visual' (a link without the one takes the other)", choices=("collision", "visual")),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
-    Param("body.min_tet_quality", 1e-8, "refuse a mesh with a tet of lower shape quality (6 sqrt2 V / l_rms^3, 1 = regular; "
-          "fem/tet_quality.py): a nearly flat tet makes the explicit step take thousands of sub-steps; 0 accepts any shape", 0.0, 0.99),
+    Param("body.min_tet_quality", 1e-8, "refuse a mesh with a tet of lower shape quality (6 sqrt2 V / l_rms^3, 1 = "
+          "regular; fem/mesh/tet_quality.py): a nearly flat tet makes the explicit step take thousands of sub-steps; 0 "
+          "accepts any shape", 0.0, 0.99),
     Param("body.skin", "voxel", "skin of the jelly man: 'voxel' (the voxel steps) or 'smooth' (its surface vertices on "
           "the bone capsules blended at the joints, skeleton/smooth_body.py; its thinner tets take 2 sub-steps a step "
           "in the node where the voxel skin takes 1)", choices=("smooth", "voxel")),
-    # the material defaults are Material()'s (fem/material.py says why these values; tests/test_scene.py)
+    # the material defaults are Material()'s (fem/linear/material.py says why these values; tests/test_scene.py)
     Param("material.young_modulus", DEFAULT_YOUNG_MODULUS, "Young's modulus E [Pa]", 1.0, 1.0e10),
     Param("material.poisson_ratio", DEFAULT_POISSON_RATIO, "Poisson ratio nu [-]", 0.0, 0.499),
     Param("material.density", DEFAULT_DENSITY, "density [kg/m^3]", 1.0, 1.0e5),
@@ -83,14 +84,14 @@ PARAMS: tuple[Param, ...] = (
     Param("warping", True, "stiffness warping: removes the linear model's volume growth under rotation"),
     Param("warping_model", AUTO, "'auto': 'neohookean' on method 'clustered', 'element' on the others and with "
           "an error budget; 'neohookean': stable Neo-Hookean elements, no rotation, an energy smooth through "
-          "inversion (method 'clustered' only; fem/neohookean.py); 'element': per-element corotation, the gradient "
-          "of an energy (cannot feed energy in while no element is inverted); 'vertex': the paper's per-vertex "
-          "warping (eq. 10), for comparison: not bounded, refused unless physics.allow_unbounded_warping",
+          "inversion (method 'clustered' only; fem/materials/neohookean.py); 'element': per-element corotation, the "
+          "gradient of an energy (cannot feed energy in while no element is inverted); 'vertex': the paper's "
+          "per-vertex warping (eq. 10), for comparison: not bounded, refused unless physics.allow_unbounded_warping",
           choices=(AUTO,) + WARPING_MODELS),
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
     Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this, and the state a batch ends on goes to the outputs when their last snapshot is 1 / this old", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
-    Param("physics.plan_stretch", True, "explicit with warping: plan the sub-steps for the body's most stretched element (fem/stretch.py; keeps an undamped torn vertex bounded) instead of the linear stiffness alone"),
+    Param("physics.plan_stretch", True, "explicit with warping: plan the sub-steps for the body's most stretched element (fem/materials/stretch.py; keeps an undamped torn vertex bounded) instead of the linear stiffness alone"),
     Param(ACKNOWLEDGEMENT, False, "true: accept warping_model 'vertex' (the paper's per-vertex warping), and "
           "'element' on an explicit method without damping, knowing their energy can grow without bound (torn "
           "vertices, slivers; benchmarks/stability_table.py); 'vertex' runs with a warning. false: such a scene is "
@@ -311,7 +312,7 @@ class BodySection:
     cover_shapes: str               # 'collision' or 'visual'
     scale: float
     fix_bottom: bool
-    min_tet_quality: float          # fem/tet_quality.py
+    min_tet_quality: float          # fem/mesh/tet_quality.py
     skin: str                       # 'smooth' or 'voxel' (a jelly man's surface)
 
 
@@ -329,8 +330,8 @@ class PhysicsSection:
     step: float                     # h [s]
     timer_hz: float
     safety: float
-    plan_stretch: bool              # explicit warped steps planned for the stretch (fem/stretch.py)
-    allow_unbounded_warping: bool   # warping_model 'vertex' accepted (fem/warping_models.py)
+    plan_stretch: bool              # explicit warped steps planned for the stretch (fem/materials/stretch.py)
+    allow_unbounded_warping: bool   # warping_model 'vertex' accepted (fem/materials/warping_models.py)
     max_substeps: int
     clock: str                      # 'wall' or 'input'
     input_wait: float               # wall clock: the longest lag behind the clock waiting for late inputs [s]
@@ -457,7 +458,7 @@ class SceneConfig:
 
     @property
     def warping_model(self) -> str:
-        """One of WARPING_MODELS: the parameter, with 'auto' resolved (fem/warping_models.auto_model)."""
+        """One of WARPING_MODELS: the parameter, with 'auto' resolved (fem/materials/warping_models.auto_model)."""
         name = self.values["warping_model"]
         if name != AUTO:
             return name

@@ -25,8 +25,8 @@ from .body.bone_distance import any_beyond, segment_distances
 from .config import SceneConfig
 from .fem.model import Control, State
 from .fem.stability import DivergenceError
-from .fem.stress import compute_stress
-from .fem.tet_mesh import total_volume
+from .fem.materials.stress import compute_stress
+from .fem.mesh.tet_mesh import total_volume
 from .scene_build import scene_parts
 from .scene_setup import RunningParts, set_up, warm_up
 

@@ -16,10 +16,10 @@ import numpy as np
 from .body.fit import bind_configuration, find_data_file
 from .body.surface_body import SurfaceBody, build_surface_body
 from .config import SceneConfig
-from .fem.material import Material
-from .fem.mesh_io import read_mesh
-from .fem.tet_mesh import TetMesh
-from .fem.voxel_mesh import paper_mesh
+from .fem.linear.material import Material
+from .fem.mesh.mesh_io import read_mesh
+from .fem.mesh.tet_mesh import TetMesh
+from .fem.mesh.voxel_mesh import paper_mesh
 from .method_choice import SHIPPED_POINTS, choose_from_file
 from .skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
 from .skeleton.humanoid import HumanoidSpec, default_humanoid

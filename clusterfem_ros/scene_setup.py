@@ -22,8 +22,8 @@ from .config import SceneConfig
 from .fem.integrators import make_integrator
 from .fem.integrators.base import Integrator
 from .fem.model import Attachments, Control, FemModel, State, build_model
-from .fem.stress import compute_stress
-from .fem.tet_mesh import TetMesh, boundary_triangles
+from .fem.materials.stress import compute_stress
+from .fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from .numba_cache import is_cached
 from .scene_build import SceneParts, integrator_choice, material_of, say
 from .skeleton.joint_limits import joint_limits

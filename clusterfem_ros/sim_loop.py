@@ -40,7 +40,7 @@ from typing import Callable
 import numpy as np
 
 from .fem.stability import DivergenceError, StabilityError
-from .fem.stress import compute_stress
+from .fem.materials.stress import compute_stress
 
 MAX_CRASHES_IN_A_ROW = 5
 GIL_SWITCH_INTERVAL = 2e-4     # s: see SimLoop.start

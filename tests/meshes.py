@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import Delaunay
 
-from clusterfem_ros.fem.tet_mesh import TetMesh, orient
+from clusterfem_ros.fem.mesh.tet_mesh import TetMesh, orient
 
 
 def random_delaunay_mesh(n_points: int = 300, seed: int = 7) -> TetMesh:

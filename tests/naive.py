@@ -47,7 +47,7 @@ def capsule_inside(points: np.ndarray, starts: np.ndarray, ends: np.ndarray, rad
 
 
 def stress(rest: np.ndarray, tets: np.ndarray, u: np.ndarray, lam: float, mu: float, corotated: bool):
-    """(element stress (m, 3, 3), vertex stress (n, 3, 3)) as fem/stress.py defines them: F = I + grad u per
+    """(element stress (m, 3, 3), vertex stress (n, 3, 3)) as fem/materials/stress.py defines them: F = I + grad u per
     tet from its rest edges, R = polar(F) by SVD (or I), eps = sym(R^T F) - I, s = lam tr(eps) I + 2 mu eps,
     sigma = R s R^T; per vertex the volume-weighted mean of its tets'."""
     x0 = rest[tets]

@@ -44,8 +44,8 @@ class BlockTwin:
         """Warped elastic + damping force, (n, 3), with z_ij = (x_j - x_i) + zeta (v_j - v_i):
         "eq10"       f_i = -sum_j R_i K_ij R_i^T (z_ij - R_i d_ij) - xi m_i v_i: the paper's
                      -R_i sum_j K_ij (R_i^T x_j - x0_j) (as sum_j K_ij = 0) plus its warped stiffness damping;
-        "symmetric"  the block R_i K_ij R_i^T replaced by 1/2 (R_i K_ij R_i^T + R_j K_ij R_j^T) (fem/warping.py).
-        ``R``: rotations to hold instead of the rotations of u."""
+        "symmetric"  the block R_i K_ij R_i^T replaced by 1/2 (R_i K_ij R_i^T + R_j K_ij R_j^T)
+        (fem/materials/warping.py). ``R``: rotations to hold instead of the rotations of u."""
         R = self.rotations(u) if R is None else R
         x = self.rest + u
         Ri = R[self.i]

@@ -4,7 +4,7 @@ import pytest
 
 from clusterfem_ros.body.anchors import anchor_constraints
 from clusterfem_ros.config import ConfigError, SceneConfig
-from clusterfem_ros.fem.voxel_mesh import paper_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
 from clusterfem_ros.scene import Scene
 
 SPHERE = paper_mesh("sphere").vertices

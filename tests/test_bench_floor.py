@@ -26,7 +26,7 @@ def test_in_numba_refuses_a_threaded_build():
     """A threaded build called inside in_numba's serial loop would be inlined there and run serial
     (numba_config.PARALLEL), so the benchmark would time the wrong thing."""
     from benchmarks.core_benchmark import in_numba
-    from clusterfem_ros.fem.cluster_force_kernel import force_kernel_parallel, force_kernel_serial
+    from clusterfem_ros.fem.kernels.cluster_force_kernel import force_kernel_parallel, force_kernel_serial
     with pytest.raises(ValueError, match="force_kernel.*threaded"):
         in_numba(force_kernel_parallel, (), 1)
     assert callable(in_numba(force_kernel_serial, (), 1))

@@ -7,7 +7,7 @@ from clusterfem_ros.body import (LevelGains, LineConstraint, PointConstraint, Sk
                                  rigid_point_motion)
 from clusterfem_ros.body.constraints import point_targets
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import State, build_model
 from tests.test_body_support import LEVELS, ChainSkeleton, Motion, box_body
 

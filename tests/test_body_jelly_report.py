@@ -4,7 +4,7 @@ import numpy as np
 
 from benchmarks.jelly_report import run, scene_default
 from clusterfem_ros.body import LevelGains, bind_to_skeleton
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import build_model
 from tests.test_body_support import LEVELS, ChainSkeleton, Motion, box_body
 

@@ -9,9 +9,9 @@ import pytest
 
 from clusterfem_ros.body import SkeletonDriver, bind_to_skeleton
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import State, build_model
-from clusterfem_ros.fem.stress import compute_stress
+from clusterfem_ros.fem.materials.stress import compute_stress
 from tests.test_body_support import LEVELS, ChainSkeleton, Motion, box_body
 
 SK = ChainSkeleton()

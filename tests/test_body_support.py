@@ -14,7 +14,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
-from clusterfem_ros.fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
 
 BONE = 0.2
 URDF = """<?xml version="1.0"?>

@@ -8,7 +8,7 @@ from clusterfem_ros.body.binding import bind_to_skeleton
 from clusterfem_ros.body.fit import FitError, bind_configuration
 from clusterfem_ros.body.surface_body import unbound_islands
 from clusterfem_ros.config import ConfigError, SceneConfig
-from clusterfem_ros.fem.tetrahedralize import MAX_ATTEMPTS, SurfaceError, _steer_edge, surface_to_tets, tet_quality
+from clusterfem_ros.fem.mesh.tetrahedralize import MAX_ATTEMPTS, SurfaceError, _steer_edge, surface_to_tets, tet_quality
 from clusterfem_ros.skeleton.trajectory import JointTrajectory
 from clusterfem_ros.skeleton.urdf_builder import UrdfBuilder
 from tests import naive
@@ -138,7 +138,7 @@ def test_the_second_build_reads_the_cache(surface, cache, tmp_path):
     other = surface.parent / "capsule_moved.stl"
     m = trimesh.load(surface)
     trimesh.Trimesh(m.vertices + 1.0, m.faces).export(other)
-    from clusterfem_ros.fem.tetrahedralize import _key
+    from clusterfem_ros.fem.mesh.tetrahedralize import _key
     assert _key(other, "", TARGET, 0.2) != _key(surface, "", TARGET, 0.2) != _key(surface, "", 2 * TARGET, 0.2)
 
 
@@ -189,7 +189,7 @@ def test_auto_fit_puts_the_bones_inside(surface, cache, monkeypatch):
     fit = scene.surface_body.fit
     assert 0.005 < fit.scale < 0.02
     from clusterfem_ros.body.fit import bones_outside
-    from clusterfem_ros.fem.tet_mesh import boundary_triangles
+    from clusterfem_ros.fem.mesh.tet_mesh import boundary_triangles
     starts, ends = scene.skeleton.bone_segments(scene.surface_body.bind_q)
     assert bones_outside(scene.model.rest, boundary_triangles(scene.model.mesh), starts, ends,
                          scene.skeleton.bone_names, 0.0) == []

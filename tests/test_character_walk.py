@@ -39,7 +39,7 @@ def _surface_body(bvh):
 
 def test_the_character_is_meshed_to_its_target_and_every_bone_is_inside(walk):
     from clusterfem_ros.body.fit import bones_outside
-    from clusterfem_ros.fem.tet_mesh import boundary_triangles
+    from clusterfem_ros.fem.mesh.tet_mesh import boundary_triangles
     body, skeleton, config = _surface_body(walk)
     assert config["body.target_tets"] == TARGET_TETS
     assert abs(body.mesh.n_tets / TARGET_TETS - 1) <= 0.2

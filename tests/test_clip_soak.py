@@ -36,8 +36,8 @@ def test_the_inverted_count_is_det_f_below_zero():
     """Two tets sharing a face; the apex of one pushed through that face: one inverted element, and the smallest
     det F is that element's, computed from its shape gradients (F = sum_c x_c g_c^T)."""
     from benchmarks.clip_soak import inverted_elements
-    from clusterfem_ros.fem.assembly import shape_gradients
-    from clusterfem_ros.fem.tet_mesh import signed_volumes
+    from clusterfem_ros.fem.linear.assembly import shape_gradients
+    from clusterfem_ros.fem.mesh.tet_mesh import signed_volumes
     rest = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0.3, 0.3, -1]])
     tets = np.array([[0, 1, 2, 3], [0, 2, 1, 4]])
     rest_volumes = signed_volumes(rest, tets)

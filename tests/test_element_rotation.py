@@ -1,10 +1,10 @@
-"""Warm-started element rotations (fem/element_rotation.py): Newton on the rotation reaches the polar factor to
-round-off in a few passes, and the robust path takes over where Newton must not (saddle start, inversion)."""
+"""Warm-started element rotations (fem/materials/element_rotation.py): Newton on the rotation reaches the polar factor
+to round-off in a few passes, and the robust path takes over where Newton must not (saddle start, inversion)."""
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from clusterfem_ros.fem.element_rotation import (LANES, ROTATION_MAXPASS, _newton_rotations, _robust_rotations,
-                                                 chunk_rotations)
+from clusterfem_ros.fem.materials.element_rotation import (LANES, ROTATION_MAXPASS, _newton_rotations,
+                                                           _robust_rotations, chunk_rotations)
 
 
 def _polar(F):

@@ -1,16 +1,16 @@
-"""Per-element warping (fem/element_warping.py): kernel == numpy twin, force = -grad of the corotated energy,
+"""Per-element warping (fem/materials/element_warping.py): kernel == numpy twin, force = -grad of the corotated energy,
 no force or damping for rigid motion at any angle, linear for small deformations, energy conserved undamped."""
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from clusterfem_ros import config
-from clusterfem_ros.fem.corotational import ElementCorotation
-from clusterfem_ros.fem.element_warping import WARPING_MODELS, ElementFrames, element_force, element_rotations
+from clusterfem_ros.fem.materials.corotational import ElementCorotation
+from clusterfem_ros.fem.materials.element_warping import WARPING_MODELS, ElementFrames, element_force, element_rotations
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
-from clusterfem_ros.fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
 from tests.meshes import random_delaunay_mesh
 
 MAT = Material(E=1.0e5, nu=0.3, rho=1000.0, xi=0.7, zeta=0.01)

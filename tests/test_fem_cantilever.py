@@ -2,9 +2,9 @@
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import build_model
-from clusterfem_ros.fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
 
 L, A = 1.0, 0.05            # slender: L / a = 20, so shear (Timoshenko) corrections are ~0.1 %
 MAT = Material(E=1.0e9, nu=0.0, rho=1000.0)

@@ -3,12 +3,13 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from clusterfem_ros.fem.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
-from clusterfem_ros.fem.cluster_force_kernel import cluster_args, force_kernel_parallel, force_kernel_serial, scratch
-from clusterfem_ros.fem.cluster_slices import host_slices, host_slices_nbytes, slice_clusters
-from clusterfem_ros.fem.clusters import build_clusters
-from clusterfem_ros.fem.material import Material
-from clusterfem_ros.fem.voxel_mesh import paper_mesh
+from clusterfem_ros.fem.linear.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
+from clusterfem_ros.fem.kernels.cluster_force_kernel import (cluster_args, force_kernel_parallel, force_kernel_serial,
+                                                             scratch)
+from clusterfem_ros.fem.kernels.cluster_slices import host_slices, host_slices_nbytes, slice_clusters
+from clusterfem_ros.fem.kernels.clusters import build_clusters
+from clusterfem_ros.fem.linear.material import Material
+from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
 from tests.meshes import random_delaunay_mesh
 
 MAT = Material(E=2.0e5, nu=0.35, rho=1100.0, xi=3.0, zeta=0.02)
@@ -97,7 +98,7 @@ def test_a_lane_count_the_kernel_has_no_build_for_is_refused():
 def test_equal_ranges_of_slices_carry_similar_work_for_the_threaded_sweep():
     """The threaded sweep hands each thread an equal range of slices: sorting rows by length over the whole
     mesh gave the first half of a box's slices 2.7x the positions of the second."""
-    from clusterfem_ros.fem.voxel_mesh import box_mesh
+    from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
     mesh = box_mesh((0.1, 0.1, 0.1), (24, 24, 24))
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
     ptr = slice_clusters(cl, 8).shared_ptr
@@ -111,7 +112,7 @@ def test_the_benchmarks_held_w_control_is_the_sweep_of_a_uniform_w(lanes):
     """benchmarks/core_benchmark's control (the sweep without the gather) computes K applied to w's row 0 in every
     vertex, bit for bit as the real sweep does, and a uniform w is a rigid translation: K w = 0."""
     from benchmarks.core_benchmark import stiffness_held_w_serial
-    from clusterfem_ros.fem.cluster_force_kernel import stiffness_slices_serial
+    from clusterfem_ros.fem.kernels.cluster_force_kernel import stiffness_slices_serial
     mesh = paper_mesh("sphere")
     cl = build_clusters(mesh, element_stiffness_blocks(mesh, MAT))
     sl = slice_clusters(cl, lanes)

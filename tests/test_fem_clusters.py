@@ -5,13 +5,14 @@ import pytest
 import scipy.sparse as sp
 from numba import prange
 
-from clusterfem_ros.fem.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
-from clusterfem_ros.fem.cluster_force_kernel import cluster_args, clustered_force, scratch, stiffness_slices_serial
-from clusterfem_ros.fem.cluster_slices import host_slices
-from clusterfem_ros.fem.clusters import build_clusters
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
+from clusterfem_ros.fem.kernels.cluster_force_kernel import (cluster_args, clustered_force, scratch,
+                                                             stiffness_slices_serial)
+from clusterfem_ros.fem.kernels.cluster_slices import host_slices
+from clusterfem_ros.fem.kernels.clusters import build_clusters
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.numba_config import serial_and_parallel
-from clusterfem_ros.fem.voxel_mesh import paper_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
 from tests import naive
 from tests.meshes import random_delaunay_mesh
 

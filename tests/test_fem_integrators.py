@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import Attachments, Control, State, build_model
-from clusterfem_ros.fem.voxel_mesh import paper_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
 
 MAT = Material(E=5e4, nu=0.35, rho=1000.0, xi=2.0, zeta=1e-3)
 

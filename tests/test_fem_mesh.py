@@ -3,13 +3,13 @@ import meshio
 import numpy as np
 import pytest
 
-from clusterfem_ros.fem.mesh_io import read_mesh, write_mesh
-from clusterfem_ros.fem.tet_mesh import (MeshError, TetMesh, boundary_triangles, elements_per_vertex,
-                                         vertex_classes)
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.mesh.mesh_io import read_mesh, write_mesh
+from clusterfem_ros.fem.mesh.tet_mesh import (MeshError, TetMesh, boundary_triangles, elements_per_vertex,
+                                              vertex_classes)
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import build_model
-from clusterfem_ros.fem.tet_quality import mesh_quality, tet_quality
-from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
+from clusterfem_ros.fem.mesh.tet_quality import mesh_quality, tet_quality
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh, paper_mesh
 
 PAPER = {"sphere": (376, 1091), "cube": (453, 1198), "torus": (609, 1823)}
 
@@ -119,7 +119,7 @@ def test_reading_flips_inverted_tets_only_when_asked(tmp_path):
 
 
 def test_total_volume_equals_the_sum_of_the_signed_volumes_to_round_off():
-    from clusterfem_ros.fem.tet_mesh import signed_volumes, total_volume
+    from clusterfem_ros.fem.mesh.tet_mesh import signed_volumes, total_volume
     rng = np.random.default_rng(7)
     mesh = box_mesh((0.3, 0.2, 0.2), (3, 2, 2))
     moved = mesh.vertices + 0.02 * rng.standard_normal(mesh.vertices.shape) + 1e3      # far from the origin

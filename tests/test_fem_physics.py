@@ -3,12 +3,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clusterfem_ros.fem.cluster_force_kernel import clustered_force
-from clusterfem_ros.fem.material import Material, ParameterError
+from clusterfem_ros.fem.kernels.cluster_force_kernel import clustered_force
+from clusterfem_ros.fem.linear.material import Material, ParameterError
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.tet_mesh import boundary_triangles
-from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
+from clusterfem_ros.fem.mesh.tet_mesh import boundary_triangles
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh, paper_mesh
 from tests.meshes import random_delaunay_mesh
 
 MAT = Material(E=1.0e5, nu=0.3, rho=1000.0, xi=0.0, zeta=0.0)

@@ -4,11 +4,10 @@ import numpy as np
 import pytest
 
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material, ParameterError
+from clusterfem_ros.fem.linear.material import Material, ParameterError
 from clusterfem_ros.fem.model import Control, State, build_model
-from clusterfem_ros.fem.stability import (DivergenceError, StabilityError, critical_step, max_eigenvalue,
-                                         plan_substeps)
-from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
+from clusterfem_ros.fem.stability import (DivergenceError, StabilityError, critical_step, max_eigenvalue, plan_substeps)
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh, paper_mesh
 
 
 def _kicked(model, seed=0):

@@ -3,13 +3,13 @@ import numpy as np
 import pytest
 
 from benchmarks import stability_table as st
-from clusterfem_ros.fem.corotational import ElementCorotation
+from clusterfem_ros.fem.materials.corotational import ElementCorotation
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.model import Control, State
-from clusterfem_ros.fem.stretch import StretchPlan
-from clusterfem_ros.fem.tet_quality import mesh_quality
-from clusterfem_ros.fem.assembled_warp import AssembledWarp
-from clusterfem_ros.fem.warping import vertex_rotations
+from clusterfem_ros.fem.materials.stretch import StretchPlan
+from clusterfem_ros.fem.mesh.tet_quality import mesh_quality
+from clusterfem_ros.fem.materials.assembled_warp import AssembledWarp
+from clusterfem_ros.fem.materials.warping import vertex_rotations
 from tests import naive_warping as naive
 
 STEPS = 40
@@ -247,7 +247,7 @@ def test_element_warping_keeps_a_torn_vertex_bounded_at_the_default_damping_wher
 
 def test_torn_vertex_undamped_with_element_warping_stays_finite_explicit_and_bounded_implicit():
     """Undamped, the corotated force stiffens under the 10x stretch (its tangent exceeds the linear K, whose
-    largest eigenvalue sets the explicit step): the explicit step plans for the stretch (fem/stretch.py) and
+    largest eigenvalue sets the explicit step): the explicit step plans for the stretch (fem/materials/stretch.py) and
     does not diverge; planned from the linear K alone it diverges. Its shadow energy still gains ~1 % at the
     tear and drifts while elements stay inverted (benchmarks/stability_table.py's docstring: the one accepted
     run over the tolerance), which the table must show; implicit stays bounded."""

@@ -313,8 +313,8 @@ def test_replaying_a_bag_with_an_undecodable_joint_state_is_one_error_line(tmp_p
 
 # -- 6. start-up errors from files -----------------------------------------------------------------------
 def test_a_garbage_msh_is_a_mesh_error_naming_the_file_not_an_exit(tmp_path):
-    from clusterfem_ros.fem.mesh_io import read_mesh
-    from clusterfem_ros.fem.tet_mesh import MeshError
+    from clusterfem_ros.fem.mesh.mesh_io import read_mesh
+    from clusterfem_ros.fem.mesh.tet_mesh import MeshError
     for text in ("garbage!\n", "$MeshFormat\n1.0 0 8\n$EndMeshFormat\n"):
         bad = tmp_path / "bad.msh"
         bad.write_text(text)

@@ -6,11 +6,11 @@ import scipy.linalg as sla
 
 from clusterfem_ros.fem.integrators import modal
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material, ParameterError
+from clusterfem_ros.fem.linear.material import Material, ParameterError
 from clusterfem_ros.fem.integrators.modal import ModalIntegrator, modal_basis
 from clusterfem_ros.fem.model import Control, State, build_model
-from clusterfem_ros.fem.rigid_modes import rigid_modes
-from clusterfem_ros.fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.integrators.rigid_modes import rigid_modes
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
 
 MAT = Material(E=5.0e4, nu=0.3, rho=1000.0, xi=1.0, zeta=2e-3)
 

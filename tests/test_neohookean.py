@@ -1,4 +1,4 @@
-"""Stable Neo-Hookean elements (fem/neohookean.py): the force is the energy's gradient, through inversion too;
+"""Stable Neo-Hookean elements (fem/materials/neohookean.py): the force is the energy's gradient, through inversion too;
 the small-strain limit is the linear material; rigid motion costs nothing; the damping only removes energy;
 the compiled kernel equals its numpy twin; the step plan's bound covers the tangent; and on the hard cases'
 torn bar the energy gains only in the tear step, by an amount that shrinks at second order in the step."""
@@ -7,12 +7,12 @@ import pytest
 
 from benchmarks.stability_table import CASES, ENERGY_SLACK, bar_mesh, run
 from clusterfem_ros.config import ConfigError, from_mapping
-from clusterfem_ros.fem import neohookean as nh
-from clusterfem_ros.fem.element_warping import ElementFrames
+from clusterfem_ros.fem.materials import neohookean as nh
+from clusterfem_ros.fem.materials.element_warping import ElementFrames
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import build_model
-from clusterfem_ros.fem.tet_mesh import TetMesh, signed_volumes
+from clusterfem_ros.fem.mesh.tet_mesh import TetMesh, signed_volumes
 
 
 def _model(zeta=0.0, xi=0.0, nu=0.3, scale=1.0):

@@ -109,7 +109,7 @@ def test_invalid_values_at_start_are_refused_naming_the_value(world):
 def test_anchors_come_in_as_ros_parameters_and_hold_the_body(world):
     """List parameters with an empty default take doubles, strings and booleans from overrides or a file (rclpy
     would type an empty default as bytes and refuse them): a sphere anchored at its top cap hangs there."""
-    from clusterfem_ros.fem.voxel_mesh import paper_mesh
+    from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
     x = paper_mesh("sphere").vertices
     cap = [float(x[:, 0].mean()), float(x[:, 1].mean()), float(x[:, 2].max())]
     node = _node(world, **{"anchors.points": cap, "anchors.bones": [""], "anchors.sliding": [False],

@@ -103,7 +103,7 @@ def test_the_main_job_runs_a_scene_without_skeleton_without_waiting_for_a_player
     take 60 s for joint states that nothing uses, then exit with a DDS hint), the body hangs from its anchor,
     and the process ends cleanly."""
     from clusterfem_ros.config import SceneConfig, scene_file_text
-    from clusterfem_ros.fem.voxel_mesh import paper_mesh
+    from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
     x = paper_mesh("sphere").vertices
     cap = [float(x[:, 0].mean()), float(x[:, 1].mean()), float(x[:, 2].max())]
     scene = tmp_path / "hanging.yaml"

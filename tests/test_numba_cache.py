@@ -31,10 +31,10 @@ CHILD = Path(__file__).with_name("test_numba_cache_child.py")
 
 def _cached_dispatchers():
     found = {}
-    for pkg in ("fem", "fem.integrators", "skeleton", "body"):
+    for pkg in ("fem", "skeleton", "body"):                  # and every sub-package of theirs
         base = importlib.import_module(f"clusterfem_ros.{pkg}")
-        for info in pkgutil.iter_modules(base.__path__):
-            module = importlib.import_module(f"{base.__name__}.{info.name}")
+        for info in pkgutil.walk_packages(base.__path__, f"{base.__name__}."):
+            module = importlib.import_module(info.name)
             for name, obj in vars(module).items():
                 for i, d in enumerate(obj if isinstance(obj, tuple) else (obj,)):
                     if isinstance(d, CPUDispatcher) and not isinstance(d._cache, NullCache):   # cache=True
@@ -136,7 +136,7 @@ def test_without_numba_cache_dir_the_cache_is_keyed_on_the_package_source(tmp_pa
     """numba re-checks a cached kernel only against its own file: a bare pytest run after editing a callee
     could load stale kernels. the package keys the directory on its source when first imported (numba_cache)."""
     code = ("import os, sys\n"
-            "from clusterfem_ros.fem.cluster_force_kernel import force_kernel_serial as k\n"
+            "from clusterfem_ros.fem.kernels.cluster_force_kernel import force_kernel_serial as k\n"
             "print(os.environ['NUMBA_CACHE_DIR']); print(k._cache._cache_path); print(sys.prefix)\n")
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)

@@ -14,13 +14,13 @@ import sys
 import numpy as np
 
 from benchmarks.core_benchmark import MATERIAL
-from clusterfem_ros.fem.cluster_force_kernel import clustered_force, force_kernel_parallel
-from clusterfem_ros.fem.element_warping import element_force, element_kernel_parallel
+from clusterfem_ros.fem.kernels.cluster_force_kernel import clustered_force, force_kernel_parallel
+from clusterfem_ros.fem.materials.element_warping import element_force, element_kernel_parallel
 from clusterfem_ros.fem.integrators.clustered_explicit import (ClusteredExplicit, _element_step_parallel,
                                                                _step_parallel, _warped_step_parallel)
 from clusterfem_ros.fem.model import Control, State, build_model
-from clusterfem_ros.fem.voxel_mesh import paper_mesh
-from clusterfem_ros.fem.warping import warped_force, warped_kernel_parallel
+from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
+from clusterfem_ros.fem.materials.warping import warped_force, warped_kernel_parallel
 
 
 def sphere_and_state():

@@ -9,7 +9,7 @@ import pytest
 from benchmarks import scenarios as S
 from benchmarks import speed_error_report as R
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
 from clusterfem_ros.method_choice import METRICS, pareto_front, read_points
 
 

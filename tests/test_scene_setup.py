@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from clusterfem_ros.config import SceneConfig
-from clusterfem_ros.fem.tet_mesh import MeshError
-from clusterfem_ros.fem.voxel_mesh import paper_mesh
+from clusterfem_ros.fem.mesh.tet_mesh import MeshError
+from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
 from clusterfem_ros.scene import Scene
 from clusterfem_ros.scene_build import scene_parts
 from clusterfem_ros.scene_setup import set_up, warm_up
@@ -34,7 +34,7 @@ def test_warming_up_leaves_nothing_behind_in_the_scene_but_the_warm_start_of_the
     """Scenes set up from the same parts, warmed up once (as Scene.build does), twice with other step counts, or
     not at all, step to the same states (the walk, or 150 steps of a sphere hanging from its anchors): the
     warm-up steps a throw-away state and resets the driver's history. Bit for bit without warping; with element
-    warping to round-off only, because each element's last rotation (fem/element_warping.py, the polar
+    warping to round-off only, because each element's last rotation (fem/materials/element_warping.py, the polar
     iteration's warm start) is kept from the warm-up's last step."""
     parts = scene_parts(SceneConfig().with_values(**CASES[case]))
     states = []

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from benchmarks import stability_table as st
-from clusterfem_ros.fem.corotational import ElementCorotation
-from clusterfem_ros.fem.element_warping import ElementFrames, element_force, element_rotations
+from clusterfem_ros.fem.materials.corotational import ElementCorotation
+from clusterfem_ros.fem.materials.element_warping import ElementFrames, element_force, element_rotations
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.model import Control, State
 

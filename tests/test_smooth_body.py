@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from clusterfem_ros.fem.tet_mesh import boundary_triangles, signed_volumes
+from clusterfem_ros.fem.mesh.tet_mesh import boundary_triangles, signed_volumes
 from clusterfem_ros.skeleton.humanoid import default_humanoid
 from clusterfem_ros.skeleton.jelly_body import jelly_man_mesh
 from clusterfem_ros.skeleton.smooth_body import (SmoothCapsules, edge_length, min_altitudes, smooth_capsules_of,

@@ -4,10 +4,10 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import build_model
-from clusterfem_ros.fem.spd_factor import factorize_spd
-from clusterfem_ros.fem.voxel_mesh import paper_mesh
+from clusterfem_ros.fem.integrators.spd_factor import factorize_spd
+from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
 
 from .meshes import random_delaunay_mesh
 

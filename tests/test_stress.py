@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import build_model
-from clusterfem_ros.fem.stress import compute_stress, von_mises
-from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
+from clusterfem_ros.fem.materials.stress import compute_stress, von_mises
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh, paper_mesh
 from tests import naive
 from tests.meshes import random_delaunay_mesh
 
@@ -98,7 +98,7 @@ def test_bad_input_is_named(cube):
 
 
 def test_batched_newton_polar_equals_the_svd_polar_including_inverted_and_flat_elements():
-    from clusterfem_ros.fem.corotational import polar_rotations
+    from clusterfem_ros.fem.materials.corotational import polar_rotations
     rng = np.random.default_rng(7)
     F = np.eye(3) + 0.6 * rng.standard_normal((400, 3, 3))
     F[:20, :, 0] *= -1.0                                   # inverted

@@ -1,14 +1,14 @@
-"""The stretch bound that plans warped explicit sub-steps (fem/stretch.py)."""
+"""The stretch bound that plans warped explicit sub-steps (fem/materials/stretch.py)."""
 import numpy as np
 import pytest
 from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
-from clusterfem_ros.fem.assembly import shape_gradients
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.assembly import shape_gradients
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import build_model
-from clusterfem_ros.fem.stretch import StretchPlan, stiffening
-from clusterfem_ros.fem.voxel_mesh import box_mesh
+from clusterfem_ros.fem.materials.stretch import StretchPlan, stiffening
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
 
 
 def _bar():

@@ -1,18 +1,18 @@
-"""The warped force's slice sweeps (fem/warped_force_kernel.py): with the rotations held, the force equals the
+"""The warped force's slice sweeps (fem/kernels/warped_force_kernel.py): with the rotations held, the force equals the
 numpy twin's symmetric eq. 10 to round-off at every lane width, serial and threaded give the same bits, and the
 padding lanes write exact zeros; the deformation gradients equal the twin's least-squares F_i."""
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clusterfem_ros.fem.cluster_force_kernel import finish_serial, input_rows
-from clusterfem_ros.fem.cluster_slices import aligned_zeros, lane_vertices, rest_offsets, slice_clusters
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.kernels.cluster_force_kernel import finish_serial, input_rows
+from clusterfem_ros.fem.kernels.cluster_slices import aligned_zeros, lane_vertices, rest_offsets, slice_clusters
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import build_model
-from clusterfem_ros.fem.voxel_mesh import paper_mesh
-from clusterfem_ros.fem.warped_force_kernel import (ROT_ROW, gradient_sweep_parallel, gradient_sweep_serial,
-                                                    warped_sweep_parallel, warped_sweep_serial)
-from clusterfem_ros.fem.warping import VertexFrames
+from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
+from clusterfem_ros.fem.kernels.warped_force_kernel import (ROT_ROW, gradient_sweep_parallel, gradient_sweep_serial,
+                                                            warped_sweep_parallel, warped_sweep_serial)
+from clusterfem_ros.fem.materials.warping import VertexFrames
 from tests import naive_warping as naive
 from tests.meshes import random_delaunay_mesh
 

@@ -4,15 +4,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clusterfem_ros.fem.cluster_force_kernel import clustered_force
-from clusterfem_ros.fem.corotational import ElementCorotation
+from clusterfem_ros.fem.kernels.cluster_force_kernel import clustered_force
+from clusterfem_ros.fem.materials.corotational import ElementCorotation
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
-from clusterfem_ros.fem.tet_mesh import signed_volumes
-from clusterfem_ros.fem.voxel_mesh import box_mesh, paper_mesh
-from clusterfem_ros.fem.assembled_warp import AssembledWarp
-from clusterfem_ros.fem.warping import VertexFrames, vertex_rotations, warped_force
+from clusterfem_ros.fem.mesh.tet_mesh import signed_volumes
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh, paper_mesh
+from clusterfem_ros.fem.materials.assembled_warp import AssembledWarp
+from clusterfem_ros.fem.materials.warping import VertexFrames, vertex_rotations, warped_force
 from tests import naive_warping as naive
 from tests.meshes import random_delaunay_mesh
 

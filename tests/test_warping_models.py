@@ -6,11 +6,11 @@ import pytest
 
 from clusterfem_ros import config
 from clusterfem_ros.fem.integrators import make_integrator
-from clusterfem_ros.fem.material import Material
+from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.fem.stability import StabilityError
-from clusterfem_ros.fem.voxel_mesh import box_mesh
-from clusterfem_ros.fem.warping_models import ACKNOWLEDGEMENT, UnboundedWarpingWarning
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
+from clusterfem_ros.fem.materials.warping_models import ACKNOWLEDGEMENT, UnboundedWarpingWarning
 from clusterfem_ros.scene_build import integrator_choice
 
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg")

@@ -2,7 +2,7 @@
 
 The steps, each refusing bad input with the value and the way out (nothing half-built is returned):
 find the file (a path, or under $CLUSTERFEM_DATA / ../shared/data), pose the skeleton in the bind pose,
-tetrahedralize the surface (fTetWild, cached: fem/tetrahedralize.py), fit the tets onto the skeleton
+tetrahedralize the surface (fTetWild, cached: fem/mesh/tetrahedralize.py), fit the tets onto the skeleton
 (body/fit.py), check that every bone lies inside, and measure each vertex's depth under the skin for
 the relative binding levels. ``unbound_islands`` finds pieces of the body no bone or anchor reaches.
 """
@@ -13,8 +13,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..fem.tet_mesh import TetMesh, boundary_triangles
-from ..fem.tetrahedralize import TetResult, surface_to_tets
+from ..fem.mesh.tet_mesh import TetMesh, boundary_triangles
+from ..fem.mesh.tetrahedralize import TetResult, surface_to_tets
 from .fit import Fit, FitError, bind_configuration, bones_outside, find_data_file, fit_mesh, surface_depth
 
 MANIFEST = "config/character_data.md"

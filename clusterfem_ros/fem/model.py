@@ -10,11 +10,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from .assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
-from .clusters import Clusters, build_clusters
-from .material import Material, ParameterError
-from .tet_mesh import TetMesh
-from .tet_quality import MIN_QUALITY, MeshQuality, check_quality
+from .linear.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
+from .kernels.clusters import Clusters, build_clusters
+from .linear.material import Material, ParameterError
+from .mesh.tet_mesh import TetMesh
+from .mesh.tet_quality import MIN_QUALITY, MeshQuality, check_quality
 
 
 @dataclass(frozen=True)
@@ -26,7 +26,7 @@ class FemModel:
     clusters: Clusters          # the same K as per-vertex clusters
     fixed: np.ndarray           # (n,) bool: Dirichlet vertices held at zero displacement
     gravity: np.ndarray         # (3,) [m/s^2]
-    quality: MeshQuality | None = None      # the tets' shape quality, measured by build_model (fem/tet_quality.py)
+    quality: MeshQuality | None = None      # the tets' shape quality, measured by build_model (fem/mesh/tet_quality.py)
 
     @property
     def n_vertices(self) -> int:
@@ -57,7 +57,7 @@ class FemModel:
 
 def build_model(mesh: TetMesh, material: Material, fixed: np.ndarray | None = None,
                 gravity=(0.0, 0.0, -9.81), min_quality: float = MIN_QUALITY) -> FemModel:
-    """Validate the mesh (a tet below ``min_quality`` is refused: fem/tet_quality.py), assemble K and M, and build
+    """Validate the mesh (a tet below ``min_quality`` is refused: fem/mesh/tet_quality.py), assemble K and M, and build
     the clusters."""
     mesh.validate()
     quality = check_quality(mesh.vertices, mesh.tets, min_quality)

@@ -16,7 +16,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..errors import ClusterFemError
-from .material import Material, ParameterError
+from .linear.material import Material, ParameterError
 from .model import Control, FemModel
 
 

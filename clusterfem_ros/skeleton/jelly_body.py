@@ -196,7 +196,7 @@ def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue
     bone's axis, or within a voxel of it for bones 4 or more hops apart (their corners are the vertices bound;
     ``axis_conflicts``), for bodies whose radii differ much from bone to bone on skeletons with limbs against the
     trunk at rest (nearer bones keep the margin 0: a clavicle beside the head must not be cut off)."""
-    from ..fem.voxel_mesh import grid_mesh, voxel_centres
+    from ..fem.mesh.voxel_mesh import grid_mesh, voxel_centres
     if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
         raise ValueError(f"target_tets = {target_tets!r}: give a whole number >= 50")
     s, e, r, parents = humanoid_capsules(spec, with_parents=True, q=q)

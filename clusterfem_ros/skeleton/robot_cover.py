@@ -39,8 +39,8 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from ..fem.tet_mesh import TetMesh
-from ..fem.voxel_mesh import grid_mesh, voxel_centres
+from ..fem.mesh.tet_mesh import TetMesh
+from ..fem.mesh.voxel_mesh import grid_mesh, voxel_centres
 from .link_shapes import _floats, _mesh_file, search_folders
 from .mounting import rpy_matrix
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fem.tet_mesh import TetMesh, boundary_triangles
+from ..fem.mesh.tet_mesh import TetMesh, boundary_triangles
 
 BLEND = 1.0                 # fillet radius at a joint, as a share of the smaller capsule radius of the pair
 MIN_ALTITUDE = 0.7          # no tet's smallest altitude below this share of its voxel altitude

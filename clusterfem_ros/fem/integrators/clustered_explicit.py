@@ -2,11 +2,11 @@
 
 All sub-steps of one step run inside one numba call: fixed vertices held at rest, force, constraint forces,
 velocity and position updates, with no Python in between. ``warp=True`` swaps in a warped force on
-the same step: per-element corotation by default (fem/element_warping.py: the gradient of an energy, so it
-cannot feed energy in), stable Neo-Hookean elements (fem/neohookean.py: an energy smooth through inversion,
-``warping_model="neohookean"``), or the paper's per-vertex warping (``warping_model="vertex"``, fem/warping.py: eq.
-10, symmetrised) for comparison, which has no energy and is refused unless ``allow_unbounded_warping``; the
-linear path is a separate compiled function.
+the same step: per-element corotation by default (fem/materials/element_warping.py: the gradient of an energy, so it
+cannot feed energy in), stable Neo-Hookean elements (fem/materials/neohookean.py: an energy smooth through inversion,
+``warping_model="neohookean"``), or the paper's per-vertex warping (``warping_model="vertex"``,
+fem/materials/warping.py: eq. 10, symmetrised) for comparison, which has no energy and is refused unless
+``allow_unbounded_warping``; the linear path is a separate compiled function.
 The critical step is the linear K's. A corotated element stretched several times its size is stiffer than
 that (its tangent's twist modes grow with lambda tr(S - I)), so a warped step is planned for the linear K's
 largest eigenvalue times a stretch factor (``StretchPlan``): undamped, the bar with a vertex torn 0.5 m
@@ -30,16 +30,16 @@ import time
 import numba
 import numpy as np
 
-from ..cluster_force_kernel import (cluster_args, kernel_input_serial, scratch, stiffness_slices_parallel,
-                                    stiffness_slices_serial)
-from ..cluster_slices import host_slices
+from ..kernels.cluster_force_kernel import (cluster_args, kernel_input_serial, scratch, stiffness_slices_parallel,
+                                            stiffness_slices_serial)
+from ..kernels.cluster_slices import host_slices
 from ..model import Control, FemModel, State
 from ...numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
 from ..stability import check_safety, control_critical_step, max_eigenvalue, plan_substeps
-from ..stretch import StretchPlan
-from ..element_warping import ElementFrames, check_warping_model, element_e_parallel, element_e_serial
-from ..neohookean import largest_bound, neohookean_e_parallel, neohookean_e_serial
-from ..warping import VertexFrames, warped_e_parallel, warped_e_serial
+from ..materials.stretch import StretchPlan
+from ..materials.element_warping import ElementFrames, check_warping_model, element_e_parallel, element_e_serial
+from ..materials.neohookean import largest_bound, neohookean_e_parallel, neohookean_e_serial
+from ..materials.warping import VertexFrames, warped_e_parallel, warped_e_serial
 from .base import StepCommon, StepInfo
 
 
@@ -48,7 +48,7 @@ def _update(n, h, zeta, inv_mass3, kw, xi, mass3, f_const, rest, u, v, w, warped
     input (the last sub-step skips it: the next step's _prepare computes w anyway). Returns True while every
     |u| <= limit.
 
-    The sweep leaves K w (linear) or e (warped, its counterpart: fem/warped_force_kernel.py) minus the
+    The sweep leaves K w (linear) or e (warped, its counterpart: fem/kernels/warped_force_kernel.py) minus the
     attachment forces in ``kw`` (rows in vertex order) and the mass damping to this loop. ``inv_mass3`` and
     ``mass3`` are per coordinate (3n), inv_mass3 0 at held vertices, so the loop runs over flat arrays and
     vectorizes. A non-finite v reaches u in the same loop (u += h v, also at held vertices: 0 * inf is nan),
@@ -138,7 +138,7 @@ def _warped_symplectic_euler(gradients, slices, rest, work,
                              mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
                              first_force, att_idx, att_u, att_v, att_a, att_kp, att_kd):
     """The warped step around one build of the warped kernel (``warped_e``); w = x0 + u + zeta v. The kernel
-    leaves e, the warped counterpart of K w (fem/warped_force_kernel.py), in vertex order, and the update
+    leaves e, the warped counterpart of K w (fem/kernels/warped_force_kernel.py), in vertex order, and the update
     finishes the force as in the linear step. ``first_force`` false: the caller has made the first sub-step's
     force (``_warped_first_force``: the Neo-Hookean step plans its sub-steps from the bounds that pass leaves)."""
     n = u.shape[0]
@@ -181,12 +181,12 @@ _step_parallel = _builds(_symplectic_euler, _free_symplectic_euler, "_parallel",
 _warped_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "", warped_e=warped_e_serial)
 _warped_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_parallel",
                                 warped_e=warped_e_parallel)
-# the same step source around the per-element warped kernel (fem/element_warping.py)
+# the same step source around the per-element warped kernel (fem/materials/element_warping.py)
 _element_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_element",
                                warped_e=element_e_serial)
 _element_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_element_parallel",
                                  warped_e=element_e_parallel)
-# and around the stable Neo-Hookean elements' kernel (fem/neohookean.py), with its first force on its own
+# and around the stable Neo-Hookean elements' kernel (fem/materials/neohookean.py), with its first force on its own
 _neohookean_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_neohookean",
                                   warped_e=neohookean_e_serial)
 _neohookean_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_neohookean_parallel",
@@ -265,11 +265,11 @@ class ClusteredExplicit:
     """The paper's method. ``safety`` scales the critical step; ``threads`` forces the threaded kernel on/off
     (default: from AUTO_THREADS_MIN_VERTICES vertices, the faster build as measured by ThreadChoice);
     ``warp`` turns on stiffness warping, ``warping_model`` which: 'element' (per-element corotation, the
-    gradient of an energy: fem/element_warping.py), 'neohookean' (stable Neo-Hookean elements, no rotation,
-    smooth through inversion: fem/neohookean.py) or 'vertex' (the paper's eq. 10, symmetrised:
-    fem/warping.py; refused with StabilityError unless ``allow_unbounded_warping``: fem/warping_models.py);
-    ``plan_stretch=False`` plans a warped step from the linear K alone (for comparison:
-    fem/stretch.py says why it is on)."""
+    gradient of an energy: fem/materials/element_warping.py), 'neohookean' (stable Neo-Hookean elements, no rotation,
+    smooth through inversion: fem/materials/neohookean.py) or 'vertex' (the paper's eq. 10, symmetrised:
+    fem/materials/warping.py; refused with StabilityError unless ``allow_unbounded_warping``:
+    fem/materials/warping_models.py); ``plan_stretch=False`` plans a warped step from the linear K alone (for
+    comparison: fem/materials/stretch.py says why it is on)."""
     name = "clustered"
 
     def __init__(self, model: FemModel, safety: float = 0.8, max_substeps: int = 10000,

@@ -4,14 +4,14 @@ Modes: the lowest k eigenpairs of K phi = lambda M phi on the free DOFs (fixed a
 removed), M-orthonormal (Phi^T M Phi = I, Phi^T K Phi = diag lambda). Repeated eigenvalues keep every copy:
 
 - The rigid modes (lambda = 0) are built, not solved for: the rigid motions that leave the held vertices still,
-  per connected piece of the mesh (fem/rigid_modes.py; six for a free body). They come first.
+  per connected piece of the mesh (fem/integrators/rigid_modes.py; six for a free body). They come first.
 - The rest are solved for in the rigid modes' M-orthogonal complement. Small systems (<= DENSE_MAX_DOFS free
   DOFs, or a block as large as the complement) take a dense eigh there. Larger ones take block subspace
   iteration with shift-invert: X <- (K - sigma M)^-1 M X on a block of p = max(2 k, k + 8) columns, rigid
   components projected out after each solve, then a Rayleigh-Ritz step (a p x p eigh), until the k wanted
   Ritz pairs' residuals |K x - theta M x|_(M^-1) fall under TOL (theta - sigma). sigma = -1e-4 tr(K)/tr(M), a
   small *negative* shift, so K - sigma M is positive definite even for an unconstrained body and factorizes
-  (fem/spd_factor.py). A block method holds all copies of an eigenvalue of multiplicity up to p; a
+  (fem/integrators/spd_factor.py). A block method holds all copies of an eigenvalue of multiplicity up to p; a
   single-vector Krylov method (ARPACK's eigsh) finds one vector per distinct
   eigenvalue in exact arithmetic and, in floating point, loses copies above about 600 DOF
   (tests/test_modal.py compares with a dense eigh on a symmetric cube).
@@ -35,10 +35,10 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from ..material import ParameterError
+from ..linear.material import ParameterError
 from ..model import Control, FemModel, State
-from ..rigid_modes import rigid_modes
-from ..spd_factor import factorize_spd
+from .rigid_modes import rigid_modes
+from .spd_factor import factorize_spd
 from .base import StepCommon, StepInfo
 
 DENSE_MAX_DOFS = 600

@@ -3,22 +3,22 @@ matrices with D and K applied separately. The like-for-like reference for the "l
 
 ``warp=True``: the warped force, written with numpy per element or assembled matrices, which the clustered
 warped kernels must match to round-off. ``warping_model="element"`` (default): each sub-step the element
-rotations R_e are extracted (the compiled polar iteration, fem/element_warping.py) and the force is
-sum_e -R_e K_e (R_e^T w_e - x0_e) in numpy (fem/corotational.py). ``"vertex"`` (eq. 10 symmetrised,
-fem/warping.py; needs ``allow_unbounded_warping=True``, fem/warping_models.py): the vertex rotations R_i and
-the block-sparse K warped, blocks (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (assembled_warp.AssembledWarp). A
-warped step plans its sub-steps for the body's stretch (fem/stretch.py), as the clustered step does."""
+rotations R_e are extracted (the compiled polar iteration, fem/materials/element_warping.py) and the force is
+sum_e -R_e K_e (R_e^T w_e - x0_e) in numpy (fem/materials/corotational.py). ``"vertex"`` (eq. 10 symmetrised,
+fem/materials/warping.py; needs ``allow_unbounded_warping=True``, fem/materials/warping_models.py): the vertex rotations
+R_i and the block-sparse K warped, blocks (R_i K_ij R_i^T + R_j K_ij R_j^T) / 2 (assembled_warp.AssembledWarp). A
+warped step plans its sub-steps for the body's stretch (fem/materials/stretch.py), as the clustered step does."""
 from __future__ import annotations
 
 import numpy as np
 
 from ..model import Control, FemModel, State
 from ..stability import check_safety, control_critical_step, max_eigenvalue, plan_substeps
-from ..stretch import StretchPlan
-from ..corotational import ElementCorotation
-from ..element_warping import ElementFrames, check_warping_model, element_rotations
-from ..assembled_warp import AssembledWarp
-from ..warping import VertexFrames, vertex_rotations
+from ..materials.stretch import StretchPlan
+from ..materials.corotational import ElementCorotation
+from ..materials.element_warping import ElementFrames, check_warping_model, element_rotations
+from ..materials.assembled_warp import AssembledWarp
+from ..materials.warping import VertexFrames, vertex_rotations
 from .base import StepCommon, StepInfo
 
 

@@ -4,19 +4,19 @@
 
 Fixed and prescribed DOFs are removed from the system. Attachment gains enter A (h kd m + h^2 kp m on
 their diagonal) so stiff constraints stay stable. The direct solver factorizes A once per (h, constraint
-set) and reuses the factor (fem/spd_factor.py: SuperLU in symmetric mode); the CG solver (the paper's
+set) and reuses the factor (fem/integrators/spd_factor.py: SuperLU in symmetric mode); the CG solver (the paper's
 choice) is Jacobi-preconditioned and warm-started.
 
 ``warp=True``, ``warping_model="element"`` (default): standard corotational implicit. The element rotations
-R_e (fem/element_warping.py) are held over the step:
+R_e (fem/materials/element_warping.py) are held over the step:
     K_w = sum_e R_e K_e R_e^T   (symmetric positive semi-definite and zero on translations),
     A = (1 + h xi) M + (h zeta + h^2) K_w,   rhs = h [ f_w(u, v) - h K_w v + f ],
 with f_w the element-warped force (elastic + damping). Held rotations leave out dR/dx here too, so the
 same turn check and sub-steps as below apply, measured on the element rotations.
 
 ``warping_model="vertex"`` (the paper's per-vertex warping, for comparison; refused at set-up unless
-``allow_unbounded_warping=True``: fem/warping_models.py). Linearisation about the
-current state, with the vertex rotations R_i (fem/warping.py) frozen over the step:
+``allow_unbounded_warping=True``: fem/materials/warping_models.py). Linearisation about the
+current state, with the vertex rotations R_i (fem/materials/warping.py) frozen over the step:
     K_w = R K R^T,  R = blockdiag(R_i)   (blocks R_i K_ij R_j^T: symmetric positive semi-definite, so CG works),
     D_w = xi M + zeta K_w,   A = M + h D_w + h^2 K_w,
     rhs = h [ f_w(u, v) - h H v + f ],
@@ -50,12 +50,12 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ..model import Control, FemModel, State
-from ..spd_factor import factorize_spd
+from .spd_factor import factorize_spd
 from ..stability import StabilityError
-from ..corotational import ElementCorotation
-from ..element_warping import ElementFrames, check_warping_model, element_force, element_rotations
-from ..assembled_warp import AssembledWarp
-from ..warping import VertexFrames, vertex_rotations, warped_force
+from ..materials.corotational import ElementCorotation
+from ..materials.element_warping import ElementFrames, check_warping_model, element_force, element_rotations
+from ..materials.assembled_warp import AssembledWarp
+from ..materials.warping import VertexFrames, vertex_rotations, warped_force
 from .base import StepCommon, StepInfo
 
 WARP_MAX_NU = 0.49

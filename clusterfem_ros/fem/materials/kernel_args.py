@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import FemModel
-from ..numba_config import PARALLEL_MIN_VERTICES
+from ..model import FemModel
+from ...numba_config import PARALLEL_MIN_VERTICES
 
 
 def output_rows(n: int, out: np.ndarray | None) -> np.ndarray:

@@ -3,7 +3,7 @@
 Per-element warping needs R = polar(F) for every tet at every force. The previous call's rotation R_old is
 close: X = R_old^T F has the polar factor Q = R_old^T polar(F), a rotation by the angle the element turned
 since (a few mrad per millisecond step of a walking body). Newton's method on that rotation converges in
-the angle alone, whatever the strain: the scaled-Newton / Newton-Schulz iteration of fem/polar.py starts
+the angle alone, whatever the strain: the scaled-Newton / Newton-Schulz iteration of fem/materials/polar.py starts
 from X and converges in the singular values, so a chunk's most stretched element (20 % and more on the
 walking jelly man) set its pass count (3-5); here two passes reach round-off on every chunk of the walk.
 
@@ -16,14 +16,14 @@ linearised condition skew(exp(-[w]) M) = 0,
 solution, so the convergence stays quadratic), then Q <- Q C(w), M <- C(w)^T M with the Cayley rotation
 C(w) = I + 4 / (4 + |w|^2) ([w] + [w]^2 / 2), orthogonal to round-off and equal to exp([w]) to second order.
 A lane has converged when |w|^2 < ROTATION_TOL: the error left after that step is ~|w|^2 / 50 or less (on the
-walking jelly man), under the 1.5e-12 the lane iteration of fem/polar.py accepts.
+walking jelly man), under the 1.5e-12 the lane iteration of fem/materials/polar.py accepts.
 
 Newton finds any rotation that makes Q^T X symmetric, also the saddles where Q^T X has two negative
 eigenvalues; those have an indefinite H, and at the polar factor (Q^T X positive definite) H is positive
 definite. So a lane whose H is not positive definite (Sylvester: h00 > 0, the leading 2x2 minor > 0,
 det H > 0; false for non-finite values too), an inverted or nearly flat element (det X <= 1e-3 (|X|^2 /
-3)^1.5, as fem/polar.py decides), or a chunk that has not converged after ROTATION_MAXPASS passes sends
-the whole chunk to the robust path: fem/polar.py's lane iteration from X, its scalar path (Mueller's
+3)^1.5, as fem/materials/polar.py decides), or a chunk that has not converged after ROTATION_MAXPASS passes sends
+the whole chunk to the robust path: fem/materials/polar.py's lane iteration from X, its scalar path (Mueller's
 iteration from I, which follows one branch through inversion) for the lanes it does not accept. That
 happens on a first call far from the previous rotation and on inverted elements, not in smooth motion.
 
@@ -37,7 +37,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..numba_config import SERIAL
+from ...numba_config import SERIAL
 from .polar import chunk_start, lane_accepted, polar_lanes, scalar_rotation
 
 LANES = 64
@@ -139,7 +139,7 @@ def _newton_rotations(X, M1, M2, R_old, R1, R2):
 
 @numba.njit(**SERIAL)
 def _robust_rotations(X, Y, Z, how, tmp, R_old, R):
-    """R <- R_old Q, Q the rotation of X from fem/polar.py's lane iteration (start X, or I where inverted or
+    """R <- R_old Q, Q the rotation of X from fem/materials/polar.py's lane iteration (start X, or I where inverted or
     flat), its scalar path (Mueller from I) for the lanes it does not accept. tmp: (3, 3, 3) scratch."""
     X, Y, Z = X.reshape((9, LANES)), Y.reshape((9, LANES)), Z.reshape((9, LANES))
     R_old, R = R_old.reshape((9, LANES)), R.reshape((9, LANES))

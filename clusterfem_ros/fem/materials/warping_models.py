@@ -10,7 +10,7 @@ away and held, an inverting sliver) it feeds energy in: on the stability table i
 the scene's default damping too, and nothing known at set-up predicts which runs. So it is refused unless the
 caller acknowledges that (``allow_unbounded_warping=True``; scene parameter
 ``physics.allow_unbounded_warping``), and then it runs as before, with one UnboundedWarpingWarning per process.
-'neohookean': no rotation at all, the stable Neo-Hookean energy (fem/neohookean.py), smooth through inversion,
+'neohookean': no rotation at all, the stable Neo-Hookean energy (fem/materials/neohookean.py), smooth through inversion,
 where the corotated energy is not; on the clustered explicit method only (``explicit_only_refusal``). The
 'element' model on an explicit method without any damping is refused too unless acknowledged
 (``undamped_corotation_refusal``): undamped, the explicit step gains energy where its elements invert, and
@@ -74,8 +74,8 @@ def auto_model(method: str, error_budget: bool, plan_stretch: bool) -> str:
 def stretch_plan_refusal(name: str) -> str:
     """Why ``warping_model = name`` is refused without the stretch plan, and the ways out."""
     return (f"warping_model = {name!r} with physics.plan_stretch false: its elements stiffen with the square of "
-            "the stretch (fem/stretch.py), and a step planned for the linear stiffness alone can diverge where an "
-            "element is stretched: set physics.plan_stretch true, or warping_model 'element'")
+            "the stretch (fem/materials/stretch.py), and a step planned for the linear stiffness alone can diverge "
+            "where an element is stretched: set physics.plan_stretch true, or warping_model 'element'")
 
 
 def check_warping_model(name: str) -> str:
@@ -96,5 +96,5 @@ def unacknowledged(name: str, warp: bool, allow_unbounded: bool) -> bool:
     if not allow_unbounded:
         return True
     warnings.warn("warping_model = 'vertex' runs with allow_unbounded_warping: its energy is not bounded by the "
-                  "work put in (fem/warping_models.py)", UnboundedWarpingWarning, stacklevel=1)
+                  "work put in (fem/materials/warping_models.py)", UnboundedWarpingWarning, stacklevel=1)
     return False

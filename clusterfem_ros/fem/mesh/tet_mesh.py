@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from ..errors import ClusterFemError
-from ..numba_config import HOLDS_GIL
+from ...errors import ClusterFemError
+from ...numba_config import HOLDS_GIL
 
 
 class MeshError(ClusterFemError, ValueError):

@@ -1,4 +1,4 @@
-"""Warped stiffness (eq. 10, symmetric blocks: fem/warping.py) on the assembled block-sparse K, for the
+"""Warped stiffness (eq. 10, symmetric blocks: fem/materials/warping.py) on the assembled block-sparse K, for the
 standard (reference) methods and the tests: the same force as the cluster kernel, written with scipy sparse
 matrices, and its Jacobian with the rotations held (the implicit method's velocity matrix).
 """
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .model import FemModel
+from ..model import FemModel
 
 
 class AssembledWarp:

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .assembly import block_pattern
-from .tet_mesh import TetMesh, elements_per_vertex
+from ..linear.assembly import block_pattern
+from ..mesh.tet_mesh import TetMesh, elements_per_vertex
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from .cluster_slices import W_ROW, ClusterSlices, aligned_zeros, host_slices
 from .clusters import Clusters
 from .llvm_ir import (F64, accumulating_loop, double_data, fused_multiply_add, gathered_rows, i64, lane_values,
                       position_entries, slice_kernel_args, slice_kernel_typing, store_lane_rows)
-from ..numba_config import PARALLEL_MIN_VERTICES, compiled, serial_and_parallel
+from ...numba_config import PARALLEL_MIN_VERTICES, compiled, serial_and_parallel
 
 
 _LINEAR_SPECS = (("w_at", 2, types.int64), ("blocks", 3, types.float64), ("w", 2, types.float64),

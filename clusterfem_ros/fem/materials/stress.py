@@ -7,7 +7,7 @@ stress of the corotated linear model; invariants such as von Mises do not depend
 von Mises = sqrt(3/2 dev(sigma) : dev(sigma)); principal stresses = eigvalsh(sigma), ascending.
 Per vertex: the volume-weighted average of the adjacent elements' tensors, and its invariants.
 
-The corotated rotations come from the polar iteration on LANES elements at once (fem/polar.py:
+The corotated rotations come from the polar iteration on LANES elements at once (fem/materials/polar.py:
 scaled Newton, then Newton-Schulz, all lanes of a chunk together), with the scalar path for inverted, flat
 or non-converged elements; the element stress, its von Mises value and the vertex averages follow in the
 same compiled call. The node computes this for every surface marker (30 Hz): on the default jelly man
@@ -21,9 +21,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .assembly import shape_gradients
-from .model import FemModel
-from ..numba_config import SERIAL
+from ..linear.assembly import shape_gradients
+from ..model import FemModel
+from ...numba_config import SERIAL
 from .polar import LANES, chunk_start, lane_accepted, polar_lanes, scalar_rotation
 
 

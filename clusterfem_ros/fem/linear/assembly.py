@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .material import Material
-from .tet_mesh import TetMesh
+from ..mesh.tet_mesh import TetMesh
 
 
 def shape_gradients(vertices: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

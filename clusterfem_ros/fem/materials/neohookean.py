@@ -13,14 +13,14 @@ At F = I + H the stress is mu (H + H^T) + (lambda_s - mu) tr(H) I + O(H^2): the 
 Lame parameters (lambda, mu), so the small-strain limit is the linear FEM's (tests/test_neohookean.py).
 
 Why it is here. Psi is a polynomial in F: smooth everywhere, inverted elements included, and rotation
-invariant without a rotation. The corotated energy (fem/element_warping.py) depends on F through the
+invariant without a rotation. The corotated energy (fem/materials/element_warping.py) depends on F through the
 rotation R = polar(F), which is not a smooth function of F where an inverted element's two smallest
 singular values meet; symplectic Euler keeps a shadow energy bounded only for a smooth energy, and the
 corotated bar with a vertex torn away and held, undamped, gains energy for as long as its elements stay
 inverted. This energy has no such place: after the tear its shadow energy stays flat
 (benchmarks/stability_table.py). The price is stiffness at large stretch: cof F grows with the product of
 two singular values, so an element stretched tenfold is about a hundred times stiffer than at rest, and the step
-plan must follow (below, and fem/stretch.py). No polar iteration: the pass costs less than the corotated one
+plan must follow (below, and fem/materials/stretch.py). No polar iteration: the pass costs less than the corotated one
 (benchmarks/core_benchmark.py --warping-only).
 
 Damping. The stiffness damping is a viscous stress on the rate of the right Cauchy-Green tensor:
@@ -30,7 +30,7 @@ zeta K v, the linear model's. With w = x0 + u + zeta v (the kernels' input) zeta
 gradient of w. The mass damping -xi M v is added by the caller, as for the other models.
 
 The step plan's bound. The explicit step is planned for the largest eigenvalue of the tangent dP/dF over the
-elements (fem/stretch.py). With F's signed singular values s_i and J = s_0 s_1 s_2, the tangent's nine
+elements (fem/materials/stretch.py). With F's signed singular values s_i and J = s_0 s_1 s_2, the tangent's nine
 eigenvalues (Smith, de Goes and Kim 2019, analytic eigensystems of isotropic energies) are the six twist and
 flip values mu +- lambda_s (J - alpha) s_k and the eigenvalues of the 3 x 3 scaling block A,
 A_ii = mu + lambda_s (s_j s_k)^2, A_ij = lambda_s s_k (2 J - alpha). No SVD: from the invariants of C = F^T F,
@@ -45,9 +45,9 @@ tangent's largest eigenvalue (tests/test_neohookean.py). The force pass computes
 from the same F (``ElementFrames.bounds``; four square roots an element, about a seventh of the pass on the
 jelly man), so the step gets it with its first force; ``tangent_bounds`` runs the pass without the forces. The
 bound is kept with the sign of J: negative for an inverted (or flat) element, which the step plan takes a
-shorter step for (fem/stretch.py, ``largest_bound``).
+shorter step for (fem/materials/stretch.py, ``largest_bound``).
 
-The compiled pass has the element warping's layout (fem/element_warping.py: ``ElementFrames``, chunks of
+The compiled pass has the element warping's layout (fem/materials/element_warping.py: ``ElementFrames``, chunks of
 LANES elements by lane, element corner forces gathered per vertex in element order, so serial and threaded
 builds give the same bits) without the rotations. ``neohookean_force`` is the checked public entry;
 ``reference_force`` and ``energy`` (numpy) are the twins the tests and the stability table use.
@@ -62,16 +62,16 @@ import math
 import numba
 import numpy as np
 
-from .assembly import shape_gradients
-from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
+from ..linear.assembly import shape_gradients
+from ..kernels.cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .corotational import deformation_gradients
 from .element_rotation import LANES
 from .element_warping import (INLINED, ElementFrames, _differences, _element_e, _element_force, _element_pass,
                               gather_parallel, gather_serial, lane_gradient, run_element_kernel,
                               store_corner_forces)
 from .kernel_args import checked_rows, pick_build
-from .model import FemModel
-from ..numba_config import HOLDS_GIL, SERIAL, compiled, serial_and_parallel
+from ..model import FemModel
+from ...numba_config import HOLDS_GIL, SERIAL, compiled, serial_and_parallel
 
 SQRT2 = math.sqrt(2.0)
 THIRD = 1.0 / 3.0

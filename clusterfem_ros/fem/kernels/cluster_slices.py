@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .clusters import Clusters
-from ..numba_config import simd_lanes
+from ...numba_config import simd_lanes
 
 
 # Shared rows are sorted by length within windows of this many rows, not globally. A global sort put all

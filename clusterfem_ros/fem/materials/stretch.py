@@ -14,9 +14,9 @@ step is planned for lambda_max (1 + g): zero for a body at rest or in rigid moti
 jelly man (stability margin 2.4 -> 1.5 on `scripts/run`'s summary line), where it still takes one sub-step.
 One pass over the vertices (x = X + u), one over the elements (36 multiply-adds each).
 
-For the stable Neo-Hookean energy (fem/neohookean.py) the same factor is g = max_e b_e / (3 lambda + 2 mu) - 1,
-b_e the bound on element e's stress tangent that the Neo-Hookean force pass leaves beside its forces
-(fem/neohookean.py, The step plan's bound): exact at rest and in rigid motion, within 1.6x of the tangent
+For the stable Neo-Hookean energy (fem/materials/neohookean.py) the same factor is g = max_e b_e / (3 lambda + 2 mu) -
+1, b_e the bound on element e's stress tangent that the Neo-Hookean force pass leaves beside its forces
+(fem/materials/neohookean.py, The step plan's bound): exact at rest and in rigid motion, within 1.6x of the tangent
 elsewhere. The clustered step computes its first force before it plans its sub-steps, so the plan is for
 the state the step starts from at no extra pass (fem/integrators/clustered_explicit.py).
 
@@ -59,8 +59,8 @@ import math
 import numba
 import numpy as np
 
-from .assembly import shape_gradients
-from ..numba_config import HOLDS_GIL
+from ..linear.assembly import shape_gradients
+from ...numba_config import HOLDS_GIL
 
 SQRT3 = math.sqrt(3.0)
 
@@ -151,8 +151,8 @@ class StretchPlan:
 
     def neohookean_factor(self, bound: float, h: float, inverted: bool = False) -> float:
         """The Neo-Hookean factor for a step of h whose elements' largest tangent bound is ``bound``
-        (fem/neohookean.py; the force pass leaves it in ElementFrames.bounds): >= 1 + g times the accuracy factor,
-        rounded up to a quarter octave."""
+        (fem/materials/neohookean.py; the force pass leaves it in ElementFrames.bounds): >= 1 + g times the accuracy
+        factor, rounded up to a quarter octave."""
         stiffer = max(1.0, bound / self.rest_modulus)
         accuracy = self.INVERTED if inverted else min(self.ACCURACY, max(1.0, stiffer / self.KNEE))
         return self._settle(stiffer * accuracy, h)

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ClusterFemError
+from ...errors import ClusterFemError
 
 
 # The one set of default material values: Material()'s and the scene's (config.py reads these). E = 30 kPa,

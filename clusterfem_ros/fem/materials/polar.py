@@ -20,7 +20,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from ..numba_config import SERIAL
+from ...numba_config import SERIAL
 
 NEWTON_MAXIT = 40
 MUELLER_MAXIT = 200

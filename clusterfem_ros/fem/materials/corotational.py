@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .assembly import element_stiffness_blocks, shape_gradients
-from .model import FemModel
+from ..linear.assembly import element_stiffness_blocks, shape_gradients
+from ..model import FemModel
 
 
 NEWTON_ITERATIONS = 30

@@ -16,12 +16,12 @@ terms vanish because R^T F is symmetric at R = polar(F) (and at any fixed point 
 sum_c r_c x f_c = 0 is the same condition), so R is a stationary point of Psi over rotations. A gradient
 field integrated by symplectic Euler keeps a shadow energy bounded; the damping parts are -zeta R K R^T v
 (R K R^T positive semi-definite, and zero for any rigid velocity) and -xi M v, so they only remove energy.
-The paper's per-vertex warping (fem/warping.py, ``warping_model = "vertex"``) has no such energy: where
+The paper's per-vertex warping (fem/materials/warping.py, ``warping_model = "vertex"``) has no such energy: where
 neighbouring rotations differ sharply (a torn vertex, an inverting sliver) it fed energy in.
 
-Rotations: fem/element_rotation.py, Newton's method on each element's rotation started from its rotation of
+Rotations: fem/materials/element_rotation.py, Newton's method on each element's rotation started from its rotation of
 the previous call (two passes to round-off in smooth motion, whatever the strain), the lane polar iteration of
-fem/polar.py and Mueller et al. (2016)'s scalar iteration for inverted or flat elements and chunks Newton
+fem/materials/polar.py and Mueller et al. (2016)'s scalar iteration for inverted or flat elements and chunks Newton
 does not settle. Per chunk of LANES elements one call does the vertex differences, the gradients, the
 rotations and the forces, on (9 LANES,) arrays by lane, so every loop but the differences' gather runs on
 vectors. Chunks are independent: the threaded build runs them in parallel. Each element writes its four
@@ -38,11 +38,11 @@ of F (the iteration follows one branch through inversion), and the undamped torn
 tens of elements, gains a few per cent of energy (benchmarks/stability_table.py's docstring).
 
 ``element_force`` and ``element_rotations`` are the checked public entries; ``ElementFrames`` holds the
-element data and workspace; fem/corotational.py (numpy) is the twin the tests compare against.
+element data and workspace; fem/materials/corotational.py (numpy) is the twin the tests compare against.
 
 What a build injects: the kernel sources ``_element_e`` and ``_element_force`` call compiled functions by
 global names that no import defines, bound per build (serial or threaded) by numba_config.compiled, hence
-``# noqa: F821`` at each call: ``chunk`` (``_element_chunk``; fem/neohookean.py binds its own) in
+``# noqa: F821`` at each call: ``chunk`` (``_element_chunk``; fem/materials/neohookean.py binds its own) in
 ``_element_pass``; ``element_pass`` and ``gather_rows`` in ``_element_e``; ``kernel_input``, ``element_e`` and
 ``finish`` in ``_element_force``.
 """
@@ -54,21 +54,21 @@ import numba
 import numpy as np
 from numba import prange
 
-from .assembly import shape_gradients
-from .cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
+from ..linear.assembly import shape_gradients
+from ..kernels.cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .kernel_args import checked_rows, output_rows, pick_build
-from .model import FemModel
-from .stability import StabilityError
+from ..model import FemModel
+from ..stability import StabilityError
 from .warping_models import (EXPLICIT_ONLY, WARPING_MODELS, explicit_only_refusal,  # noqa: F401 (re-export)
                              undamped_corotation_refusal, unacknowledged, unacknowledged_undamped,
                              vertex_refusal)
-from ..numba_config import SERIAL, compiled, serial_and_parallel
+from ...numba_config import SERIAL, compiled, serial_and_parallel
 from .element_rotation import LANES, chunk_rotations
 
 def check_warping_model(name: str, warp: bool = True, allow_unbounded_warping: bool = False,
                         method: str = "clustered", material=None) -> str:
     """The warping model's name, checked (ValueError on an unknown one); with ``warp``, 'vertex' raises
-    StabilityError at set-up unless ``allow_unbounded_warping`` (fem/warping_models.py says why), so does
+    StabilityError at set-up unless ``allow_unbounded_warping`` (fem/materials/warping_models.py says why), so does
     'element' on an explicit method given its undamped ``material``, and a model the integrator ``method`` does
     not run ('neohookean' off 'clustered') raises ValueError."""
     if unacknowledged(name, warp, allow_unbounded_warping):
@@ -81,7 +81,7 @@ def check_warping_model(name: str, warp: bool = True, allow_unbounded_warping: b
     return name
 
 
-# Elements are processed in chunks of LANES (fem/element_rotation.py), each chunk's 3x3 matrices as flat
+# Elements are processed in chunks of LANES (fem/materials/element_rotation.py), each chunk's 3x3 matrices as flat
 # (9 LANES,) arrays, entry k of lane l at k LANES + l (structure of arrays: every per-element loop below runs
 # on vectors). 64 lanes keep a chunk's working set (rest gradients, rotations, differences, iterates: ~25 KiB)
 # in L1; the padding lanes of the last chunk are an element with zero gradients, which stays at F = I, R = I
@@ -89,7 +89,7 @@ def check_warping_model(name: str, warp: bool = True, allow_unbounded_warping: b
 # Chunks are handed to threads in BLOCKS contiguous runs, each with its own workspace (a chunk's result does
 # not depend on the workspace it used, so serial and threaded builds give the same bits).
 BLOCKS = 16
-# The lane steps shared with fem/neohookean.py are inlined by numba, not left to LLVM: called as functions,
+# The lane steps shared with fem/materials/neohookean.py are inlined by numba, not left to LLVM: called as functions,
 # their indexing kept the element pass from vectorising (the jelly man's warped force took 1.9x as long).
 INLINED = dict(SERIAL, inline="always")
 
@@ -124,7 +124,7 @@ def _differences(corner, u, w, D, DW, forces):
 def lane_gradient(D, grad, l, one):
     """one I + sum_c d_c g_c^T of lane l (d_c = D's rows 3 (c - 1).., g_c = grad's), row-major: with one = 1
     and D the differences of u, F = I + grad u; with one = 0 and D those of w = x0 + u + zeta v, G, the gradient
-    of w. The element passes' shared first step (here and in fem/neohookean.py), inlined into their lane
+    of w. The element passes' shared first step (here and in fem/materials/neohookean.py), inlined into their lane
     loops."""
     g10, g11, g12 = grad[l], grad[1 * LANES + l], grad[2 * LANES + l]
     g20, g21, g22 = grad[3 * LANES + l], grad[4 * LANES + l], grad[5 * LANES + l]
@@ -217,7 +217,7 @@ def _chunk_forces(DW, grad, vol, lam, mu, R, fe):
 
 @numba.njit(**SERIAL)
 def _element_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, rot, fe):
-    """Chunk c: differences, warm-started gradients, rotations (fem/element_rotation.py) stored in rot[c], and
+    """Chunk c: differences, warm-started gradients, rotations (fem/materials/element_rotation.py) stored in rot[c], and
     with ``forces`` the element forces. buf: (6, 9 LANES) workspace."""
     D, DW, X = buf[0], buf[1], buf[2]
     _differences(corner[c], u, w, D, DW, forces)
@@ -361,8 +361,8 @@ class ElementFrames:
 
     @property
     def bounds(self) -> np.ndarray:
-        """(chunks, LANES) view: the Neo-Hookean pass's tangent bounds by lane (fem/neohookean.py), kept where the
-        corotated pass keeps its rotations (padding lanes: the rest value)."""
+        """(chunks, LANES) view: the Neo-Hookean pass's tangent bounds by lane (fem/materials/neohookean.py), kept where
+        the corotated pass keeps its rotations (padding lanes: the rest value)."""
         return self.rot_lanes[:, :LANES]
 
     @property
@@ -391,7 +391,7 @@ def element_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None, f
 def run_element_kernel(serial, parallel, model: FemModel, u: np.ndarray, v: np.ndarray | None,
                        frames: ElementFrames | None, out: np.ndarray | None, threads: bool | None) -> np.ndarray:
     """out <- the force of (u, v) by an element kernel's serial or threaded build (this module's, or
-    fem/neohookean.py's), arguments checked (kernel_args) and frames built if not given."""
+    fem/materials/neohookean.py's), arguments checked (kernel_args) and frames built if not given."""
     (u,) = checked_rows(model, u=u)
     (v,) = checked_rows(model, v=np.zeros_like(u) if v is None else v)
     frames = ElementFrames.from_model(model) if frames is None else frames

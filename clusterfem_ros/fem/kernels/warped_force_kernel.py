@@ -1,4 +1,4 @@
-"""The warped force's passes over the clusters (eq. 10, symmetric blocks; fem/warping.py), C rows at a time:
+"""The warped force's passes over the clusters (eq. 10, symmetric blocks; fem/materials/warping.py), C rows at a time:
 the vertices' deformation gradients (for their rotations), then the force.
 
 With w = x0 + u + zeta v and the vertex rotations R held, the elastic-damping part of the warped force is
@@ -16,10 +16,10 @@ start at ROT_ROW j = 4 w_at). The row kernel it replaced did the 54 products of 
 12-18 ns per block on the jelly man on an AMD EPYC VM (Zen 4), where this sweep takes ~4 ns
 (tests/test_warped_force_kernel.py checks it against the twin).
 
-The deformation gradients, F_i = I + sum_j (u_j - u_i) g_ij^T with the constant g_ij = S_i^-1 d_ij (fem/warping.py),
-walk the same slices with g stored per block (P, 3, C) and u copied (``copy_rows``) into rows like w's (a row
-per lane and one more: cluster_force_kernel.input_rows): nine C-wide FMAs per position. Lane l of slice s
-writes column C s + l of F (9, S C), so the polar iteration that follows runs over contiguous lanes in slice
+The deformation gradients, F_i = I + sum_j (u_j - u_i) g_ij^T with the constant g_ij = S_i^-1 d_ij
+(fem/materials/warping.py), walk the same slices with g stored per block (P, 3, C) and u copied (``copy_rows``) into
+rows like w's (a row per lane and one more: cluster_force_kernel.input_rows): nine C-wide FMAs per position. Lane l of
+slice s writes column C s + l of F (9, S C), so the polar iteration that follows runs over contiguous lanes in slice
 order. The row loop it replaced took 5.6 ns per block, most of the rotations' time.
 
 What a build injects: nothing here is called by an unbound name. The two slice kernels are numba intrinsics
@@ -37,7 +37,7 @@ from .cluster_force_kernel import slice_sweep
 from .cluster_slices import W_ROW
 from .llvm_ir import (F64, accumulating_loop, double_data, fused_multiply_add, gathered_rows, i64, lane_values,
                       position_entries, slice_kernel_args, slice_kernel_typing, store_lane_rows, vector_at)
-from ..numba_config import serial_and_parallel
+from ...numba_config import serial_and_parallel
 
 # Doubles per vertex in the rotations' kernel copy: three rows of (R_a0, R_a1, R_a2, padding); a multiple of
 # W_ROW, so R_j's rows start at (ROT_ROW / W_ROW) w_at.

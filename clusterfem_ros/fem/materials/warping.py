@@ -18,7 +18,7 @@ each vertex's own diagonal block, -sum_j of its row's others (K_ij is not symmet
 not sum to a symmetric block). In the torn state that skew part was 0.24 % of the Jacobian's norm against
 eq. 10's 4.1 % (largest imaginary eigenvalue part 340x smaller), and the case settles (max E / budget
 0.93; benchmarks/stability_table.py, tests/test_hard_cases.py). Exact symmetry and translation invariance
-together need one rotation per element (fem/corotational.py). What stays exactly as in eq. 10: the same
+together need one rotation per element (fem/materials/corotational.py). What stays exactly as in eq. 10: the same
 constant clusters and per-vertex rotations; zero force for any rigid motion (all R_i equal: the two halves
 coincide with eq. 10); linear FEM to second order for small deformations (the first-order part of
 w_j - w_i - R_i d_ij is the linear one for every block of the row, since R_i is the row's); translation
@@ -58,15 +58,16 @@ import numba
 import numpy as np
 from numba import prange
 
-from .cluster_force_kernel import (finish_parallel, finish_serial, input_rows, kernel_input_parallel,
-                                   kernel_input_serial)
-from .cluster_slices import ClusterSlices, aligned_zeros, host_slices, lane_vertices, position_lanes, rest_offsets
+from ..kernels.cluster_force_kernel import (finish_parallel, finish_serial, input_rows, kernel_input_parallel,
+                                            kernel_input_serial)
+from ..kernels.cluster_slices import (ClusterSlices, aligned_zeros, host_slices, lane_vertices, position_lanes,
+                                      rest_offsets)
 from .kernel_args import checked_rows, output_rows, pick_build
-from .model import FemModel
-from ..numba_config import SERIAL, compiled, serial_and_parallel
+from ..model import FemModel
+from ...numba_config import SERIAL, compiled, serial_and_parallel
 from .polar import LANES, chunk_start, lane_accepted, polar_lanes, scalar_rotation
-from .warped_force_kernel import (ROT_ROW, copy_rows_parallel, copy_rows_serial, gradient_sweep_parallel,
-                                  gradient_sweep_serial, warped_sweep_parallel, warped_sweep_serial)
+from ..kernels.warped_force_kernel import (ROT_ROW, copy_rows_parallel, copy_rows_serial, gradient_sweep_parallel,
+                                           gradient_sweep_serial, warped_sweep_parallel, warped_sweep_serial)
 
 @numba.njit(**SERIAL)
 def _chunk_rotations(k0, nl, owner, F, P, converged, how, tmp, rot, rot4):
