@@ -9,12 +9,13 @@ against rosbags' own deserialiser.
 from __future__ import annotations
 
 import struct
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from .config import ConfigError, SceneConfig, load_scene_file
 from .errors import ClusterFemError
 from .recording.bag_reader import PARAMS_FILE, JointSample, read_joint_states, topic_in
 
@@ -48,7 +49,7 @@ class BagFrames:
     surfaces: list[SurfaceFrame]
     joint_states: list[JointSample]
     urdf: str | None            # the skeleton's URDF, or None when neither the bag nor its scene gives one
-    scene: dict                 # scene_parameters.yaml as {dotted name: value} ({} when the folder has none)
+    scene: SceneConfig          # scene_parameters.yaml, read as the node reads a scene file (defaults without one)
     stresses: list[StressFrame] = field(default_factory=list)   # the stress PointClouds, in recording order
 
 
@@ -137,21 +138,17 @@ def decode_stress_cloud(data: bytes) -> StressFrame:
                        col["von_mises"])
 
 
-def _flatten(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        out.update(_flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
-    return out
-
-
-def scene_of(folder: Path) -> dict:
-    """The bag folder's scene_parameters.yaml as {dotted name: value}, unvalidated ({} when absent)."""
+def scene_of(folder: Path) -> SceneConfig:
+    """The bag folder's scene_parameters.yaml, read and checked as the node reads a scene file; the default scene
+    when the folder has none, or when its file no longer loads (a bag of an older version: said in a warning)."""
     path = folder / PARAMS_FILE
     if not path.exists():
-        return {}
-    doc = yaml.safe_load(path.read_text()) or {}
-    section = next(iter(doc.values()), {}) if isinstance(doc, dict) else {}
-    return _flatten((section or {}).get("ros__parameters") or {})
+        return SceneConfig()
+    try:
+        return load_scene_file(path)
+    except ConfigError as exc:
+        warnings.warn(f"{exc}; the bag is drawn with the default scene's parameters", stacklevel=2)
+        return SceneConfig()
 
 
 def _mcap_file(folder: Path) -> Path:
@@ -164,17 +161,17 @@ def _mcap_file(folder: Path) -> Path:
     return files[0]
 
 
-def _skeleton_urdf(scene: dict, bag_urdf: str | None, folder: Path) -> str | None:
+def _skeleton_urdf(scene: SceneConfig, bag_urdf: str | None, folder: Path) -> str | None:
     """The scene's skeleton.urdf_file when it names one that is found (the node ignores robot_description then,
     which a player may still have latched into the bag), else the bag's own robot_description, else the built-in
     humanoid for a builtin scene; mounted and with leaf tips as the node made its skeleton
     (skeleton.link_shapes.prepare_urdf), so the drawn bones match the body."""
     from .skeleton.urdf_check import CEILING, check_urdf, read_urdf_file
-    source = scene.get("skeleton.source", "builtin")
+    source = scene.skeleton.source
     urdf, where = None, None
     if source == "urdf_file":
         from .body.fit import FitError, find_data_file
-        name = str(scene.get("skeleton.urdf_file", ""))
+        name = scene.skeleton.urdf_file
         if name and (folder / name).is_file():
             where = folder / name
         elif name:
@@ -191,8 +188,8 @@ def _skeleton_urdf(scene: dict, bag_urdf: str | None, folder: Path) -> str | Non
         return None
     from .skeleton.link_shapes import prepare_urdf
     check_urdf(urdf, CEILING)               # a bag's description is the world's: a bounded tree first (urdf_check.py)
-    return prepare_urdf(urdf, scene.get("skeleton.up_axis", "z"), scene.get("skeleton.root_joint", "auto"),
-                        leaf_shapes=scene.get("body.kind", "jelly_man") == "jelly_man", urdf_file=where).urdf
+    return prepare_urdf(urdf, scene.skeleton.up_axis, scene.skeleton.root_joint,
+                        leaf_shapes=scene.body.kind == "jelly_man", urdf_file=where).urdf
 
 
 def read_bag_frames(folder: str | Path) -> BagFrames:

@@ -464,6 +464,13 @@ class SceneConfig:
             return name
         return auto_model(self.method, self.values["budget.max_error_mm"] > 0, self.values["physics.plan_stretch"])
 
+    @property
+    def marker_stress_max(self) -> float:
+        """The von Mises stress [Pa] the node's surface Markers colour at the top of the map: output.stress_max,
+        or E / 20 when that is 0. The one definition: the node colours by it, a renderer reads recorded colours
+        back with it."""
+        return self.output.stress_max or self.material.young_modulus / 20.0
+
     # Each typed section is built once per config (a config is never changed, with_values makes a new one):
     # the physics thread and the joint-state callback read them per step and per message.
     @cached_property

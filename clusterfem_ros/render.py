@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .config import SceneConfig
 
 PNG_VIEWS = ((10, -90, "side (x-z)"), (10, 0, "front (y-z)"))     # (elevation, azimuth [deg], title): azimuth
                                                                    # -90 looks along +y, 0 along -x
@@ -115,12 +116,9 @@ class VideoOptions:
     stress_max: float = 0.0         # top of the colour scale [Pa]; 0 = from the run (run_stress)
 
 
-def _recorded_scale(scene: dict) -> tuple[float, str]:
+def _recorded_scale(scene: SceneConfig) -> tuple[float, str]:
     """(stress mapped to the top colour [Pa], colour map) as the node coloured the recorded Markers."""
-    vmax = float(scene.get("output.stress_max", 0.0) or 0.0)
-    if vmax <= 0.0:
-        vmax = float(scene.get("material.young_modulus", 3.0e4)) / 20.0
-    return vmax, str(scene.get("output.colormap", "turbo"))
+    return scene.marker_stress_max, scene.output.colormap
 
 
 class _SkeletonPoser:
@@ -203,8 +201,8 @@ class FrameRenderer:
         bar = self.fig.colorbar(matplotlib.cm.ScalarMappable(matplotlib.colors.Normalize(0.0, self.vmax), cmap),
                                 cax=cax)
         bar.set_label("von Mises stress [Pa]" + (f"\n{scale_note}" if scale_note else ""))
-        self.fig.text(0.03, 0.02, f"{frames.folder.name}: {frames.scene.get('body.kind', 'body')}, "
-                      f"{frames.scene.get('method', '')}", fontsize=8, color="0.4")
+        self.fig.text(0.03, 0.02, f"{frames.folder.name}: {frames.scene.body.kind}, "
+                      f"{frames.scene.method}", fontsize=8, color="0.4")
         self._plt = plt
         self.fig.canvas.draw()                  # colour bar, labels: drawn once, then restored per frame
         self.background = self.fig.canvas.copy_from_bbox(self.fig.bbox)
@@ -368,7 +366,7 @@ def render_bags(folders: list, mp4: str | Path | None = None, gif: str | Path | 
             else:
                 renderer = FrameRenderer(frames, options, stress, vmax, note)
                 skeleton_note = renderer.skeleton_note
-            if skeleton_note and frames.scene.get("skeleton.source", "builtin") != "none":
+            if skeleton_note and frames.scene.skeleton.source != "none":
                 progress(f"[render] {skeleton_note}")
             image, drawn = None, -1
             try:

@@ -125,7 +125,7 @@ class VtkFrameRenderer:
             self.bones = self.plotter.add_mesh(self.bone_lines, color="#202020", line_width=5,
                                                render_lines_as_tubes=True)
         self.clock = self.plotter.add_text("", position="upper_left", font_size=14, color="black", font="courier")
-        name = f"{frames.folder.name}: {frames.scene.get('body.kind', 'body')}, {frames.scene.get('method', '')}"
+        name = f"{frames.folder.name}: {frames.scene.body.kind}, {frames.scene.method}"
         self.plotter.add_text(name, position="lower_left", font_size=8, color="#555555")
         self.plotter.camera.view_angle = VIEW_ANGLE
 

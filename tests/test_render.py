@@ -42,7 +42,7 @@ def test_the_sample_bag_gives_frames_joint_states_and_the_humanoid():
     assert len(frames.joint_states) == int(meta.split("name: /joint_states")[1].split("message_count:")[1].split()[0])
     stamps = [s.stamp_ns for s in frames.surfaces]
     assert stamps == sorted(stamps)
-    assert frames.urdf and "<robot" in frames.urdf and frames.scene["skeleton.source"] == "builtin"
+    assert frames.urdf and "<robot" in frames.urdf and frames.scene.skeleton.source == "builtin"
 
 
 def test_the_camera_axes_are_a_right_handed_orthonormal_frame():

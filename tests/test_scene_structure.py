@@ -18,27 +18,43 @@ LEFT: set[tuple[str, str]] = set()
 
 
 def is_config(node: ast.expr) -> bool:
-    """A name the package gives a config: config, self.config, c, cfg, scene_config, ..."""
+    """A name the package gives a config or a scene's values: config, self.config, c, cfg, frames.scene, ..."""
     name = node.id if isinstance(node, ast.Name) else node.attr if isinstance(node, ast.Attribute) else ""
-    return name in ("c", "cfg") or "config" in name
+    return name in ("c", "cfg") or "config" in name or "scene" in name
+
+
+def _read_key(node: ast.AST) -> tuple[ast.expr, object] | None:
+    """(object, key) of a read by a constant key: ``x["key"]`` (not a store) or ``x.get("key", ...)``."""
+    if isinstance(node, ast.Subscript) and isinstance(node.ctx, ast.Load) and isinstance(node.slice, ast.Constant):
+        return node.value, node.slice.value
+    if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "get"
+            and node.args and isinstance(node.args[0], ast.Constant)):
+        return node.func.value, node.args[0].value
+    return None
 
 
 def string_key_reads(path: Path) -> list[tuple[int, str]]:
-    """(line, parameter) of every read of a config by a parameter's name (config["body.kind"]) in a file (not
-    the overrides a dict of values sets, not a CSV row's columns)."""
+    """(line, parameter) of every read of scene values by a parameter's name in a file: a section's dotted name
+    on any mapping (config["body.kind"], values.get("output.colormap")), a name outside the sections on a config
+    or scene (config["method"]); not the overrides a dict of values sets, not a CSV row's columns."""
     out = []
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if (isinstance(node, ast.Subscript) and isinstance(node.ctx, ast.Load) and is_config(node.value)
-                and isinstance(node.slice, ast.Constant) and node.slice.value in NAMES):
-            out.append((node.lineno, node.slice.value))
+        read = _read_key(node)
+        if read is None or read[1] not in NAMES:
+            continue
+        if "." in read[1] or is_config(read[0]):
+            out.append((node.lineno, read[1]))
     return out
 
 
 def test_the_finder_sees_a_string_key_read(tmp_path):
     path = tmp_path / "probe.py"
-    path.write_text('def f(self, c, row, out):\n    out["method"] = row["method"]\n'
-                    '    return self.config["body.kind"], c["physics.step"], c["not.a.parameter"]\n')
-    assert sorted(string_key_reads(path)) == [(3, "body.kind"), (3, "physics.step")]
+    path.write_text('def f(self, c, row, out, frames, d):\n    out["method"] = row["method"]\n'
+                    '    return self.config["body.kind"], c["physics.step"], c["not.a.parameter"]\n'
+                    'def g(frames, d, row):\n'
+                    '    return frames.scene.get("method", ""), d.get("output.colormap"), row.get("method")\n')
+    assert sorted(string_key_reads(path)) == [(3, "body.kind"), (3, "physics.step"), (5, "method"),
+                                              (5, "output.colormap")]
 
 
 def test_the_package_reads_its_config_through_typed_sections():

@@ -344,7 +344,7 @@ class ClusterFemNode(Node):
         return int(round(snap.sim_time * 1e9))
 
     def _stress_max(self) -> float:
-        return self.config.output.stress_max or self.config.material.young_modulus / 20.0
+        return self.config.marker_stress_max
 
     def _stress(self, snap: Snapshot):
         return snap.stress(self.scene.model, self.config.warping, self.physics.stages)
