@@ -1,84 +1,31 @@
-"""Issue-2 benchmark: ms/step of the clustered and standard methods on the paper's three objects.
+"""The warped step's cost against the linear one, and the clustered step against the standard methods, on the
+jelly man and the paper's three objects (docs/benchmarks.md, "Core", has the tables and what they show).
 
     python -m benchmarks.core_benchmark [--step 1e-3] [--scale 1.0] [--sizes 1,2,4] [--warping-only]
 
-First table: the warped step's cost against the linear one (per-element and per-vertex warping) on the jelly
-man (the default scene's body, free, from a twisted state) and the paper's shapes (``warping_cost``); under it
-one roofline line: the Neo-Hookean step per tet against the floor its flops and bytes set on this host
-(benchmarks/roofline.py).
+First table: the warped step's cost against the linear one (per-element and per-vertex warping, Neo-Hookean)
+on the jelly man (the default scene's body, free, from a twisted state) and the paper's shapes
+(``warping_cost``); under it one roofline line: the Neo-Hookean step per tet against the floor its flops and
+bytes set on this host (benchmarks/roofline.py).
 
-Every method runs the same scene (the object's bottom fixed, gravity, same material and step) and
-is timed after warm-up (JIT compilation excluded). All methods and kernel pieces of a shape are timed in
-interleaved rounds (benchmarks/timing.interleaved_seconds): times are medians over the rounds, ratios the medians
-of each round's own ratio, so a slow spell of the host cannot flip a target (timed one after the other, one
-run read the sphere's implicit-direct ratio as 17x; interleaved, 21-27x on the same host). 'stream' is a bare
-pass that reads every block and column index of the clusters once, vectorized: the memory-bound floor for the
-force kernel.
+Every method runs the same scene (the object's bottom fixed, gravity, same material and step) and is timed after
+warm-up (JIT compilation excluded). All methods and kernel pieces of a shape are timed in interleaved rounds
+(benchmarks/timing.interleaved_seconds): times are medians over the rounds, ratios the medians of each round's
+own ratio, so a slow spell of the host cannot flip a comparison. 'stream' is a bare pass that reads every block
+and column index of the clusters once, vectorized: the memory-bound floor for the force kernel.
 
 The floor is the faster of two bare reads of 64-byte-aligned copies of the clusters' block and index arrays:
-numba's own loop, which LLVM vectorizes 4 wide (it prefers 256-bit vectors on AVX-512 parts), and
-an IR loop as wide as the kernel's vectors (8 doubles). While the blocks sit in L2 (the paper's sizes) the
-8-wide read is 10-12 % faster; from 2 MB of blocks on the two are equal. Until 2026-11-23 evening the floor
-was the 4-wide read alone, which made the sweep of then look 1.45-1.53x the stream; it was 1.6-1.75x the
-8-wide one.
-(numpy gives the arrays 16-byte alignment, over which the stream ran up to 1.7x slower on this host.)
+numba's own loop, which LLVM vectorizes 4 wide (it prefers 256-bit vectors on AVX-512 parts), and an IR loop as
+wide as the kernel's vectors (8 doubles); while the blocks sit in L2 the wider read is the faster, so taking
+the faster of the two keeps the floor honest on every host. (numpy gives the arrays 16-byte alignment, over
+which a stream reads markedly slower.)
 'step' is the clustered step's compiled part (ClusteredExplicit.compiled_step: the sweep and the passes
 over the vertices), timed inside numba; the whole step, with Python and numba's dispatch, beside it.
 'kernel' is the whole force the integrator needs, f = -K (u + zeta v) - xi M v: the w pass, the sweep over the
 blocks and the finish in vertex order (cluster_force_kernel.force_kernel_serial). 'sweep' is the pass over
 the block data alone (stiffness_slices_serial). 'w held' is the sweep with w held at one row: the same block
-loads, FMAs and stores without the gather of w (and without reading the indices).
-
-On the AMD EPYC VM (Zen 4, 1 MB L2) of 2026-11-23 night the sweep is 1.35-1.65x the floor (at 1.5x or under
-in 11 of 17 runs), the whole force 1.65-2.03x and the step's compiled part 1.81-2.25x; at 16 MB of blocks the
-sweep read 1.8-3.7x across runs (the held-w control 1.1x), so there the gather did not hide behind the memory
-traffic as it did on the Intel host below.
-
-History, measured on the 2026-11-23 host (Intel Xeon, AVX-512; earlier sessions ran on a Zen 1):
-- The row kernel (one cluster row at a time, the nine products of a block in 4-wide FMAs, w[j] gathered
-  per block) was 5.7-6.0 us on the sphere, 2.7-2.9x the 4-wide stream, however it was arranged: 4 or 8
-  accumulator sets, 8-wide FMAs, pre-shuffled w, pre-multiplied indices, padded or aligned blocks each
-  moved it 10 % or less. With w hoisted (no gather) it ran 1.2 instead of 1.45 ns per block; with all
-  blocks in one row, 1.22 ns with the gather and 0.66 ns without (the stream's speed): the gather and the
-  per-row reduction were the cost.
-- Slices of C rows (cluster_slices.py, SELL-C; C = 8 here) remove the per-row reduction and turn the
-  per-block gather into C row loads and one transpose per position: the sweep was 3.1-3.3 us on the sphere.
-  A C prototype of the same layout (gcc -O3 -march=native, intrinsics) ran 2.9-3.2 us. Storing each
-  neighbour as the start of its row of w (4 j) instead of j took the multiply out of the address chain:
-  2.8-2.9 us. Writing each row's K w to its vertex's row (so that the integrator's update runs over flat
-  arrays) costs 3-8 % of that; the step gained 10-15 %.
-- Where the rest goes: the sweep with w held runs at the stream's speed (0.97-1.09x: it reads no indices),
-  so the blocks' loads, the FMAs and the stores cost nothing beyond the read, and what the sweep has over
-  the floor (0.5-0.7x the stream on the paper's shapes) is the gather of w: per position C index loads, C
-  dependent row loads and the transpose. Not kept, in the C prototype: software prefetch of blocks and
-  indices (2-4 %; nothing in the IR kernel), two slices interleaved (nothing), 8-wide hardware gathers
-  (vgatherqpd, from (n, 4) rows or from x, y, z arrays: slower), 32-bit offsets (~4 %, but the kernel would
-  read fewer index bytes than the floor).
-- Once the blocks leave L2 the gather hides behind the memory traffic: sweep/stream 1.5-1.7 at 0.3 MB of
-  blocks, 1.35-1.4 at 2.2 MB, 1.08 at 16 MB (the second table).
-- What is left between the sweep and the whole force is per vertex: the w pass (~0.3 us) and the flat
-  finish (~0.15 us).
-
-On the AMD EPYC VM of 2026-11-24 (Zen 3, AVX2: 4 lanes; 512 KB L2 per core) the sweep read 1.25-1.44x the floor,
-the step's compiled part 1.72-2.14x (six runs, all three shapes). The floor streams the sphere's 0.3 MB of blocks
-at ~100 GB/s, about what Zen 3's L2 delivers (32 bytes a cycle). A C prototype (gcc -O3 -march=native, AVX2
-intrinsics, the same slices) took the sweep apart:
-- without the transpose it is as fast: the shuffles cost nothing;
-- with the index loads but each lane's rows of w at a fixed place it reads 1.15-1.2x, with the rows at their
-  vertices 1.3-1.4x: the gathered rows miss L1 (the blocks streaming through it evict them) more than the
-  index loads cost. Rows of w sorted within windows of 64 instead of 1024 (the voxel order's locality kept)
-  took ~0.05 off in C and nothing measurable in numba's step; 16- or 32-bit offsets make the sweep and the
-  floor faster alike.
-- the flat update pass moves seven arrays of 3n doubles (~60 KB on the sphere, more than L1 holds): 0.8-0.9 us
-  in numba, 0.63 us in C (restrict pointers). Rows of 3 in w (cluster_slices.py) made the w pass flat,
-  0.42 -> 0.20 us, and the step faster in 11 of 12 alternating process pairs (5-7 % on the means).
-- a fused step (each slice's update right after its sums, vertices renumbered so that a slice's lanes are
-  consecutive vertices, w double-buffered, so no K w rows and no separate w pass) ran 1.51-1.71x the floor
-  against 1.60-1.81x for the unfused C step in the same runs. The state a step reads and writes (u, v, the
-  constant forces, the masses, w: ~90 KB on the sphere beside 0.3 MB of blocks) stays, so a step's own floor is
-  about 1.3x the blocks' stream (an estimate from the bytes), and the gather adds 0.25-0.4 on top: 1.5x for
-  the whole step is at the edge of this layout on these hosts (the fused C step's best run read 1.51). Not
-  kept: the renumbering would reach every user of vertex indices, for ~0.1.
+loads, FMAs and stores without the gather of w (and without reading the indices), which shows how much of the
+sweep's excess over the floor is the gather.
 """
 from __future__ import annotations
 

@@ -175,7 +175,19 @@ def test_the_foxglove_layout_shows_what_the_node_records():
     assert {"step_ms", "real_time_factor", "volume_error"} <= set(plotted)
 
 
+def test_the_readme_reads_in_five_minutes():
+    """What it is, the two commands, using the nodes, one results table, the layout, known limits: the rest
+    lives in docs/."""
+    size = len(README.read_bytes())
+    assert size <= 12_000, f"README.md is {size} bytes, over 12,000: move detail to docs/"
+
+
 def test_readme_and_docs_carry_no_dates_and_link_only_existing_files():
+    sources = [f for top in ("clusterfem_ros", "msg_adapters", "benchmarks")
+               for f in sorted((ROOT / top).rglob("*.py"))]
+    for source in sources:                      # docstrings and comments say what code does and why, not when
+        dates = re.findall(r"\b20\d\d-\d\d-\d\d\b", source.read_text())
+        assert not dates, f"{source.relative_to(ROOT)} has dates {dates}: history lives in git"
     for page in [README, *sorted((ROOT / "docs").glob("*.md"))]:
         text = page.read_text()
         dates = re.findall(r"\b20\d\d-\d\d-\d\d\b", text)

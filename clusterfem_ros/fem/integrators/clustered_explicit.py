@@ -10,7 +10,7 @@ fem/materials/warping.py: eq. 10, symmetrised) for comparison, which has no ener
 The critical step is the linear K's. A corotated element stretched several times its size is stiffer than
 that (its tangent's twist modes grow with lambda tr(S - I)), so a warped step is planned for the linear K's
 largest eigenvalue times a stretch factor (``StretchPlan``): undamped, the bar with a vertex torn 0.5 m
-away no longer diverges at the default safety (tests/test_hard_cases.py); the few per cent its energy still
+away stays bounded at the default safety (tests/test_hard_cases.py); the few per cent its energy still
 gains come from the elements the tear inverts (benchmarks/stability_table.py's docstring).
 
 Python per step is kept to what can change: the sub-step plan is cached while h and the attachment gains'
