@@ -117,6 +117,7 @@ def main(argv=None) -> None:
     from std_msgs.msg import String
     from visualization_msgs.msg import Marker
 
+    from clusterfem_ros import topics
     from clusterfem_ros.nodes.clusterfem_node import LATCHED
     from clusterfem_ros.skeleton.humanoid import default_humanoid
     from clusterfem_ros.skeleton.kinematics import Skeleton
@@ -138,11 +139,11 @@ def main(argv=None) -> None:
             if st.name.endswith("simulation"):
                 state["diag"] = {kv.key: kv.value for kv in st.values}
 
-    me.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 10)
-    me.create_subscription(Marker, "clusterfem/surface", lambda m: state.__setitem__("markers", state["markers"] + 1),
-                           1)
-    urdf_pub = me.create_publisher(String, "robot_description", LATCHED)
-    joints_pub = me.create_publisher(JointState, "joint_states", 10)
+    me.create_subscription(DiagnosticArray, topics.DIAGNOSTICS.name, on_diag, 10)
+    me.create_subscription(Marker, topics.SURFACE.name,
+                           lambda m: state.__setitem__("markers", state["markers"] + 1), 1)
+    urdf_pub = me.create_publisher(String, topics.ROBOT_DESCRIPTION.name, LATCHED)
+    joints_pub = me.create_publisher(JointState, topics.JOINT_STATES.name, 10)
     human = default_humanoid().urdf
     names = Skeleton.from_urdf_string(human).joint_names
 

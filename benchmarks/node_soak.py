@@ -56,6 +56,7 @@ def node_soak(path: Path, overrides: dict | None = None, seconds: float | None =
     from clusterfem_ros.nodes.testing import RosWorld
     from clusterfem_ros.nodes.clusterfem_node import ClusterFemNode
     from clusterfem_ros.nodes.player_node import MocapPlayer
+    from clusterfem_ros import topics
     motion = load_motion("bvh", path)
     length = motion.trajectory.duration if seconds is None else min(seconds, motion.trajectory.duration)
     config = clip_config({"physics.clock": "input", "output.marker_rate_hz": 30.0, "output.stress_rate_hz": 0.0,
@@ -64,8 +65,8 @@ def node_soak(path: Path, overrides: dict | None = None, seconds: float | None =
     with RosWorld() as world:
         sim = world.add(ClusterFemNode(context=world.context, parameter_overrides=[
             Parameter(k, value=v) for k, v in config.values.items()]))
-        markers = world.collect(Marker, "clusterfem/surface", qos=1000)
-        sent = world.collect(JointState, "joint_states", qos=1000)
+        markers = world.collect(Marker, topics.SURFACE.name, qos=1000)
+        sent = world.collect(JointState, topics.JOINT_STATES.name, qos=1000)
         player = world.add(MocapPlayer(context=world.context, parameter_overrides=[
             Parameter("source", value="bvh"), Parameter("file", value=str(path)), Parameter("rate_hz", value=120.0),
             Parameter("loop", value=False)]))

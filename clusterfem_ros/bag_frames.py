@@ -15,14 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
+from . import topics
 from .config import ConfigError, SceneConfig, load_scene_file
 from .errors import ClusterFemError
 from .recording.bag_reader import PARAMS_FILE, JointSample, read_joint_states, topic_in
 
-SURFACE_TOPIC = "/clusterfem/surface"
-STRESS_TOPIC = "/clusterfem/stress"
-JOINT_TOPIC = "/joint_states"
-URDF_TOPIC = "/robot_description"
+SURFACE_TOPIC = topics.SURFACE.recorded
+STRESS_TOPIC = topics.STRESS.recorded
+JOINT_TOPIC = topics.JOINT_STATES.recorded
+URDF_TOPIC = topics.ROBOT_DESCRIPTION.recorded
 
 
 class BagFramesError(ClusterFemError, ValueError):

@@ -27,7 +27,8 @@ ALLOWED = {
     "numba_cache": set(),                         # where numba's cache lives (the package keys it at import)
     "numba_config": set(),                        # numba build flags for every part that compiles code
     "data_dirs": set(),                           # where data files given by name are looked for
-    "recording": {"errors"},                      # a leaf: it records bytes, knows no physics and no scene
+    "topics": set(),                              # the topics' names, types and QoS, declared once
+    "recording": {"errors", "topics"},            # a leaf: it records bytes, knows no physics and no scene
     # the numerical core's own layers, bottom up (clusterfem_ros/fem/__init__.py); 'fem' is its modules model.py
     # and stability.py, which the materials and integrators share
     "fem.mesh": {"errors", "numba_config"},
@@ -41,7 +42,8 @@ FEM = {p for p in ALLOWED if p.split(".")[0] == "fem"}
 ALLOWED.update({
     "skeleton": {"errors", "numba_config", "data_dirs"} | FEM,      # the jelly body's mesh; URDF mesh files
     "body": {"errors", "numba_config", "data_dirs", "skeleton"} | FEM,
-    "": {"errors", "numba_cache", "numba_config", "data_dirs", "recording", "skeleton", "body", ""} | FEM,  # config...
+    "": {"errors", "numba_cache", "numba_config", "data_dirs", "topics", "recording", "skeleton", "body",
+         ""} | FEM,  # config, scene, ...
 })
 PHYSICS = {"numba", "scipy", "pinocchio", "llvmlite"}
 def module_files(root: Path = ROOT, packages=PACKAGES) -> dict[str, Path]:
@@ -199,7 +201,7 @@ def test_the_graph_reads_every_kind_of_import(tmp_path):
                      "'fem.linear', 'fem.mesh', 'numba_config']",
                      "fem.mesh.low imports clusterfem_ros.fem.materials.neo: fem.mesh may import only ['errors', "
                      "'numba_config']",
-                     "recording.rec imports clusterfem_ros.scene: recording may import only ['errors']",
+                     "recording.rec imports clusterfem_ros.scene: recording may import only ['errors', 'topics']",
                      "msg_adapters.m imports numba: msg_adapters holds no physics",
                      "msg_adapters.m imports clusterfem_ros.fem.kern: msg_adapters converts messages"):
         assert expected in bad, expected

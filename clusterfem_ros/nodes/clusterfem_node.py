@@ -37,14 +37,16 @@ from msg_adapters.joint_state import joint_state_cdr_extent, joint_state_fields,
 from msg_adapters.marker import surface_marker_cdr
 from msg_adapters.pointcloud import stress_cloud_cdr
 
+from .. import topics
 from ..scene import Scene
 from ..skeleton.urdf_check import UrdfLimits, UrdfRefused, check_urdf
 from ..sim_loop import SimLoop, Snapshot
 from .params import declare_scene_parameters
 from .spinning import run_node
 
-SURFACE_TOPIC, STRESS_TOPIC, DIAG_TOPIC, JOINTS_TOPIC = "clusterfem/surface", "clusterfem/stress", "/diagnostics", "joint_states"
-URDF_TOPIC = "robot_description"        # latched by the player when skeleton.source is robot_description
+SURFACE_TOPIC, STRESS_TOPIC, DIAG_TOPIC = topics.SURFACE.name, topics.STRESS.name, topics.DIAGNOSTICS.name
+JOINTS_TOPIC = topics.JOINT_STATES.name
+URDF_TOPIC = topics.ROBOT_DESCRIPTION.name      # latched by the player when skeleton.source is robot_description
 ERROR_HOLD_S = 10.0         # /diagnostics stays at ERROR this long after a failed physics step
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
@@ -144,21 +146,22 @@ class ClusterFemNode(Node):
         self.build_error = None
         self._record(URDF_TOPIC, data)    # the bag carries its skeleton (the renderer poses it)
 
+    def _served_topics(self) -> tuple:
+        """What the bag records and the live view serves (topics.NODE_TOPICS), with the skeleton the scene was
+        built on when it came on robot_description."""
+        if self.config.skeleton.source == "robot_description":
+            return (*topics.NODE_TOPICS, topics.ROBOT_DESCRIPTION)
+        return topics.NODE_TOPICS
+
     def _open_recording(self) -> None:
         from ..recording.rosbag2_mcap import Rosbag2McapWriter, default_bag_path
         c = self.config
         path = default_bag_path(c.recording.prefix, root=c.recording.dir)
         self.recorder = Rosbag2McapWriter(path, max_queue_bytes=int(c.recording.max_queue_mb * 1e6))
         # bags name topics fully qualified, as rosbag2 does (namespace and remapping applied)
-        topics = [(JOINTS_TOPIC, "sensor_msgs/msg/JointState", "sensor_data"),
-                  (SURFACE_TOPIC, "visualization_msgs/msg/Marker", "reliable"),
-                  (STRESS_TOPIC, "sensor_msgs/msg/PointCloud2", "reliable"),
-                  (DIAG_TOPIC, "diagnostic_msgs/msg/DiagnosticArray", "reliable")]
-        if c.skeleton.source == "robot_description":      # the skeleton the scene was built on, once
-            topics.append((URDF_TOPIC, "std_msgs/msg/String", "transient_local"))
-        self._bag_topics = {t: self.resolve_topic_name(t) for t, _, _ in topics}
-        for topic, msg_type, qos in topics:
-            self.recorder.add_topic(self._bag_topics[topic], msg_type, qos=qos)
+        self._bag_topics = {t.name: self.resolve_topic_name(t.name) for t in self._served_topics()}
+        for t in self._served_topics():
+            self.recorder.add_topic(self._bag_topics[t.name], t.type, qos=t.qos)
         self.recording_path = path
         from ..config import scene_file_text
         from ..recording.bag_reader import PARAMS_FILE
@@ -169,13 +172,9 @@ class ClusterFemNode(Node):
         from .live_view import LiveView
         out = self.config.output
         self.live = LiveView(out.live_host, out.live_port, name=self.get_fully_qualified_name())
-        topics = [(JOINTS_TOPIC, "sensor_msgs/msg/JointState"), (SURFACE_TOPIC, "visualization_msgs/msg/Marker"),
-                  (STRESS_TOPIC, "sensor_msgs/msg/PointCloud2"), (DIAG_TOPIC, "diagnostic_msgs/msg/DiagnosticArray")]
-        if self.config.skeleton.source == "robot_description":
-            topics.append((URDF_TOPIC, "std_msgs/msg/String"))
-        self._live_topics = {t: self.resolve_topic_name(t) for t, _ in topics}
-        for topic, msg_type in topics:
-            self.live.add_topic(self._live_topics[topic], msg_type)
+        self._live_topics = {t.name: self.resolve_topic_name(t.name) for t in self._served_topics()}
+        for t in self._served_topics():
+            self.live.add_topic(self._live_topics[t.name], t.type)
         self.get_logger().info(f"live view on {self.live.url} (Foxglove: Open connection, Foxglove WebSocket; "
                                "layout config/foxglove_layout.json)")
 

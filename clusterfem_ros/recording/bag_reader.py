@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import topics
 from ..errors import ClusterFemError
 
 PARAMS_FILE = "scene_parameters.yaml"
@@ -47,7 +48,7 @@ def _reader(folder: Path):
     return AnyReader([Path(folder)])
 
 
-def read_joint_states(folder: str | Path, topic: str = "/joint_states") -> list[JointSample]:
+def read_joint_states(folder: str | Path, topic: str = topics.JOINT_STATES.recorded) -> list[JointSample]:
     """Every joint state in the bag, in recording order. BagReadError names the first record that does not
     decode (the node records only what it decoded, so such a record was written by something else)."""
     out = []
@@ -70,7 +71,7 @@ def read_joint_states(folder: str | Path, topic: str = "/joint_states") -> list[
     return out
 
 
-def read_surfaces(folder: str | Path, topic: str = "/clusterfem/surface") -> list[tuple[int, np.ndarray]]:
+def read_surfaces(folder: str | Path, topic: str = topics.SURFACE.recorded) -> list[tuple[int, np.ndarray]]:
     """(stamp in ns, triangle-list points (3t, 3)) of every recorded surface Marker (none without the topic)."""
     out = []
     with _reader(Path(folder)) as r:
