@@ -189,7 +189,9 @@ class LatencyMeter:
 class SimLoop:
     """The physics thread of one scene; see the module docstring."""
 
-    _started = 0                # loops started in this process (see start)
+    _running = 0                # loops started and not yet stopped in this process (see start)
+    _switch_before: float | None = None     # the process's switch interval while two or more loops run
+    _switch_lock = threading.Lock()
 
     def __init__(self, scene, now: Callable[[], float], timer_hz: float, max_catchup_steps: int,
                  log: Callable[[str, str], None], name: str = "physics",
@@ -233,20 +235,32 @@ class SimLoop:
         self._cpu = 0.0                                  # the thread's CPU seconds
         self._waited = (0.0, 0.0)                        # of an iteration of _run, (wall, CPU) seconds in _wait
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._counted = False                            # counted in SimLoop._running (start, until stop)
 
     # -- control ---------------------------------------------------------------------------------
     def start(self) -> None:
         # Physics threads of several bodies in one process hand the GIL back and forth around their nogil
         # kernels; at Python's default switch interval (5 ms) a thread back from its kernel waits up to that long
         # while another runs Python: two bodies in one process ran at a real-time factor of 0.38 each, 0.57-0.68
-        # at 0.2 ms (realtime_benchmark --bodies 2). One body keeps the default, under which it kept real time.
-        SimLoop._started += 1
-        if SimLoop._started > 1:
-            sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL))
+        # at 0.2 ms (realtime_benchmark --bodies 2). One body keeps the default, under which it kept real time;
+        # the interval the process had comes back when fewer than two loops run (stop).
+        with SimLoop._switch_lock:
+            SimLoop._running += 1
+            if SimLoop._running == 2:
+                SimLoop._switch_before = sys.getswitchinterval()
+                sys.setswitchinterval(min(SimLoop._switch_before, GIL_SWITCH_INTERVAL))
+        self._counted = True
         self._thread.start()
 
     def stop(self, timeout: float = 10.0) -> bool:
         """Stop and join the thread; True if it ended within ``timeout`` (a step is milliseconds)."""
+        with SimLoop._switch_lock:
+            if self._counted:
+                self._counted = False
+                SimLoop._running -= 1
+                if SimLoop._running == 1 and SimLoop._switch_before is not None:
+                    sys.setswitchinterval(SimLoop._switch_before)
+                    SimLoop._switch_before = None
         self._stop.set()
         with self._wake:
             self._wake.notify_all()

@@ -6,11 +6,12 @@ integrator's ``step(state, control, h)``; ``Control`` carries what changes from 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
 
-from .linear.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass
+from .linear.assembly import assemble_stiffness, element_stiffness_blocks, lumped_mass, shape_gradients
 from .kernels.clusters import Clusters, build_clusters
 from .linear.material import Material, ParameterError
 from .mesh.tet_mesh import TetMesh
@@ -31,6 +32,12 @@ class FemModel:
     @property
     def n_vertices(self) -> int:
         return self.mesh.n_vertices
+
+    @cached_property
+    def rest_gradients(self) -> tuple[np.ndarray, np.ndarray]:
+        """(g, vol): each tet's rest shape gradients (m, 4, 3) and volume (m,) [m^3], made on first use and kept
+        with the model (the stress asks at every output)."""
+        return shape_gradients(self.rest, self.mesh.tets)
 
     @property
     def rest(self) -> np.ndarray:

@@ -15,13 +15,11 @@ same compiled call. The node computes this for every surface marker (30 Hz): on 
 """
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 
-from ..linear.assembly import shape_gradients
 from ..model import FemModel
 from ...numba_config import SERIAL
 from .polar import LANES, chunk_start, lane_accepted, polar_lanes, scalar_rotation
@@ -73,17 +71,11 @@ def von_mises_of(sigma: np.ndarray) -> np.ndarray:
     return out.reshape(sigma.shape[:-2])[()]          # a scalar for one tensor
 
 
-# gradients of each model's rest mesh, kept while the model lives (the node asks at 10 Hz)
-_GRADIENTS: dict[int, tuple[weakref.ref, np.ndarray, np.ndarray, np.ndarray]] = {}
-
-
 def _rest_data(model: FemModel):
-    hit = _GRADIENTS.get(id(model))
-    if hit is not None and hit[0]() is model:
-        return hit[1:]
-    g, vol = shape_gradients(model.rest, model.mesh.tets)
+    """(g, vol, w): the rest shape gradients and volumes (kept with the model), and w, each vertex's summed
+    volume of the tets it is a corner of (the weights of the per-vertex average)."""
+    g, vol = model.rest_gradients
     w = np.bincount(model.mesh.tets.ravel(), weights=np.repeat(vol, 4), minlength=model.n_vertices)
-    _GRADIENTS[id(model)] = (weakref.ref(model, lambda _, k=id(model): _GRADIENTS.pop(k, None)), g, vol, w)
     return g, vol, w
 
 
