@@ -58,7 +58,7 @@ def check_poses(poses: PoseLike, n_bones: int, bone_names: Sequence[str] | None 
 
 
 @numba.njit(**HOLDS_GIL)
-def _rigid_motion(R, p, twist, dtwist, bone, local, x, v, a):
+def rigid_motion(R, p, twist, dtwist, bone, local, x, v, a):
     """Kernel of ``rigid_point_motion``: fills x, v, a (k, 3); arrays and scalars only."""
     for k in range(bone.shape[0]):
         b = bone[k]
@@ -90,7 +90,7 @@ def rigid_point_motion(R: np.ndarray, p: np.ndarray, twist: np.ndarray, dtwist: 
         raise ValueError(f"bone index {int(bone.max() if bone.max() >= R.shape[0] else bone.min())} is outside "
                          f"[0, {R.shape[0] - 1}]")
     x, v, a = np.empty((bone.size, 3)), np.empty((bone.size, 3)), np.empty((bone.size, 3))
-    _rigid_motion(np.ascontiguousarray(R, dtype=np.float64), np.ascontiguousarray(p, dtype=np.float64),
+    rigid_motion(np.ascontiguousarray(R, dtype=np.float64), np.ascontiguousarray(p, dtype=np.float64),
                   np.ascontiguousarray(twist, dtype=np.float64), np.ascontiguousarray(dtwist, dtype=np.float64),
                   bone, local, x, v, a)
     return x, v, a

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..fem.model import Attachments, Control, State
 from .binding import Binding
-from .constraints import (LevelGains, _rigid_motion, LineConstraint, PointConstraint, PoseLike, check_poses, line_set,
+from .constraints import (LevelGains, rigid_motion, LineConstraint, PointConstraint, PoseLike, check_poses, line_set,
                           line_set_targets, point_targets, rigid_point_motion)
 from ..numba_config import HOLDS_GIL
 
@@ -50,7 +50,7 @@ def _derivative_backward(f: list[np.ndarray], gaps: list[float]) -> np.ndarray:
 @numba.njit(**HOLDS_GIL)
 def _bone_targets(R, p, twist, f0, f1, h1, h2, bone, local, rest, dtwist, x, u, v, a):
     """One compiled pass for the streaming step's targets: Phi' by ``_derivative_backward``'s 3-point formula
-    from the history (f0, f1) and the new twist, then the bound points' rigid motion (``_rigid_motion``), then
+    from the history (f0, f1) and the new twist, then the bound points' rigid motion (``rigid_motion``), then
     u = x - rest. The same float operations in the same order as those numpy calls, so the same bits. Returns
     False (having filled nothing) if a pose or twist value is not finite: check_poses then names the bone."""
     for b in range(R.shape[0]):
@@ -66,7 +66,7 @@ def _bone_targets(R, p, twist, f0, f1, h1, h2, bone, local, rest, dtwist, x, u, 
     for b in range(R.shape[0]):
         for i in range(6):
             dtwist[b, i] = (f0[b, i] * h2 / c0 - f1[b, i] * s1 / c1) + twist[b, i] * s2 / c2
-    _rigid_motion(R, p, twist, dtwist, bone, local, x, v, a)
+    rigid_motion(R, p, twist, dtwist, bone, local, x, v, a)
     for k in range(x.shape[0]):
         for i in range(3):
             u[k, i] = x[k, i] - rest[k, i]
@@ -209,7 +209,7 @@ class SkeletonDriver:
         b = self.binding
         n = self.bound.size
         x, v, a = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
-        _rigid_motion(np.ascontiguousarray(R), np.ascontiguousarray(p), np.ascontiguousarray(twist),
+        rigid_motion(np.ascontiguousarray(R), np.ascontiguousarray(p), np.ascontiguousarray(twist),
                       np.ascontiguousarray(dtwist), self._bone_b, self._local_b, x, v, a)
         self.target_u = x - self._rest_b
         self.target_v, self.target_a = v, a

@@ -40,11 +40,12 @@ tens of elements, gains a few per cent of energy (benchmarks/stability_table.py'
 ``element_force`` and ``element_rotations`` are the checked public entries; ``ElementFrames`` holds the
 element data and workspace; fem/materials/corotational.py (numpy) is the twin the tests compare against.
 
-What a build injects: the kernel sources ``_element_e`` and ``_element_force`` call compiled functions by
-global names that no import defines, bound per build (serial or threaded) by numba_config.compiled, hence
-``# noqa: F821`` at each call: ``chunk`` (``_element_chunk``; fem/materials/neohookean.py binds its own) in
-``_element_pass``; ``element_pass`` and ``gather_rows`` in ``_element_e``; ``kernel_input``, ``element_e`` and
-``finish`` in ``_element_force``.
+What a build injects: the kernel sources ``element_e_source`` and ``element_force_source`` (public: every
+element model builds its kernels from them) call compiled functions by global names that no import defines,
+bound per build (serial or threaded) by numba_config.compiled, hence ``# noqa: F821`` at each call: ``chunk``
+(``_element_chunk``; fem/materials/neohookean.py binds its own) in ``element_pass_source``; ``element_pass``
+and ``gather_rows`` in ``element_e_source``; ``kernel_input``, ``element_e`` and ``finish`` in
+``element_force_source``.
 """
 from __future__ import annotations
 
@@ -109,7 +110,7 @@ def _corner_differences(corner, l, p, out):
 
 
 @numba.njit(**SERIAL)
-def _differences(corner, u, w, D, DW, forces):
+def element_differences(corner, u, w, D, DW, forces):
     """D[3 (c - 1) + a, l] <- u[i_c, a] - u[i_0, a] (c = 1, 2, 3; i_c = corner[c, l]); with ``forces`` DW the
     same of w: differences, so the round-off is relative to the element's size, not to its distance from the
     origin."""
@@ -220,7 +221,7 @@ def _element_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, r
     """Chunk c: differences, warm-started gradients, rotations (fem/materials/element_rotation.py) stored in rot[c], and
     with ``forces`` the element forces. buf: (6, 9 LANES) workspace."""
     D, DW, X = buf[0], buf[1], buf[2]
-    _differences(corner[c], u, w, D, DW, forces)
+    element_differences(corner[c], u, w, D, DW, forces)
     _warm_gradients(D, grad[c], rot[c], X)
     R = chunk_rotations(X, D, buf[3], buf[4], buf[5], how, tmp, rot[c])     # D is free once X is made
     rot[c, :] = R
@@ -232,7 +233,7 @@ def _element_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, r
 # ``gather`` = (vptr, slot), each vertex's element-corner rows in element order; ``work`` = (rot, buf, how,
 # tmp, fe, e), rotations by chunk (kept between calls: the warm start) and workspace.
 
-def _element_pass(elems, u, w, work, forces):
+def element_pass_source(elems, u, w, work, forces):
     """rot <- the element rotations of u; with ``forces``, fe <- the element forces of w (blocks of chunks in
     parallel)."""
     corner, grad, vol, lame = elems
@@ -263,12 +264,12 @@ def _gather(gather, fe, e):
         e[i, 2] = z
 
 
-element_pass_serial, element_pass_parallel = serial_and_parallel(_element_pass, serial={"chunk": _element_chunk},
+element_pass_serial, element_pass_parallel = serial_and_parallel(element_pass_source, serial={"chunk": _element_chunk},
                                                                  parallel={"chunk": _element_chunk})
 gather_serial, gather_parallel = serial_and_parallel(_gather)
 
 
-def _element_e(elems, gather, u, w, work):
+def element_e_source(elems, gather, u, w, work):
     """e <- the elastic-damping part of the element-warped force of w = x0 + u + zeta v (f = -e - xi M v), in
     rows by vertex; rot <- the element rotations of u. Same arguments as warping._warped_e, so the clustered
     integrator's warped step source runs either (``element_pass`` and ``gather_rows``: bound per build)."""
@@ -276,7 +277,7 @@ def _element_e(elems, gather, u, w, work):
     gather_rows(gather, work[4], work[5])  # noqa: F821
 
 
-def _element_force(elems, gather, rest, u, v, w, mass3, zeta, xi, work, out):
+def element_force_source(elems, gather, rest, u, v, w, mass3, zeta, xi, work, out):
     """out <- the element-warped force of (u, v), f = -e - xi M v (mass3: the lumped mass per coordinate)."""
     kernel_input(u.shape[0], zeta, rest, u, v, w, True)  # noqa: F821 (bound)
     element_e(elems, gather, u, w, work)  # noqa: F821
@@ -284,11 +285,12 @@ def _element_force(elems, gather, rest, u, v, w, mass3, zeta, xi, work, out):
 
 
 # no loop of their own: their callees carry the threads
-element_e_serial = compiled(_element_e, element_pass=element_pass_serial, gather_rows=gather_serial)
-element_e_parallel = compiled(_element_e, "_parallel", element_pass=element_pass_parallel, gather_rows=gather_parallel)
-element_kernel_serial = compiled(_element_force, kernel_input=kernel_input_serial, element_e=element_e_serial,
+element_e_serial = compiled(element_e_source, element_pass=element_pass_serial, gather_rows=gather_serial)
+element_e_parallel = compiled(element_e_source, "_parallel", element_pass=element_pass_parallel,
+                              gather_rows=gather_parallel)
+element_kernel_serial = compiled(element_force_source, kernel_input=kernel_input_serial, element_e=element_e_serial,
                                  finish=finish_serial)
-element_kernel_parallel = compiled(_element_force, "_parallel", kernel_input=kernel_input_parallel,
+element_kernel_parallel = compiled(element_force_source, "_parallel", kernel_input=kernel_input_parallel,
                                    element_e=element_e_parallel, finish=finish_parallel)
 
 

@@ -52,8 +52,8 @@ LANES elements by lane, element corner forces gathered per vertex in element ord
 builds give the same bits) without the rotations. ``neohookean_force`` is the checked public entry;
 ``reference_force`` and ``energy`` (numpy) are the twins the tests and the stability table use.
 
-Builds: the element warping's pass, pass-and-gather and force sources (``_element_pass``, ``_element_e``,
-``_element_force``) with this module's ``_neohookean_chunk`` bound as their ``chunk`` (numba_config.compiled).
+Builds: the element warping's pass, pass-and-gather and force sources (``element_pass_source``, ``element_e_source``,
+``element_force_source``) with this module's ``_neohookean_chunk`` bound as their ``chunk`` (numba_config.compiled).
 """
 from __future__ import annotations
 
@@ -66,8 +66,8 @@ from ..linear.assembly import shape_gradients
 from ..kernels.cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .corotational import deformation_gradients
 from .element_rotation import LANES
-from .element_warping import (INLINED, ElementFrames, _differences, _element_e, _element_force, _element_pass,
-                              gather_parallel, gather_serial, lane_gradient, run_element_kernel,
+from .element_warping import (INLINED, ElementFrames, element_differences, element_e_source, element_force_source,
+                              element_pass_source, gather_parallel, gather_serial, lane_gradient, run_element_kernel,
                               store_corner_forces)
 from .kernel_args import checked_rows, pick_build
 from ..model import FemModel
@@ -220,7 +220,7 @@ def _neohookean_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w
     the corotated chunk keeps its rotations) and with ``forces`` the element forces. The element warping's
     chunk signature, so its pass runs this one; the rotation workspace (how, tmp) is unused."""
     D, DW = buf[0], buf[1]
-    _differences(corner[c], u, w, D, DW, forces)
+    element_differences(corner[c], u, w, D, DW, forces)
     if forces:
         _chunk_forces(D, DW, grad[c], vol[c], lam, mu, fe[c], kept[c])
     else:
@@ -230,14 +230,14 @@ def _neohookean_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w
 # the element warping's sources around this chunk: the pass over blocks of chunks, the pass and gather, and
 # the whole force (w, the pass and gather, the finish)
 neohookean_pass_serial, neohookean_pass_parallel = serial_and_parallel(
-    _element_pass, "_neohookean", serial={"chunk": _neohookean_chunk}, parallel={"chunk": _neohookean_chunk})
-neohookean_e_serial = compiled(_element_e, "_neohookean", element_pass=neohookean_pass_serial,
+    element_pass_source, "_neohookean", serial={"chunk": _neohookean_chunk}, parallel={"chunk": _neohookean_chunk})
+neohookean_e_serial = compiled(element_e_source, "_neohookean", element_pass=neohookean_pass_serial,
                                gather_rows=gather_serial)
-neohookean_e_parallel = compiled(_element_e, "_neohookean_parallel", element_pass=neohookean_pass_parallel,
+neohookean_e_parallel = compiled(element_e_source, "_neohookean_parallel", element_pass=neohookean_pass_parallel,
                                  gather_rows=gather_parallel)
-neohookean_kernel_serial = compiled(_element_force, "_neohookean", kernel_input=kernel_input_serial,
+neohookean_kernel_serial = compiled(element_force_source, "_neohookean", kernel_input=kernel_input_serial,
                                     element_e=neohookean_e_serial, finish=finish_serial)
-neohookean_kernel_parallel = compiled(_element_force, "_neohookean_parallel", kernel_input=kernel_input_parallel,
+neohookean_kernel_parallel = compiled(element_force_source, "_neohookean_parallel", kernel_input=kernel_input_parallel,
                                       element_e=neohookean_e_parallel, finish=finish_parallel)
 
 
