@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Callable
 
 import numpy as np
@@ -475,4 +476,13 @@ class Scene:
         return total_volume(positions, self._corners) / self.rest_volume - 1.0
 
     def energy(self) -> float:
-        return self.model.kinetic_energy(self.state.v) + self.model.elastic_energy(self.state.u)
+        """Kinetic plus elastic energy [J] of the state, the elastic energy the running material model's."""
+        return self.energy_of(self.state.u, self.state.v)
+
+    def energy_of(self, u: np.ndarray, v: np.ndarray) -> float:
+        """Kinetic plus elastic energy [J] of (u, v) (a snapshot's), the elastic energy the running model's."""
+        return self.model.kinetic_energy(v) + self._elastic_energy(u)
+
+    @cached_property
+    def _elastic_energy(self) -> Callable[[np.ndarray], float]:
+        return self.integrator.material_model.energy_function(self.model)

@@ -39,6 +39,24 @@ def _cached_dispatchers():
                 for i, d in enumerate(obj if isinstance(obj, tuple) else (obj,)):
                     if isinstance(d, CPUDispatcher) and not isinstance(d._cache, NullCache):   # cache=True
                         found[f"{module.__name__}.{name}" + (f"[{i}]" if isinstance(obj, tuple) else "")] = d
+    found.update(_model_step_builds())
+    return found
+
+
+def _model_step_builds() -> dict:
+    """The clustered step's builds around every registered material model (made when a model is first run,
+    not at import: clustered_explicit.step_builds), on a small body."""
+    from clusterfem_ros.fem.integrators.clustered_explicit import step_builds
+    from clusterfem_ros.fem.materials.registry import MODELS
+    from clusterfem_ros.fem.model import build_model
+    from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
+    from clusterfem_ros.fem.linear.material import Material
+    model = build_model(box_mesh((0.1, 0.1, 0.1), (2, 2, 2)), Material())
+    found = {}
+    for name, material in MODELS.items():
+        built = step_builds(material.clustered(model))
+        for k, d in enumerate([b for pair in built if pair is not None for b in pair]):
+            found[f"clustered_explicit.step_builds({name!r})[{k}]"] = d
     return found
 
 

@@ -16,8 +16,8 @@ import numpy as np
 from benchmarks.core_benchmark import MATERIAL
 from clusterfem_ros.fem.kernels.cluster_force_kernel import clustered_force, force_kernel_parallel
 from clusterfem_ros.fem.materials.element_warping import element_force, element_kernel_parallel
-from clusterfem_ros.fem.integrators.clustered_explicit import (ClusteredExplicit, _element_step_parallel,
-                                                               _step_parallel, _warped_step_parallel)
+from clusterfem_ros.fem.integrators.clustered_explicit import ClusteredExplicit, step_builds
+from clusterfem_ros.fem.materials.registry import MODELS
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
 from clusterfem_ros.fem.materials.warping import warped_force, warped_kernel_parallel
@@ -49,10 +49,15 @@ def steps(model, u, v, threads: bool) -> dict[str, np.ndarray]:
     return out
 
 
-BUILDS = {"forces": {"force_kernel_parallel": force_kernel_parallel, "warped_kernel_parallel": warped_kernel_parallel,
-                     "element_kernel_parallel": element_kernel_parallel},
-          "steps": {"step_parallel": _step_parallel[1], "warped_step_parallel": _warped_step_parallel[1],
-                    "element_step_parallel": _element_step_parallel[1]}}
+def builds(model) -> dict[str, dict]:
+    """The threaded builds each kind of run uses: the force kernels, and the steps' (attachment-free) builds of
+    the linear, vertex and element models (clustered_explicit.step_builds)."""
+    def step(name):
+        return step_builds(MODELS[name].clustered(model))[1][1]
+    return {"forces": {"force_kernel_parallel": force_kernel_parallel, "warped_kernel_parallel": warped_kernel_parallel,
+                       "element_kernel_parallel": element_kernel_parallel},
+            "steps": {"step_parallel": step("linear"), "warped_step_parallel": step("vertex"),
+                      "element_step_parallel": step("element")}}
 
 
 def main(out: str, what: list[str]) -> None:
@@ -60,7 +65,7 @@ def main(out: str, what: list[str]) -> None:
     results = {}
     for name in what:
         results.update({"forces": forces, "steps": steps}[name](model, u, v, threads=True))
-        for build, d in BUILDS[name].items():
+        for build, d in builds(model)[name].items():
             print(f"{build} hits {sum(d.stats.cache_hits.values())} misses {sum(d.stats.cache_misses.values())}",
                   flush=True)
     np.savez(out, **results)

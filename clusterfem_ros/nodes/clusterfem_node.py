@@ -447,8 +447,7 @@ class ClusterFemNode(Node):
     def _energy(self, snap: Snapshot | None) -> float:
         if snap is None:
             return 0.0
-        m = self.scene.model
-        return m.kinetic_energy(snap.v) + m.elastic_energy(snap.u)
+        return self.scene.energy_of(snap.u, snap.v)
 
     def _volume_error(self, snap: Snapshot | None) -> float:
         if snap is None:

@@ -7,6 +7,7 @@ from typing import Protocol
 import numpy as np
 
 from ..model import Control, FemModel, State
+from ..materials.material_model import MaterialModel
 from ..stability import check_finite
 
 
@@ -20,6 +21,7 @@ class StepInfo:
 class Integrator(Protocol):
     name: str
     model: FemModel
+    material_model: MaterialModel       # what its elastic force is (fem/materials/material_model.py)
 
     def step(self, state: State, control: Control, h: float) -> StepInfo: ...
 

@@ -30,16 +30,13 @@ import time
 import numba
 import numpy as np
 
-from ..kernels.cluster_force_kernel import (cluster_args, kernel_input_serial, scratch, stiffness_slices_parallel,
-                                            stiffness_slices_serial)
-from ..kernels.cluster_slices import host_slices
+from ..kernels.cluster_force_kernel import kernel_input_serial, stiffness_slices_parallel, stiffness_slices_serial
 from ..model import Control, FemModel, State
 from ...numba_config import AUTO_THREADS_MIN_VERTICES, SERIAL, compiled
 from ..stability import check_safety, control_critical_step, max_eigenvalue, plan_substeps
+from ..materials.material_model import ClusteredParts, MaterialModel
+from ..materials.registry import material_model
 from ..materials.stretch import StretchPlan
-from ..materials.element_warping import ElementFrames, check_warping_model, element_e_parallel, element_e_serial
-from ..materials.neohookean import largest_bound, neohookean_e_parallel, neohookean_e_serial
-from ..materials.warping import VertexFrames, warped_e_parallel, warped_e_serial
 from .base import StepCommon, StepInfo
 
 
@@ -175,24 +172,29 @@ def _builds(step_source, free_source, suffix, **kernel):
     return step, compiled(free_source, suffix, step=step)
 
 
-# (attached, attachment-free) builds, serial and threaded kernels
+# (attached, attachment-free) builds of the linear step, serial and threaded sweeps
 _step_serial = _builds(_symplectic_euler, _free_symplectic_euler, "", stiffness=stiffness_slices_serial)
 _step_parallel = _builds(_symplectic_euler, _free_symplectic_euler, "_parallel", stiffness=stiffness_slices_parallel)
-_warped_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "", warped_e=warped_e_serial)
-_warped_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_parallel",
-                                warped_e=warped_e_parallel)
-# the same step source around the per-element warped kernel (fem/materials/element_warping.py)
-_element_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_element",
-                               warped_e=element_e_serial)
-_element_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_element_parallel",
-                                 warped_e=element_e_parallel)
-# and around the stable Neo-Hookean elements' kernel (fem/materials/neohookean.py), with its first force on its own
-_neohookean_step_serial = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_neohookean",
-                                  warped_e=neohookean_e_serial)
-_neohookean_step_parallel = _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, "_neohookean_parallel",
-                                    warped_e=neohookean_e_parallel)
-_neohookean_first = (compiled(_warped_first_force, "_neohookean", warped_e=neohookean_e_serial),
-                     compiled(_warped_first_force, "_neohookean_parallel", warped_e=neohookean_e_parallel))
+_WARPED_BUILDS: dict[str, tuple] = {}       # a model's build_suffix -> its step builds (step_builds)
+
+
+def step_builds(parts: ClusteredParts) -> tuple:
+    """((serial attached, serial free), (threaded attached, threaded free), first force (serial, threaded) or
+    None) of the step around a model's force pass (the linear sweep when it has none); made once per model
+    and kept (they are compiled functions, the same for every body of the model)."""
+    if parts.warped_e is None:
+        return _step_serial, _step_parallel, None
+    key = parts.build_suffix
+    if key not in _WARPED_BUILDS:
+        serial, parallel = parts.warped_e
+        first = None
+        if parts.bound is not None:     # the step makes its first force before it plans from the bounds
+            first = (compiled(_warped_first_force, key, warped_e=serial),
+                     compiled(_warped_first_force, key + "_parallel", warped_e=parallel))
+        _WARPED_BUILDS[key] = (_builds(_warped_symplectic_euler, _free_warped_symplectic_euler, key, warped_e=serial),
+                               _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, key + "_parallel",
+                                       warped_e=parallel), first)
+    return _WARPED_BUILDS[key]
 
 
 class ThreadChoice:
@@ -278,41 +280,30 @@ class ClusteredExplicit:
                  allow_unbounded_warping: bool = False):
         self.model = model
         self.warp = bool(warp)
-        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping,
-                                                 material=model.material)
+        self.material_model: MaterialModel = material_model(self.warp, warping_model)
+        self.material_model.check(allow_unbounded_warping, "clustered", model.material)
+        self.warping_model = warping_model
         self.safety = check_safety(safety)
         self.max_substeps = max_substeps
         self.lam_max = max_eigenvalue(model) if lam_max is None else lam_max
         n = model.n_vertices
         self.thread_choice = ThreadChoice() if threads is None and n >= AUTO_THREADS_MIN_VERTICES else None
         self.threads = bool(threads)
-        if self.warp and warping_model in ("element", "neohookean"):
-            element = warping_model == "element"
-            self.name = "clustered_warp" if element else "clustered_neohookean"
-            frames = self.frames = ElementFrames.from_model(model)
-            self._model_args = (frames.elems, frames.gather, frames.rest, frames.work)
-            self._builds = ((_element_step_serial, _element_step_parallel) if element
-                            else (_neohookean_step_serial, _neohookean_step_parallel))
-            self._w, self._f = frames.w, frames.e     # w: x0 + u + zeta v by vertex; e: the gathered rows
-        elif self.warp:
-            self.name = "clustered_warp_vertex"
-            frames = self.frames = VertexFrames.from_model(model)
-            self._model_args = (frames.gradients, frames.slices, frames.rest, frames.work)
-            self._builds = (_warped_step_serial, _warped_step_parallel)
-            self._w, self._f = frames.w, frames.e     # w: rows of 3 and one more; e: the sweep's rows, as K w's
-        else:
-            slices = host_slices(model.clusters)
-            self._w, self._f = scratch(slices)  # w: rows of 3 and one more (4-wide loads); f: the sweep's K w rows
-            self._model_args = cluster_args(slices)
-            self._builds = (_step_serial, _step_parallel)
+        self.name = "clustered" + self.material_model.suffix
+        parts = self._parts = self.material_model.clustered(model)
+        if parts.frames is not None:
+            self.frames = parts.frames
+        self._model_args, self._w, self._f = parts.model_args, parts.w, parts.e
+        serial, parallel, self._first_force = step_builds(parts)
+        self._builds = (serial, parallel)
         self._step = self._builds[self.threads]
         self._mass3 = np.repeat(model.mass, 3)
         self._inv_mass3 = np.repeat(np.where(model.fixed, 0.0, 1.0 / model.mass), 3)
         self._common = StepCommon(model)
         m = model.material
         self._zeta, self._xi = float(m.zeta), float(m.xi)
-        energy = "neohookean" if warping_model == "neohookean" else "corotated"
-        self.stretch = StretchPlan(model, energy=energy) if self.warp and plan_stretch else None
+        energy = self.material_model.stretch_energy
+        self.stretch = StretchPlan(model, energy=energy) if energy is not None and plan_stretch else None
         self._plan_key = None
         self._plan = None
         self._info = None
@@ -349,7 +340,7 @@ class ClusteredExplicit:
         args = (*self._model_args, self.model.mass, self._mass3, inv_mass3, common.fixed_index, state.u, state.v,
                 common.constant_forces(control), self._zeta, self._xi, plan.h_sub, plan.substeps, common.limit,
                 self._w, self._f)
-        return (*args, first_force) if self.warp else args
+        return (*args, first_force) if self._parts.warped_e is not None else args
 
     def _stiffer(self, state: State, h: float, parallel: bool) -> tuple[float, bool]:
         """(the stretch factor for a step of h from ``state``, whether the step's first force is made). The
@@ -357,11 +348,11 @@ class ClusteredExplicit:
         stretch = self.stretch
         if stretch is None:
             return 1.0, False
-        if stretch.energy == "corotated":
+        if self._first_force is None:
             return stretch.factor(state.u, h), False
-        _neohookean_first[parallel](*self._model_args, self._common.fixed_index, state.u, state.v, self._zeta,
+        self._first_force[parallel](*self._model_args, self._common.fixed_index, state.u, state.v, self._zeta,
                                     self._w)
-        bound, inverted = largest_bound(self.frames)
+        bound, inverted = self._parts.bound()
         # the inverted elements' tighter plan bounds an undamped body's energy; a damped one dissipates the
         # drift, and its quartered sub-step would push real motion past physics.max_substeps
         undamped = self._zeta == 0.0 and self._xi == 0.0

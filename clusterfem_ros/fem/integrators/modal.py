@@ -36,6 +36,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from ..linear.material import ParameterError
+from ..materials.registry import LINEAR
 from ..model import Control, FemModel, State
 from .rigid_modes import rigid_modes
 from .spd_factor import factorize_spd
@@ -118,6 +119,7 @@ def modal_basis(model: FemModel, k: int, held: np.ndarray | None = None) -> Moda
 class ModalIntegrator:
     """k-mode modal dynamics with the standard integrator interface (``step(state, control, h)``)."""
     name = "modal"
+    material_model = LINEAR             # the modes of the linear K
 
     def __init__(self, model: FemModel, k: int = 30):
         self.model = model

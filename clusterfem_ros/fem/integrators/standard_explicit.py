@@ -14,11 +14,8 @@ import numpy as np
 
 from ..model import Control, FemModel, State
 from ..stability import check_safety, control_critical_step, max_eigenvalue, plan_substeps
+from ..materials.registry import material_model
 from ..materials.stretch import StretchPlan
-from ..materials.corotational import ElementCorotation
-from ..materials.element_warping import ElementFrames, check_warping_model, element_rotations
-from ..materials.assembled_warp import AssembledWarp
-from ..materials.warping import VertexFrames, vertex_rotations
 from .base import StepCommon, StepInfo
 
 
@@ -30,16 +27,13 @@ class StandardExplicit:
                  plan_stretch: bool = True, allow_unbounded_warping: bool = False):
         self.model = model
         self.warp = bool(warp)
-        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping, self.name,
-                                                 material=model.material)
-        if self.warp and warping_model == "element":
-            self.name = "standard_explicit_warp"
-            self.frames = ElementFrames.from_model(model)
-            self._corotation = ElementCorotation(model)
-        elif self.warp:
-            self.name = "standard_explicit_warp_vertex"
-            self.frames = VertexFrames.from_model(model)
-            self._assembled = AssembledWarp(model)
+        self.material_model = material_model(self.warp, warping_model)
+        self.material_model.check(allow_unbounded_warping, self.name, model.material)
+        self.warping_model = warping_model
+        self._parts = self.material_model.standard(model)       # None: the linear force of K
+        self.name += self.material_model.suffix
+        if self._parts is not None:
+            self.frames = self._parts.frames
         self.safety = check_safety(safety)
         self.max_substeps = max_substeps
         self.lam_max = max_eigenvalue(model) if lam_max is None else lam_max
@@ -47,7 +41,8 @@ class StandardExplicit:
         self.D = model.damping_matrix()
         self._inv_mass = np.where(model.fixed, 0.0, 1.0 / model.mass)
         self._common = StepCommon(model)
-        self.stretch = StretchPlan(model) if self.warp and plan_stretch else None
+        energy = self.material_model.stretch_energy
+        self.stretch = StretchPlan(model, energy=energy) if energy is not None and plan_stretch else None
 
     def critical_step(self, control: Control | None = None, stiffer: float = 1.0) -> float:
         """h_crit for the linear K's largest eigenvalue times ``stiffer`` (a warped body's stretch factor)."""
@@ -65,8 +60,9 @@ class StandardExplicit:
         hs = plan.h_sub
         for s in range(plan.substeps):
             tau = s * hs
-            if self.warp:
-                f = self._warped_force(state.u, state.v)
+            if self._parts is not None:
+                rotations = self._parts.rotations
+                f = self._parts.explicit_force(state.u, state.v, None if rotations is None else rotations(state.u))
             else:
                 f = -(self.K @ u) - (self.D @ v)
             f = f.reshape(-1, 3) + f_const
@@ -79,9 +75,3 @@ class StandardExplicit:
             u += hs * v
         self._common.finish(state, h, self.name)
         return StepInfo(substeps=plan.substeps, margin=plan.margin)
-
-    def _warped_force(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """The warped force of the chosen model, in numpy, (n, 3)."""
-        if self.warping_model == "element":
-            return self._corotation.force(u, v, element_rotations(self.model, u, self.frames))
-        return self._assembled.force(vertex_rotations(self.model, u, self.frames), u, v)

@@ -52,13 +52,10 @@ import scipy.sparse.linalg as spla
 from ..model import Control, FemModel, State
 from .spd_factor import factorize_spd
 from ..stability import StabilityError
-from ..materials.corotational import ElementCorotation
-from ..materials.element_warping import ElementFrames, check_warping_model, element_force, element_rotations
-from ..materials.assembled_warp import AssembledWarp
-from ..materials.warping import VertexFrames, vertex_rotations, warped_force
+from ..materials.registry import VERTEX_IMPLICIT_MAX_NU, material_model
 from .base import StepCommon, StepInfo
 
-WARP_MAX_NU = 0.49
+WARP_MAX_NU = VERTEX_IMPLICIT_MAX_NU      # the per-vertex model's (its StandardParts.implicit_max_nu)
 
 
 class StandardImplicit:
@@ -70,27 +67,25 @@ class StandardImplicit:
         self.model = model
         self.solver = solver
         self.warp = bool(warp)
-        self.warping_model = check_warping_model(warping_model, self.warp, allow_unbounded_warping,
-                                                 f"implicit_{solver}")
-        self.element = self.warp and warping_model == "element"
-        self.name = f"implicit_{solver}" + (("_warp" if self.element else "_warp_vertex") if self.warp else "")
+        self.material_model = material_model(self.warp, warping_model)
+        self.material_model.check(allow_unbounded_warping, f"implicit_{solver}")
+        self.warping_model = warping_model
+        self.name = f"implicit_{solver}" + self.material_model.suffix
+        self._parts = parts = self.material_model.standard(model)     # None: the linear force of K
         nu = model.material.nu
-        if self.warp and not self.element and nu > WARP_MAX_NU:
+        limit = None if parts is None else parts.implicit_max_nu
+        if limit is not None and nu > limit:
             raise StabilityError(
-                f"implicit with stiffness warping refuses nu = {nu:g} (> {WARP_MAX_NU}): the held rotations miss "
+                f"implicit with stiffness warping refuses nu = {nu:g} (> {limit}): the held rotations miss "
                 f"the dR/dx coupling through the volumetric stiffness, which grows as 1 / (1 - 2 nu), and the step "
-                f"diverged at every step size tried; use nu <= {WARP_MAX_NU}, turn warping off, or the clustered "
+                f"diverged at every step size tried; use nu <= {limit}, turn warping off, or the clustered "
                 "method")
         if not (max_rotation > 0 and max_substeps >= 1):
             raise ValueError(f"max_rotation = {max_rotation} rad and max_substeps = {max_substeps} must be positive")
         self.max_rotation = float(max_rotation)
         self.max_substeps = int(max_substeps)
-        if self.element:
-            self.frames = ElementFrames.from_model(model)
-            self._corotation = ElementCorotation(model)
-        elif self.warp:
-            self.frames = VertexFrames.from_model(model)
-            self._assembled = AssembledWarp(model)
+        if parts is not None:
+            self.frames = parts.frames
         self.cg_rtol = cg_rtol
         self.cg_maxiter = cg_maxiter
         self.K = model.K
@@ -123,7 +118,7 @@ class StandardImplicit:
         return self._free
 
     def step(self, state: State, control: Control, h: float) -> StepInfo:
-        if not self.warp:
+        if self._parts is None:
             return self._step(state, control, h)
         start = state.copy()
         n = 1
@@ -143,11 +138,9 @@ class StandardImplicit:
             state.u[:], state.v[:], state.t = start.u, start.v, start.t
             n *= 2
 
-    def _rotations(self, u: np.ndarray) -> np.ndarray:
-        """The element or vertex rotations of u (the warping model's)."""
-        if self.element:
-            return element_rotations(self.model, u, self.frames)
-        return vertex_rotations(self.model, u, self.frames)
+    def _rotations(self, u: np.ndarray) -> np.ndarray | None:
+        """The rotations of u (the material model's: per element or per vertex); None for a model without."""
+        return None if self._parts.rotations is None else self._parts.rotations(u)
 
     def _step(self, state: State, control: Control, h: float, R: np.ndarray | None = None) -> StepInfo:
         """One linearly implicit step; R: the element or vertex rotations of state.u (warped steps)."""
@@ -155,15 +148,9 @@ class StandardImplicit:
         if held is None:
             held = self.model.fixed
         u, v = state.u.reshape(-1), state.v.reshape(-1)
-        if self.element:
-            Kw = self._corotation.rotated_stiffness(R)                          # PSD, translation invariant
-            free = self._system(h, held, control, Kw)
-            fw = element_force(self.model, state.u, state.v, self.frames).reshape(-1)
-            f = self._common.constant_forces(control).reshape(-1) + fw - h * (Kw @ v)
-        elif self.warp:
-            free = self._system(h, held, control, self._assembled.rotated(R))      # K_w = R K R^T: PSD
-            H = self._assembled.jacobian(R)                  # the force's Jacobian: translation invariant
-            fw = warped_force(self.model, state.u, state.v, self.frames).reshape(-1)
+        if self._parts is not None:
+            Ks, fw, H = self._parts.implicit_terms(state.u, state.v, R)
+            free = self._system(h, held, control, Ks)
             f = self._common.constant_forces(control).reshape(-1) + fw - h * (H @ v)
         else:
             free = self._system(h, held, control)
@@ -203,7 +190,9 @@ class StandardImplicit:
 
 
 def _largest_turn(R0: np.ndarray, R1: np.ndarray) -> float:
-    """The largest angle [rad] of R0_i^T R1_i over the vertices."""
+    """The largest angle [rad] of R0_i^T R1_i over the vertices (0 for a model without rotations)."""
+    if R0 is None:
+        return 0.0
     c = 0.5 * (np.einsum("nij,nij->n", R0, R1) - 1.0)
     return float(np.arccos(np.clip(c, -1.0, 1.0)).max()) if len(c) else 0.0
 

@@ -1,0 +1,149 @@
+"""The material models by name: the linear one, per-element corotation ('element'), the paper's per-vertex
+warping ('vertex') and stable Neo-Hookean elements ('neohookean'), each a ``MaterialModel``
+(fem/materials/material_model.py says what the integrators ask of one). ``register`` adds a model; the names
+a scene may choose are fem/materials/warping_models.WARPING_MODELS (config.py reads those without numba)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels.cluster_force_kernel import cluster_args, scratch
+from ..kernels.cluster_slices import host_slices
+from ..model import FemModel
+from .assembled_warp import AssembledWarp
+from .corotational import ElementCorotation
+from .element_warping import ElementFrames, element_e_parallel, element_e_serial, element_force, element_rotations
+from .material_model import ClusteredParts, MaterialModel, StandardParts
+from .neohookean import energy as neohookean_energy, largest_bound, neohookean_e_parallel, neohookean_e_serial
+from .warping import VertexFrames, vertex_rotations, warped_e_parallel, warped_e_serial, warped_force
+from .warping_models import WARPING_MODELS
+
+# the implicit step with per-vertex rotations held misses the dR/dx coupling through the volumetric stiffness,
+# which grows as 1 / (1 - 2 nu): it diverged at every step size tried above this
+VERTEX_IMPLICIT_MAX_NU = 0.49
+
+
+class Linear(MaterialModel):
+    name = "linear"
+    description = "linear elasticity: the assembled K, the paper's clustered force (warping: false)"
+    rotation_invariant = False          # the volume grows under rotation: what warping removes
+
+    def clustered(self, model: FemModel) -> ClusteredParts:
+        slices = host_slices(model.clusters)
+        w, f = scratch(slices)          # w: rows of 3 and one more (4-wide loads); f: the sweep's K w rows
+        return ClusteredParts(None, cluster_args(slices), w, f, None, "")
+
+    def standard(self, model: FemModel) -> None:
+        return None
+
+    def energy_function(self, model: FemModel):
+        return model.elastic_energy
+
+
+class ElementCorotated(MaterialModel):
+    name = "element"
+    suffix = "_warp"
+    description = "per-element corotation: the gradient of an energy"
+    undamped_explicit_refused = True
+    stretch_energy = "corotated"
+
+    def clustered(self, model: FemModel) -> ClusteredParts:
+        frames = ElementFrames.from_model(model)
+        return ClusteredParts(frames, (frames.elems, frames.gather, frames.rest, frames.work), frames.w, frames.e,
+                              (element_e_serial, element_e_parallel), "_element")
+
+    def standard(self, model: FemModel) -> StandardParts:
+        frames = ElementFrames.from_model(model)
+        corotation = ElementCorotation(model)
+
+        def implicit_terms(u, v, R):
+            Kw = corotation.rotated_stiffness(R)                           # PSD, translation invariant
+            return Kw, element_force(model, u, v, frames).reshape(-1), Kw
+
+        return StandardParts(frames, lambda u: element_rotations(model, u, frames),
+                             lambda u, v, R: corotation.force(u, v, R), implicit_terms)
+
+    def energy_function(self, model: FemModel):
+        return ElementCorotation(model).energy
+
+
+class VertexWarped(MaterialModel):
+    name = "vertex"
+    suffix = "_warp_vertex"
+    description = "the paper's per-vertex stiffness warping (eq. 10, symmetrised): no energy of its own"
+    bounded = False
+    stretch_energy = "corotated"
+    has_energy = False
+
+    def clustered(self, model: FemModel) -> ClusteredParts:
+        frames = VertexFrames.from_model(model)
+        # w: rows of 3 and one more; e: the sweep's rows, as K w's
+        return ClusteredParts(frames, (frames.gradients, frames.slices, frames.rest, frames.work), frames.w,
+                              frames.e, (warped_e_serial, warped_e_parallel), "")
+
+    def standard(self, model: FemModel) -> StandardParts:
+        frames = VertexFrames.from_model(model)
+        assembled = AssembledWarp(model)
+
+        def implicit_terms(u, v, R):
+            # K_w = R K R^T: PSD; the force's Jacobian: translation invariant
+            return assembled.rotated(R), warped_force(model, u, v, frames).reshape(-1), assembled.jacobian(R)
+
+        return StandardParts(frames, lambda u: vertex_rotations(model, u, frames),
+                             lambda u, v, R: assembled.force(R, u, v), implicit_terms, VERTEX_IMPLICIT_MAX_NU)
+
+    def energy_function(self, model: FemModel):
+        """Its force is no energy's gradient: the linear energy of the same displacement stands in."""
+        return model.elastic_energy
+
+
+class NeoHookean(MaterialModel):
+    name = "neohookean"
+    suffix = "_neohookean"
+    description = "stable Neo-Hookean elements: no rotation, an energy smooth through inversion"
+    clustered_only = True
+    stretch_energy = "neohookean"
+
+    def clustered(self, model: FemModel) -> ClusteredParts:
+        frames = ElementFrames.from_model(model)
+        return ClusteredParts(frames, (frames.elems, frames.gather, frames.rest, frames.work), frames.w, frames.e,
+                              (neohookean_e_serial, neohookean_e_parallel), "_neohookean",
+                              bound=lambda: largest_bound(frames))
+
+    def energy_function(self, model: FemModel):
+        return lambda u: neohookean_energy(model, u)
+
+
+MODELS: dict[str, MaterialModel] = {}
+
+
+def register(model: MaterialModel) -> MaterialModel:
+    """Add ``model`` under its name (a name already taken is refused); returns it."""
+    if not model.name or model.name in MODELS:
+        raise ValueError(f"material model name {model.name!r} is empty or taken ({sorted(MODELS)})")
+    MODELS[model.name] = model
+    return model
+
+
+def unregister(name: str) -> None:
+    """Remove a model ``register`` added (a test's own)."""
+    if name in BUILT_IN:
+        raise ValueError(f"{name!r} is a built-in material model")
+    MODELS.pop(name)
+
+
+LINEAR = register(Linear())
+BUILT_IN = ("linear",) + WARPING_MODELS
+for _model in (ElementCorotated(), VertexWarped(), NeoHookean()):
+    register(_model)
+assert tuple(MODELS) == BUILT_IN, "every name a scene may choose has its model"
+
+
+def material_model(warp: bool, name: str) -> MaterialModel:
+    """The model an integrator runs: the linear one without ``warp``, else the one registered as ``name``
+    (ValueError naming the choices for any other)."""
+    if name not in MODELS or name == "linear":
+        raise ValueError(f"warping_model = {name!r}: choose one of {', '.join(m for m in MODELS if m != 'linear')}"
+                         " ('element': per-element corotation, conservative; 'vertex': the paper's per-vertex "
+                         "warping, for comparison; 'neohookean': stable Neo-Hookean elements, smooth through "
+                         "inversion, method 'clustered' only)")
+    return MODELS[name] if warp else LINEAR
