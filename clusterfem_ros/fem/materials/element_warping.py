@@ -59,28 +59,9 @@ from ..linear.assembly import shape_gradients
 from ..kernels.cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .kernel_args import checked_rows, output_rows, pick_build
 from ..model import FemModel
-from ..stability import StabilityError
-from .warping_models import (EXPLICIT_ONLY, WARPING_MODELS, explicit_only_refusal,  # noqa: F401 (re-export)
-                             undamped_corotation_refusal, unacknowledged, unacknowledged_undamped,
-                             vertex_refusal)
+from .warping_models import WARPING_MODELS  # noqa: F401 (re-export)
 from ...numba_config import SERIAL, compiled, serial_and_parallel
 from .element_rotation import LANES, chunk_rotations
-
-def check_warping_model(name: str, warp: bool = True, allow_unbounded_warping: bool = False,
-                        method: str = "clustered", material=None) -> str:
-    """The warping model's name, checked (ValueError on an unknown one); with ``warp``, 'vertex' raises
-    StabilityError at set-up unless ``allow_unbounded_warping`` (fem/materials/warping_models.py says why), so does
-    'element' on an explicit method given its undamped ``material``, and a model the integrator ``method`` does
-    not run ('neohookean' off 'clustered') raises ValueError."""
-    if unacknowledged(name, warp, allow_unbounded_warping):
-        raise StabilityError(vertex_refusal())
-    if material is not None and unacknowledged_undamped(name, warp, float(material.xi), float(material.zeta),
-                                                        allow_unbounded_warping):
-        raise StabilityError(undamped_corotation_refusal(method))
-    if warp and name in EXPLICIT_ONLY and method != "clustered":
-        raise ValueError(explicit_only_refusal(name, method))
-    return name
-
 
 # Elements are processed in chunks of LANES (fem/materials/element_rotation.py), each chunk's 3x3 matrices as flat
 # (9 LANES,) arrays, entry k of lane l at k LANES + l (structure of arrays: every per-element loop below runs

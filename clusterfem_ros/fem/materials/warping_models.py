@@ -19,7 +19,6 @@ damps it numerically.
 """
 from __future__ import annotations
 
-import warnings
 
 WARPING_MODELS = ("element", "vertex", "neohookean")
 EXPLICIT_ONLY = ("neohookean",)              # the models only the clustered explicit method runs
@@ -76,25 +75,3 @@ def stretch_plan_refusal(name: str) -> str:
     return (f"warping_model = {name!r} with physics.plan_stretch false: its elements stiffen with the square of "
             "the stretch (fem/materials/stretch.py), and a step planned for the linear stiffness alone can diverge "
             "where an element is stretched: set physics.plan_stretch true, or warping_model 'element'")
-
-
-def check_warping_model(name: str) -> str:
-    """The warping model's name, checked: 'element' (the integrators' default), 'vertex' (the paper's eq. 10) or
-    'neohookean' (a scene's 'auto' is resolved before: auto_model)."""
-    if name not in WARPING_MODELS:
-        raise ValueError(f"warping_model = {name!r}: choose 'element' (per-element corotation, conservative), "
-                         "'vertex' (the paper's per-vertex warping, for comparison) or 'neohookean' (stable "
-                         "Neo-Hookean elements, smooth through inversion; method 'clustered' only)")
-    return name
-
-
-def unacknowledged(name: str, warp: bool, allow_unbounded: bool) -> bool:
-    """True if the set-up must be refused (``vertex_refusal`` says why); a 'vertex' model that is acknowledged
-    warns: once per process under Python's default warning filter (one call site, one message)."""
-    if not (check_warping_model(name) == "vertex" and warp):
-        return False
-    if not allow_unbounded:
-        return True
-    warnings.warn("warping_model = 'vertex' runs with allow_unbounded_warping: its energy is not bounded by the "
-                  "work put in (fem/materials/warping_models.py)", UnboundedWarpingWarning, stacklevel=1)
-    return False
