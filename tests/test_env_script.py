@@ -36,9 +36,10 @@ def _source(options: str, **env) -> subprocess.CompletedProcess:
 
 
 def _made_by_env_sh(venv: Path) -> bool:
-    """True when env.sh would take ``venv`` as it is: it holds the stamp of this requirements.lock and setup.py
-    (else sourcing env.sh would remake it, which a test must not do to the environment running it)."""
-    digest = subprocess.run(f'sha1sum "{ROOT}/requirements.lock" "{ROOT}/setup.py" | sha1sum | cut -c1-12',
+    """True when env.sh would take ``venv`` as it is: it holds the stamp of this requirements.lock, setup.py and
+    setup.cfg (else sourcing env.sh would remake it, which a test must not do to the environment running it)."""
+    files = " ".join(f'"{ROOT / name}"' for name in ("requirements.lock", "setup.py", "setup.cfg"))
+    digest = subprocess.run(f"sha1sum {files} | sha1sum | cut -c1-12",
                             shell=True, capture_output=True, text=True, check=True).stdout.strip()
     return (venv / f".lock-{digest}").is_file()
 
@@ -75,3 +76,17 @@ def test_env_sh_keeps_dds_discovery_on_this_host_unless_set():
         run = subprocess.run(["bash", "-c", script], capture_output=True, text=True, timeout=120, env=env)
         assert run.returncode == 0, run.stderr[-2000:]
         assert f"range={want} transports=unset" in run.stdout, run.stdout
+
+
+def test_the_environment_env_sh_made_has_the_console_scripts_on_its_path():
+    """setup.cfg sends colcon's scripts to lib/clusterfem_ros (ros2 run); env.sh's editable install must still put
+    them in the environment's bin, on PATH once it is sourced (scripts/run, the docs' commands, tests)."""
+    venv = Path(sys.prefix)
+    if not _made_by_env_sh(venv):
+        pytest.skip(f"{venv} has no stamp of this requirements.lock, setup.py and setup.cfg: env.sh did not make it")
+    script = f'. "{ENV_SH}" && for s in clusterfem_node mocap_player clusterfem_demo; do command -v "$s"; done'
+    env = {"PATH": "/usr/bin:/bin", "HOME": str(Path.home()), "CLUSTERFEM_VENV": str(venv)}
+    run = subprocess.run(["bash", "-c", script], capture_output=True, text=True, timeout=120, env=env)
+    assert run.returncode == 0, run.stdout + run.stderr[-2000:]
+    assert run.stdout.split() == [str(venv / "bin" / s) for s in ("clusterfem_node", "mocap_player",
+                                                                   "clusterfem_demo")], run.stdout
