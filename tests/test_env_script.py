@@ -64,6 +64,44 @@ def test_a_failing_env_sh_returns_1_and_keeps_the_shell_and_its_options(tmp_path
         assert "shell alive" in run.stdout, run.stdout + run.stderr
 
 
+# a caller with `set -e` (a CI script): its flags ($-; `set +o` in a command substitution does not show -e) before
+# and after sourcing; a source that may fail is written `|| status=$?`, as such a script must
+ERREXIT_PROBE = r'''
+set -e
+before="$-"
+status=0
+{source}
+after="$-"
+[ "$before" = "$after" ] && echo "flags kept $after" || echo "flags changed: $before -> $after"
+echo "status $status"
+echo "shell alive"
+'''
+
+
+def _source_with_set_e(source: str, **env) -> subprocess.CompletedProcess:
+    script = ERREXIT_PROBE.format(source=source.format(env_sh=ENV_SH))
+    environ = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "HOME": str(Path.home()), **env}
+    return subprocess.run(["bash", "-c", script], capture_output=True, text=True, timeout=120, env=environ)
+
+
+def test_a_caller_with_set_e_keeps_it_after_sourcing_env_sh():
+    venv = Path(sys.prefix)
+    if not _made_by_env_sh(venv):
+        pytest.skip(f"{venv} has no stamp of this requirements.lock, setup.py and setup.cfg: env.sh would remake it")
+    run = _source_with_set_e('. "{env_sh}"', CLUSTERFEM_VENV=str(venv))     # unguarded: it must succeed
+    flags = run.stdout.split("flags kept ")[-1].split()[0] if "flags kept" in run.stdout else ""
+    assert "e" in flags and "status 0" in run.stdout and "shell alive" in run.stdout, run.stdout + run.stderr
+
+
+def test_a_failing_env_sh_returns_1_to_a_caller_with_set_e_and_keeps_its_shell(tmp_path):
+    """env.sh returns 1 from a failing step (never `exit`, which would close the shell even behind `||`), and
+    leaves -e set."""
+    run = _source_with_set_e('. "{env_sh}" || status=$?', CLUSTERFEM_VENV=str(tmp_path / "venv"),
+                             PYTHON=str(tmp_path / "no_python"))
+    assert "flags kept" in run.stdout and "e" in run.stdout.split("flags kept ")[1].split()[0], run.stdout
+    assert "status 1" in run.stdout and "shell alive" in run.stdout, run.stdout + run.stderr
+
+
 def test_env_sh_keeps_dds_discovery_on_this_host_unless_set():
     venv = Path(sys.prefix)
     if not _made_by_env_sh(venv):
