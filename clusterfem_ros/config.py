@@ -22,7 +22,7 @@ from .fem.linear.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT
 from .fem.materials.warping_models import (ACKNOWLEDGEMENT, AUTO, EXPLICIT_ONLY, WARPING_MODELS, auto_model,
                                            explicit_only_refusal, stretch_plan_refusal, undamped_corotation_refusal,
                                            unacknowledged_undamped, vertex_refusal)
-from .skeleton.bvh_placement import parse_unit
+from .skeleton.bvh_placement import AXES as BVH_AXES, parse_unit
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
 from .skeleton.urdf_check import (CEILING_BYTES, CEILING_DEPTH, CEILING_LINKS, CEILING_MESHES, DEFAULT_MAX_BYTES,
                                   DEFAULT_MAX_DEPTH, DEFAULT_MAX_JOINTS, DEFAULT_MAX_LINKS, DEFAULT_MAX_MESHES)
@@ -32,6 +32,7 @@ METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg", "
 BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh", "surface", "robot_cover")
 SKELETONS = ("builtin", "urdf_file", "robot_description", "none")
 COLORMAPS = ("turbo", "viridis", "coolwarm")
+BVH_UP = ("auto",) + BVH_AXES     # a BVH file's up axis: found from its legs, or a signed file axis
 NODE_NAME = "clusterfem"
 
 
@@ -44,6 +45,7 @@ class Param:
     hi: float | None = None
     choices: tuple[str, ...] | None = None
     item: type = float               # element type of a list parameter
+    length_unit: bool = False        # text naming a length unit, or metres per unit as a number (parse_unit)
 
 
 PARAMS: tuple[Param, ...] = (
@@ -116,10 +118,11 @@ PARAMS: tuple[Param, ...] = (
           "a path, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder"),
     Param("skeleton.bvh_unit", "auto", "length unit of the BVH file played (the player's 'unit' unless its own section "
           "sets it) and of skeleton.bind_bvh: auto (found from the skeleton: a standing human), m, cm, mm, inch, cmu "
-          "(0.056444 m) or metres per file unit (a number; a string such as '0.01' in a ROS parameter file)"),
+          "(0.056444 m) or metres per file unit (a number; a string such as '0.01' in a ROS parameter file)",
+          length_unit=True),
     Param("skeleton.bvh_up", "auto", "up axis of the BVH file played (the player's 'up' unless its own section sets "
           "it) and of skeleton.bind_bvh: auto (found from the legs of the rest pose) or X, Y, Z, -X, -Y, -Z",
-          choices=("auto", "X", "Y", "Z", "-X", "-Y", "-Z")),
+          choices=BVH_UP),
     Param("skeleton.bind_joints", [], "joints set to skeleton.bind_angles on top of skeleton.bind_pose (e.g. the arms "
           "of an A-pose mesh on a T-pose skeleton)", item=str),
     Param("skeleton.bind_angles", [], "per joint of skeleton.bind_joints, its bind angle [rad] (or position [m])"),
@@ -238,12 +241,17 @@ def _text_value(p: Param, value: Any) -> str:
 
 
 def check_value(name: str, value: Any) -> Any:
-    """Validate one parameter; returns the value coerced to the default's type."""
+    """Validate one scene parameter; returns the value coerced to the default's type."""
     if name not in _BY_NAME:
         raise unknown_name_error(name)
-    p = _BY_NAME[name]
-    d = p.default
-    if name == "skeleton.bvh_unit":                  # a unit name or metres per unit, checked before the file is read
+    return check_param(_BY_NAME[name], value)
+
+
+def check_param(p: Param, value: Any) -> Any:
+    """Validate a value of the parameter ``p`` (of any node's table: PARAMS, motion.PLAYER_TABLE); returns it
+    coerced to the default's type: an integer for a float, a choice in any case or spelt as a YAML 1.1 boolean."""
+    name, d = p.name, p.default
+    if p.length_unit:                                # a unit name or metres per unit, checked before the file is read
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             value = repr(float(value))
         try:

@@ -10,17 +10,42 @@
 """
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .config import BVH_UP, ConfigError, Param, check_param
 from .skeleton.trajectory import JointTrajectory
 
 SOURCES = ("builtin_walk", "bvh", "keyframes", "joint_sweep")
 PLAYER_NODE = "mocap_player"
-PLAYER_PARAMS = ("source", "file", "rate_hz", "speed", "start_offset", "start_delay", "loop", "loop_blend", "unit",
-                 "up")
+# The player's parameters (nodes/player_node.py declares them, a scene file's mocap_player section holds them),
+# typed and checked by config.check_param as the simulation node's are.
+PLAYER_TABLE: tuple[Param, ...] = (
+    Param("source", "builtin_walk", "builtin_walk, bvh, keyframes or joint_sweep (a URDF's joints through their "
+          "ranges)", choices=SOURCES),
+    Param("file", "", "BVH, key-frame or URDF file for those sources: a path, package://<package>/<path> of an "
+          "installed package, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder"),
+    Param("rate_hz", 120.0, "JointState publish rate [Hz]", 1.0, 2000.0),
+    Param("speed", 1.0, "playback speed factor", 0.01, 100.0),
+    Param("start_offset", 0.0, "start this far into the motion [s]", 0.0, 1e6),
+    Param("start_delay", 0.0, "wait this long before playing, the skeleton latched at once: a node that builds its "
+          "body from robot_description (a new mesh takes minutes) then gets the motion from its start [s]",
+          0.0, 3600.0),
+    Param("loop", True, "loop the motion at its end"),
+    Param("loop_blend", 0.5, "looping a motion that does not end where it starts: its last seconds are blended into "
+          "its start over this time (a capture's joints as rotations), the root's horizontal position and heading "
+          "carried on (0 = jump back to the start, which the node takes as a teleport and re-places the body) [s]",
+          0.0, 60.0),
+    Param("unit", "auto", "a BVH file's length unit: auto (found from the skeleton: a standing human), m, cm, mm, "
+          "inch, cmu (0.056444 m) or metres per file unit as a number", length_unit=True),
+    Param("up", "auto", "a BVH file's up axis: auto (found from the legs of the rest pose), X, Y, Z, -X, -Y or -Z",
+          choices=BVH_UP),
+)
+PLAYER_PARAMS = tuple(p.name for p in PLAYER_TABLE)
+_PLAYER_BY_NAME = {p.name: p for p in PLAYER_TABLE}
 WALK_CYCLES = 4          # the built-in walk is this many whole gait periods, so looping is seamless
 
 
@@ -85,10 +110,25 @@ def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: 
     return Motion(spec.urdf, traj, f"key frames {path.name} ({traj.duration:.2f} s)", True)
 
 
+def unknown_player_parameter(name: str) -> ConfigError:
+    """The error for a parameter the player does not have, naming the nearest one it has."""
+    close = difflib.get_close_matches(name, PLAYER_PARAMS, n=1, cutoff=0.6)
+    hint = f"did you mean {close[0]!r}?" if close else f"its parameters are {', '.join(PLAYER_PARAMS)}"
+    return ConfigError(f"unknown {PLAYER_NODE} parameter {name!r}: {hint}")
+
+
+def check_player_value(name: str, value):
+    """One player parameter's value typed and checked (config.check_param); ConfigError naming it otherwise."""
+    if name not in _PLAYER_BY_NAME:
+        raise unknown_player_parameter(name)
+    return check_param(_PLAYER_BY_NAME[name], value)
+
+
 def load_player_section(path: str | Path) -> dict | None:
     """The player's parameters from a scene file's ``mocap_player: ros__parameters:`` section (the standard ROS 2
-    params-file layout, beside the ``clusterfem:`` section), or None when the file has none. Raises ValueError
-    naming an unknown key or an unknown source; relative file paths stay relative (to the current directory)."""
+    params-file layout, beside the ``clusterfem:`` section), typed as the player types them (an integer for a
+    float, a choice in any case), or None when the file has none. Raises ValueError naming an unknown key or a bad
+    value; relative file paths stay relative (to the current directory)."""
     import yaml
     doc = yaml.safe_load(Path(path).read_text()) or {}
     section = doc.get(PLAYER_NODE)
@@ -100,11 +140,12 @@ def load_player_section(path: str | Path) -> dict | None:
                          f"parameters ({', '.join(PLAYER_PARAMS)})")
     unknown = sorted(set(params) - set(PLAYER_PARAMS))
     if unknown:
-        raise ValueError(f"{str(path)!r}: {PLAYER_NODE} has no parameter {unknown[0]!r}: use {', '.join(PLAYER_PARAMS)}")
-    source = params.get("source", "builtin_walk")
-    if source not in SOURCES:
-        raise ValueError(f"{str(path)!r}: {PLAYER_NODE}.source = {source!r}: choose one of {', '.join(SOURCES)}")
-    return dict(params)
+        raise ValueError(f"{str(path)!r}: {PLAYER_NODE} has no parameter {unknown[0]!r}: use "
+                         f"{', '.join(PLAYER_PARAMS)}")
+    try:
+        return {name: check_player_value(name, value) for name, value in params.items()}
+    except ConfigError as exc:
+        raise ConfigError(f"{str(path)!r}: {PLAYER_NODE}.{exc}") from None
 
 
 def on_capture_skeleton(config, bvh_file: str | Path | None = None, progress=None):

@@ -13,19 +13,20 @@ It compares every recorded surface with the replay's at the same simulated time,
 (``--tolerance 0``). The compiled kernels are built for the host's vector instructions (numba), so another CPU
 (AVX2 against AVX-512) rounds differently: a bag recorded on another machine replays to round-off (about 1e-14 m
 on the sample bag), to compare with ``--tolerance 1e-9``. Exit 1 when the replay differs (the physics or the
-parameters' meaning changed since the recording); 2 when the bag cannot be replayed: recorded on the wall clock
-(its states depend on when each step ran), no recorded surface, no parameter file, or a damaged bag. It never
-exits 0 having compared nothing.
+parameters' meaning changed since the recording; a NaN or inf vertex differs at any tolerance); 2 when the bag
+cannot be replayed: recorded on the wall clock (its states depend on when each step ran), no recorded surface or
+joint state, no parameter file, or a damaged bag. It never exits 0 having compared nothing.
 """
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from .recording.bag_reader import PARAMS_FILE, JointSample, read_joint_states, read_surfaces
+from .recording.bag_reader import PARAMS_FILE, JointSample, bag_topics, read_joint_states, read_surfaces, topic_in
 
 
 def replay(scene, samples: list[JointSample], at_ns: list[int]) -> dict[int, np.ndarray]:
@@ -92,7 +93,7 @@ def _compare(folder: Path, config, tolerance: float) -> int:
               f"each step ran, so no replay reproduces them and nothing was compared; {RECORD_ON_INPUT}",
               file=sys.stderr)
         return 2
-    samples = read_joint_states(folder)
+    samples = read_joint_states(folder) if topic_in(bag_topics(folder), "/joint_states") else []
     surfaces = read_surfaces(folder)
     print(f"replaying {len(samples)} joint states; {len(surfaces)} recorded surfaces")
     if not surfaces or not samples:
@@ -104,15 +105,24 @@ def _compare(folder: Path, config, tolerance: float) -> int:
     scene = Scene.build(config)
     got = replay(scene, samples, [t for t, _ in surfaces])
     missing = [t for t, p in surfaces if t not in got or got[t].shape != p.shape]
-    diffs = [float(np.abs(got[t] - p).max()) for t, p in surfaces if t not in missing]
-    identical = sum(np.array_equal(got[t], p) for t, p in surfaces if t not in missing)
-    worst = max(diffs, default=0.0)
+    compared = [(t, p) for t, p in surfaces if t not in missing]
+    diffs = [float(np.abs(got[t] - p).max()) for t, p in compared]
+    identical = sum(np.array_equal(got[t], p) for t, p in compared)
+    # a NaN difference is not > any tolerance (and max() may pass over it): a non-finite one differs without bound
+    nonfinite = [t for (t, _), d in zip(compared, diffs) if not math.isfinite(d)]
+    worst = math.inf if nonfinite else max(diffs, default=0.0)
     print(f"compared {len(diffs)} of {len(surfaces)} surfaces: {identical} identical bit for bit; max vertex "
           f"difference {worst:.3g} m")
     if missing:
         print(f"error: the replay never reached {len(missing)} of the {len(surfaces)} recorded surfaces (the first at "
               f"{missing[0] * 1e-9:.9f} s) or gave them another size: the physics or the scene changed since it was "
               "recorded; record it again with the same scene file to update it", file=sys.stderr)
+        return 1
+    if nonfinite:
+        print(f"error: the replay differs from the recording: {len(nonfinite)} of the {len(compared)} compared "
+              f"surfaces have a non-finite vertex (NaN or inf) in the replay or the recording (the first at "
+              f"{nonfinite[0] * 1e-9:.9f} s), which no --tolerance accepts: the physics diverged since it was "
+              "recorded or the bag is damaged; record it again with the same scene file to update it", file=sys.stderr)
         return 1
     if worst > tolerance:
         why = ("differences of round-off size: a bag recorded on another CPU replays so (numba compiles for the "

@@ -22,7 +22,8 @@ import pytest
 pytestmark = pytest.mark.wheel
 
 ROOT = Path(__file__).resolve().parents[1]
-SOURCES = ("setup.py", "package.xml", "resource", "config", "clusterfem_ros", "msg_adapters")
+SOURCES = ("setup.py", "setup.cfg", "package.xml", "resource", "config", "clusterfem_ros", "msg_adapters")
+SCRIPTS = ("clusterfem_node", "mocap_player", "clusterfem_demo")
 
 KEYFRAME_SCENE = r'''
 import json, sys
@@ -57,6 +58,16 @@ print(json.dumps({"package": clusterfem_ros.__file__, "scene_file": str(default_
 '''
 
 
+def _copy_sources(src: Path) -> None:
+    """The files a build reads, copied to ``src`` (a build writes build/ and *.egg-info beside the sources)."""
+    for name in SOURCES:
+        if (ROOT / name).is_dir():
+            shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+        else:
+            src.mkdir(exist_ok=True)
+            shutil.copy2(ROOT / name, src / name)
+
+
 def _run(cmd, cwd: Path, env: dict, timeout: float = 300) -> subprocess.CompletedProcess:
     out = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
     assert out.returncode == 0, f"{cmd} exited with {out.returncode}:\n{out.stdout[-3000:]}\n{out.stderr[-3000:]}"
@@ -67,13 +78,8 @@ def _run(cmd, cwd: Path, env: dict, timeout: float = 300) -> subprocess.Complete
 def installed(tmp_path_factory):
     """(wheel, the fresh environment's python, a folder outside the source tree, the environment to run in)."""
     tmp = tmp_path_factory.mktemp("wheel")
-    src = tmp / "src"                       # a copy: the build writes build/ and *.egg-info beside the sources
-    for name in SOURCES:
-        if (ROOT / name).is_dir():
-            shutil.copytree(ROOT / name, src / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
-        else:
-            src.mkdir(exist_ok=True)
-            shutil.copy2(ROOT / name, src / name)
+    src = tmp / "src"
+    _copy_sources(src)
     _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--disable-pip-version-check",
           "-q", "-w", str(tmp / "dist"), str(src)], tmp, dict(os.environ))
     wheel, = (tmp / "dist").glob("clusterfem_ros-*.whl")
@@ -166,6 +172,25 @@ def test_the_installed_package_finds_data_in_clusterfem_data_or_the_user_data_fo
 
 def test_the_installed_console_scripts_answer_help(installed):
     _, python, elsewhere, env = installed
-    for script in ("clusterfem_node", "mocap_player", "clusterfem_demo"):
+    for script in SCRIPTS:
         out = _run([str(python.parent / script), "--help"], elsewhere, env, timeout=120)
         assert out.stdout.startswith("usage:") and "docs/parameters.md" in out.stdout, out.stdout[:500]
+
+
+def test_a_colcon_build_puts_the_executables_where_ros2_run_looks(tmp_path):
+    """`colcon build` runs an ament_python package's setup.py install into install/<package>; `ros2 run
+    clusterfem_ros clusterfem_node` then looks in install/<package>/lib/clusterfem_ros (setup.cfg's [install])."""
+    src, build, prefix = tmp_path / "src", tmp_path / "build", tmp_path / "install" / "clusterfem_ros"
+    _copy_sources(src)
+    build.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CACHE_DIR")}
+    _run([sys.executable, "setup.py", "egg_info", "--egg-base", str(build), "build", "--build-base",
+          str(build / "build"), "install", "--prefix", str(prefix), "--record", str(build / "install.log"),
+          "--single-version-externally-managed", "install_data"], src, env)
+    assert not (prefix / "bin").exists(), sorted(p.name for p in (prefix / "bin").iterdir())
+    site = next(prefix.glob("lib/python3*/site-packages"))
+    for script in SCRIPTS:
+        executable = prefix / "lib" / "clusterfem_ros" / script
+        assert executable.is_file() and os.access(executable, os.X_OK), sorted(prefix.rglob(script))
+        out = _run([str(executable), "--help"], tmp_path, dict(env, PYTHONPATH=str(site)), timeout=120)
+        assert out.stdout.startswith("usage:"), out.stdout[:500]

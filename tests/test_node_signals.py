@@ -101,7 +101,8 @@ def test_a_callback_racing_the_shutdown_is_not_an_error_but_a_real_error_is(monk
 def test_the_main_job_runs_a_scene_without_skeleton_without_waiting_for_a_player(tmp_path):
     """scripts/run --scene <a scene with skeleton.source = none>: no mocap player to wait for (waiting would
     take 60 s for joint states that nothing uses, then exit with a DDS hint), the body hangs from its anchor,
-    and the process ends cleanly."""
+    and the process ends cleanly. How many steps fit in the 2 s depends on the host's load: the physics must have
+    stepped on the clock alone (no joint state), not kept up."""
     from clusterfem_ros.config import SceneConfig, scene_file_text
     from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
     x = paper_mesh("sphere").vertices
@@ -118,7 +119,8 @@ def test_the_main_job_runs_a_scene_without_skeleton_without_waiting_for_a_player
     out = run.stdout + run.stderr
     assert run.returncode == 0, out
     assert "no mocap player" in out and "terminate called" not in out
+    assert "no joint state from the player" not in out            # the wait for a player never ran
     assert "0 resets after divergence" in out and (tmp_path / "final.png").exists()
     steps = int(out.split("physics steps")[1].split()[0])
-    assert steps > 1000, out
+    assert steps > 0 and " 0 joint states used" in out, out       # stepped by the wall clock, with no input
     print(f"skeleton-less demo: {steps} steps, {time.monotonic() - t0:.1f} s in all")

@@ -292,6 +292,61 @@ def test_replay_never_passes_having_compared_nothing(tmp_path, capsys):
     assert main([str(SAMPLE), "--tolerance", "-1"]) == 2
 
 
+def _input_clock_bag(folder: Path, surfaces: int = 2, joint_states: bool = True, topic: bool = True) -> Path:
+    """A bag as the node records on the input clock: ``surfaces`` triangle surfaces (stamped T0, T0 + 1 ms, ...),
+    a joint state before them (unless not ``joint_states``; its topic is still declared when ``topic``), and the
+    scene parameter file."""
+    from clusterfem_ros.config import SceneConfig, scene_file_text
+    from clusterfem_ros.recording.bag_reader import PARAMS_FILE
+    v, tri, rgba = np.eye(3), np.array([[0, 1, 2]]), np.ones((3, 4), np.float32)
+    with Rosbag2McapWriter(folder) as w:
+        if topic:
+            w.add_topic("/joint_states", "sensor_msgs/msg/JointState")
+        w.add_topic("/clusterfem/surface", "visualization_msgs/msg/Marker")
+        if joint_states:
+            w.write("/joint_states", T0, joint_state_cdr(["root_x"], np.zeros(1), stamp=T0))
+        for k in range(surfaces):
+            w.write("/clusterfem/surface", T0 + k * 1_000_000, surface_marker_cdr(v, tri, rgba, "world",
+                                                                                  T0 + k * 1_000_000))
+    (folder / PARAMS_FILE).write_text(scene_file_text(SceneConfig().with_values(physics__clock="input")))
+    return folder
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_a_replay_with_a_non_finite_vertex_fails_at_every_tolerance(tmp_path, capsys, monkeypatch, bad):
+    """A NaN difference is not > 0: compared by `worst > tolerance` alone, a replay gone NaN would pass bit for
+    bit. Here the replay (its physics stubbed: the comparison is under test) gives the recorded surfaces with one
+    vertex of the first surface non-finite."""
+    import clusterfem_ros.replay as replay_module
+    from clusterfem_ros.recording.bag_reader import read_surfaces
+    from clusterfem_ros.scene import Scene
+    bag = _input_clock_bag(tmp_path / "b")
+    recorded = dict(read_surfaces(bag))
+
+    def replayed(scene, samples, at_ns):
+        got = {t: p.copy() for t, p in recorded.items()}
+        got[min(got)][1, 2] = bad
+        return got
+
+    monkeypatch.setattr(Scene, "build", staticmethod(lambda config: None))
+    monkeypatch.setattr(replay_module, "replay", replayed)
+    for tolerance in ("0", "1e-9", "1e9"):
+        assert replay_module.main([str(bag), "--tolerance", tolerance]) == 1, tolerance
+        err = capsys.readouterr().err
+        assert "non-finite vertex (NaN or inf)" in err and "no --tolerance accepts" in err, err
+    monkeypatch.setattr(replay_module, "replay", lambda scene, samples, at_ns: dict(recorded))
+    assert replay_module.main([str(bag)]) == 0                       # the same bag, replayed finite: passes
+
+
+@pytest.mark.parametrize("topic", [True, False], ids=["topic_without_messages", "no_topic"])
+def test_a_bag_without_joint_states_is_not_replayed_saying_why(tmp_path, capsys, topic):
+    from clusterfem_ros.replay import main
+    bag = _input_clock_bag(tmp_path / "b", joint_states=False, topic=topic)
+    assert main([str(bag)]) == 2
+    err = capsys.readouterr().err
+    assert "holds no joint state" in err and "nothing was compared" in err and "joint states coming in" in err, err
+
+
 def test_a_bag_topic_is_found_under_a_namespace_and_two_namespaces_are_refused():
     from clusterfem_ros.recording.bag_reader import topic_in
     assert topic_in({"/joint_states", "/body1/joint_states"}, "/joint_states") == "/joint_states"

@@ -200,34 +200,40 @@ def test_latency_closes_every_arrival_seen_by_the_published_state():
 
 def test_stage_shares_are_seconds_per_wall_second():
     clock = StageClock()
-    time.sleep(0.05)
+    time.sleep(0.05)                                  # the window is at least this long
     clock.add("markers", 0.01)
-    threading.Thread(target=lambda: clock.add("physics", 0.02)).start()
-    time.sleep(0.05)
+    other = threading.Thread(target=lambda: clock.add("physics", 0.02))   # a stage added to from its own thread
+    other.start()
+    other.join()
     s = clock.shares()
-    assert 0 < s["markers"] < s["physics"] <= 0.02 / 0.1 + 1e-9
+    assert 0 < s["markers"] < s["physics"] <= 0.02 / 0.05 + 1e-9
     assert s["physics"] == pytest.approx(2 * s["markers"])
     assert clock.shares()["markers"] == 0.0           # a new window
 
 
+STEP_COST = 0.1e-3          # fake seconds a step takes on the fake timer (10 times real time at h = 1 ms)
+
+
 def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_waiting_for_the_batch():
+    """On the fake timer (_FakeTime: the test is the physics thread), the ROS clock held where five steps are due
+    once the input came: the first step that saw it is handed over at once, the batch's end a timer period later."""
     scene = Scene.build(SceneConfig().with_values(**SMALL_MAN))
-    clock = {"now": T0}
-    loop, log = _loop(scene, now=lambda: clock["now"])
+    ros = {"now": T0}
+    loop, log = _loop(scene)
+    fake = _FakeTime(loop, scene, [], STEP_COST, ros_now=lambda: ros["now"])
     handed = []
     original = loop.latency.handed_over
     # the time the loop decided each hand-over by (its timer when it took the state), not when the copy was done
     loop.latency.handed_over = lambda used, t: handed.append((used, loop.snapshot.steps, loop._taken[1])) or original(
         used, t)
-    loop.start()
-    try:
-        _wait_for(lambda: scene.sim_time is not None, 10, "the wall clock to start the scene")
-        stamp, names, q, v = next(_samples(0.1))
-        loop.take_input(lambda: scene.take_joint_state(T0, names, q, v, received=T0))
-        clock["now"] = T0 + 5.5 * scene.h                         # five steps due
-        _wait_for(lambda: scene.steps_done == 5 and handed[-1][1] == 5, 10, "five steps")
-    finally:
-        assert loop.stop()
+    loop._follow_clock()                                          # the wall clock starts the scene
+    assert scene.sim_time is not None and handed == []
+    stamp, names, q, v = next(_samples(0.1))
+    loop.take_input(lambda: scene.take_joint_state(T0, names, q, v, received=T0))
+    ros["now"] = T0 + 5.5 * scene.h                               # five steps due
+    while not (scene.steps_done == 5 and handed and handed[-1][1] == 5):
+        assert fake.now() < T0 + 1.0, (scene.steps_done, handed)  # a fake second: the hand-over never came
+        loop._follow_clock()
     assert handed[0][0] == 1                                      # nothing before the input placed the body
     assert [h[:2] for h in handed] == [(1, 1), (1, 5)]            # the first step that saw the input, at once;
     assert handed[1][2] - handed[0][2] >= loop.period             # the batch's end a timer period after it
@@ -237,12 +243,14 @@ def test_wall_clock_hands_over_the_first_state_that_saw_a_new_input_without_wait
 class _FakeTime:
     """The physics thread's world on a fake clock: the test is the thread (SimLoop._follow_clock called in turn),
     a step costs ``step_cost`` fake seconds, the joint states arrive at their stamps (queued as the subscription
-    callback would, also during a step), and a wait for an input or the timer moves the clock on to it."""
+    callback would, also during a step), and a wait for an input or the timer moves the clock on to it. The fake
+    clock is the loop's timer and its ROS clock, unless ``ros_now`` gives the ROS clock the steps follow."""
 
-    def __init__(self, loop, scene, samples, step_cost):
+    def __init__(self, loop, scene, samples, step_cost, ros_now=None):
         self.t, self.loop, self.scene = T0, loop, scene
         self.pending = deque(samples)
-        loop.timer = loop.now = self.now
+        loop.timer = self.now
+        loop.now = ros_now or self.now
         loop._wait = self.wait
         real_step = scene.integrator.step
 

@@ -32,12 +32,11 @@ def body_namespaces(n: int, namespace: str = "") -> list[str]:
 def start_player(namespace: str, params: dict) -> subprocess.Popen:
     """The mocap player, with ``params`` (source, file, start_offset, ...: nodes/player_node.py), playing on
     ``<namespace>/joint_states`` in a process of its own."""
+    from ..motion import check_player_value
     cmd = [sys.executable, "-m", "clusterfem_ros.nodes.player_node", "--ros-args"]
     for key, value in params.items():
-        if key in ("rate_hz", "speed", "start_offset", "loop_blend"):      # rclpy refuses an int for a double
-            text = repr(float(value))
-        else:
-            text = str(value).lower() if isinstance(value, bool) else str(value)
+        value = check_player_value(key, value)          # typed as the player's table says: a float stays a float
+        text = str(value).lower() if isinstance(value, bool) else repr(value) if isinstance(value, float) else value
         cmd += ["-p", f"{key}:={text}"]
     if namespace:
         cmd += ["-r", f"__ns:=/{namespace}"]

@@ -1,21 +1,14 @@
-"""Scene parameters as ROS parameters: descriptors with descriptions and ranges from config.PARAMS."""
+"""A node's parameters as ROS parameters from a table of config.Param (the scene's config.PARAMS, the player's
+motion.PLAYER_TABLE): descriptors with descriptions and ranges, every value checked and typed by config.check_param."""
 from __future__ import annotations
+
+from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from ..config import PARAMS, ConfigError, SceneConfig, check_value, from_mapping, unknown_name_error
-
-_KNOWN = {p.name for p in PARAMS}
-_LISTS = {p.name for p in PARAMS if isinstance(p.default, list)}
-
-
-def _value(name: str, value):
-    """An empty list in a params YAML (``anchors.points: []``) reaches rclpy as a parameter without a value
-    (None): for a list parameter that is the empty list it was written as."""
-    return [] if value is None and name in _LISTS else value
-
 
 # Parameters a running node can take; everything else shapes the model and needs a restart. They only
 # change how outputs look and how often they come; live, the rates have tighter bounds than at start-up:
@@ -48,41 +41,60 @@ def descriptor(p) -> ParameterDescriptor:
     return d
 
 
-def declare_scene_parameters(node: Node, on_live_change) -> SceneConfig:
-    """Register the checking callback first (so values from a file are checked too), then declare."""
+def declare_checked(node: Node, table, check, unknown, once_running) -> dict[str, Any]:
+    """Declare the parameters of ``table`` (config.Param) on ``node``, every value checked by ``check(name, value)``
+    (which raises ConfigError naming the value and the way out): from a params file, -p or ``ros2 param set``.
+
+    A params file's name that is not in the table is refused by ``unknown(name)``. What a file or -p gave as an
+    integer for a float, as a boolean or in another case for a choice is stored as the value the node runs with,
+    so that ``ros2 param get`` shows it. Once declared, a change passes ``once_running({name: value})`` too: it
+    returns the reason to refuse it, or None to take it. Returns {name: value} as the node runs with it."""
+    lists = {p.name for p in table if isinstance(p.default, list)}
     started = {"done": False}
 
-    def check(params) -> SetParametersResult:
+    def value(name: str, v):
+        """An empty list in a params YAML (``anchors.points: []``) reaches rclpy as a parameter without a value
+        (None): for a list parameter that is the empty list it was written as."""
+        return [] if v is None and name in lists else v
+
+    def on_set(params) -> SetParametersResult:
         for prm in params:
             try:
-                check_value(prm.name, _value(prm.name, prm.value))
+                check(prm.name, value(prm.name, prm.value))
             except ConfigError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
-            if started["done"] and prm.name not in LIVE:
-                return SetParametersResult(successful=False, reason=(
-                    f"{prm.name} shapes the model and cannot change while running: restart the node with "
-                    f"the new value (live parameters: {', '.join(sorted(LIVE))})"))
-            lo, hi = LIVE_BOUNDS.get(prm.name, (None, None))
-            if started["done"] and lo is not None and not lo <= prm.value <= hi:
-                return SetParametersResult(successful=False, reason=(
-                    f"{prm.name} = {prm.value!r}: a running node takes [{lo:g}, {hi:g}] only; start the node "
-                    "with the value to go beyond"))
-        if started["done"]:
-            on_live_change({prm.name: _value(prm.name, prm.value) for prm in params})
-        return SetParametersResult(successful=True)
+        reason = once_running({prm.name: value(prm.name, prm.value) for prm in params}) if started["done"] else None
+        return SetParametersResult(successful=reason is None, reason=reason or "")
 
-    node.add_on_set_parameters_callback(check)
-    for name in getattr(node, "_parameter_overrides", {}):     # a params file's misspelt name is refused
-        if name not in _KNOWN and name not in ROS_NAMES and not name.startswith("qos_overrides."):
-            raise unknown_name_error(name)
-    node.declare_parameters("", [(p.name, p.default, descriptor(p)) for p in PARAMS])
-    values = {p.name: _value(p.name, node.get_parameter(p.name).value) for p in PARAMS}
-    # what a file or -p gave as an integer for a float, a boolean or another case for a choice: stored as the value
-    # the node runs with, so that `ros2 param get` shows it
-    typed = {p.name: check_value(p.name, values[p.name]) for p in PARAMS if not isinstance(p.default, list)}
+    node.add_on_set_parameters_callback(on_set)     # first, so that values from a file are checked too
+    names = {p.name for p in table}
+    for name in getattr(node, "_parameter_overrides", {}):
+        if name not in names and name not in ROS_NAMES and not name.startswith("qos_overrides."):
+            raise unknown(name)
+    node.declare_parameters("", [(p.name, p.default, descriptor(p)) for p in table])
+    values = {p.name: value(p.name, node.get_parameter(p.name).value) for p in table}
+    typed = {p.name: check(p.name, values[p.name]) for p in table}
     retyped = [Parameter(n, value=v) for n, v in typed.items()
-               if type(v) is not type(values[n]) or v != values[n]]
+               if n not in lists and (type(v) is not type(values[n]) or v != values[n])]
     if retyped:
         node.set_parameters(retyped)
     started["done"] = True
-    return from_mapping(values)
+    return typed
+
+
+def declare_scene_parameters(node: Node, on_live_change) -> SceneConfig:
+    """The scene parameters declared on ``node`` (declare_checked); a running node takes the LIVE ones only,
+    within LIVE_BOUNDS, and hands them to ``on_live_change({name: value})``."""
+    def once_running(changes: dict) -> str | None:
+        for name, v in changes.items():
+            if name not in LIVE:
+                return (f"{name} shapes the model and cannot change while running: restart the node with "
+                        f"the new value (live parameters: {', '.join(sorted(LIVE))})")
+            lo, hi = LIVE_BOUNDS.get(name, (None, None))
+            if lo is not None and not lo <= v <= hi:
+                return (f"{name} = {v!r}: a running node takes [{lo:g}, {hi:g}] only; start the node "
+                        "with the value to go beyond")
+        on_live_change(changes)
+        return None
+
+    return from_mapping(declare_checked(node, PARAMS, check_value, unknown_name_error, once_running))

@@ -48,6 +48,12 @@ def _reader(folder: Path):
     return AnyReader([Path(folder)])
 
 
+def bag_topics(folder: str | Path) -> set[str]:
+    """The topics recorded in the bag folder."""
+    with _reader(Path(folder)) as r:
+        return {c.topic for c in r.connections}
+
+
 def read_joint_states(folder: str | Path, topic: str = topics.JOINT_STATES.recorded) -> list[JointSample]:
     """Every joint state in the bag, in recording order. BagReadError names the first record that does not
     decode (the node records only what it decoded, so such a record was written by something else)."""
