@@ -201,10 +201,9 @@ def test_the_renderer_draws_the_scene_s_urdf_file_found_under_clusterfem_data_mo
     (tmp_path / "urdf").mkdir()
     (tmp_path / "urdf" / "y.urdf").write_text(y_up_humanoid())
     monkeypatch.setenv("CLUSTERFEM_DATA", str(tmp_path))
-    scene = {"skeleton.source": "urdf_file", "skeleton.urdf_file": "urdf/y.urdf", "skeleton.up_axis": "y"}
-    drawn = _skeleton_urdf(scene, humanoid_urdf(), tmp_path / "bag")      # a player latched the humanoid too
     config = SceneConfig().with_values({"skeleton.source": "urdf_file", "skeleton.urdf_file": "urdf/y.urdf",
                                         "skeleton.up_axis": "y", "body.target_tets": 500})
+    drawn = _skeleton_urdf(config, humanoid_urdf(), tmp_path / "bag")     # a player latched the humanoid too
     built = Scene.build(config)
     assert drawn == built.urdf_xml and "left_hand_tip" in drawn and "root_x" in drawn
 
