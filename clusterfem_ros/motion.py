@@ -13,39 +13,13 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from .config import BVH_UP, ConfigError, Param, check_param
 from .skeleton.trajectory import JointTrajectory
 
-SOURCES = ("builtin_walk", "bvh", "keyframes", "joint_sweep")
-PLAYER_NODE = "mocap_player"
-# The player's parameters (nodes/player_node.py declares them, a scene file's mocap_player section holds them),
-# typed and checked by config.check_param as the simulation node's are.
-PLAYER_TABLE: tuple[Param, ...] = (
-    Param("source", "builtin_walk", "builtin_walk, bvh, keyframes or joint_sweep (a URDF's joints through their "
-          "ranges)", choices=SOURCES),
-    Param("file", "", "BVH, key-frame or URDF file for those sources: a path, package://<package>/<path> of an "
-          "installed package, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder"),
-    Param("rate_hz", 120.0, "JointState publish rate [Hz]", 1.0, 2000.0),
-    Param("speed", 1.0, "playback speed factor", 0.01, 100.0),
-    Param("start_offset", 0.0, "start this far into the motion [s]", 0.0, 1e6),
-    Param("start_delay", 0.0, "wait this long before playing, the skeleton latched at once: a node that builds its "
-          "body from robot_description (a new mesh takes minutes) then gets the motion from its start [s]",
-          0.0, 3600.0),
-    Param("loop", True, "loop the motion at its end"),
-    Param("loop_blend", 0.5, "looping a motion that does not end where it starts: its last seconds are blended into "
-          "its start over this time (a capture's joints as rotations), the root's horizontal position and heading "
-          "carried on (0 = jump back to the start, which the node takes as a teleport and re-places the body) [s]",
-          0.0, 60.0),
-    Param("unit", "auto", "a BVH file's length unit: auto (found from the skeleton: a standing human), m, cm, mm, "
-          "inch, cmu (0.056444 m) or metres per file unit as a number", length_unit=True),
-    Param("up", "auto", "a BVH file's up axis: auto (found from the legs of the rest pose), X, Y, Z, -X, -Y or -Z",
-          choices=BVH_UP),
-)
-PLAYER_PARAMS = tuple(p.name for p in PLAYER_TABLE)
-_PLAYER_BY_NAME = {p.name: p for p in PLAYER_TABLE}
 WALK_CYCLES = 4          # the built-in walk is this many whole gait periods, so looping is seamless
 
 
@@ -69,45 +43,122 @@ class Motion:
         return self.trajectory.with_seam(blend_s, self.carry)
 
 
-def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: float = 1.0, unit="auto",
-                up: str = "auto") -> Motion:
-    """The named motion; raises ValueError naming the source or file and the way out. ``unit`` and ``up`` are a
-    BVH file's length unit and up axis ('auto': found from its skeleton; skeleton/bvh_placement.py)."""
+@dataclass(frozen=True)
+class MotionSource:
+    """A kind of motion a player can play, registered by name (``register_source``): the player's ``source``
+    choices, ``load_motion`` and the node's fitting skeleton all read the registry."""
+    name: str
+    description: str                # for the player's parameter table
+    load: Callable[..., Motion]     # (path or None, speed_mps=, unit=, up=) -> Motion
+    file_kind: str | None = None    # what its 'file' holds ('.bvh'); None: it needs no file
+    skeleton_source: str = "builtin"    # the node's skeleton.source its skeleton fits
+
+
+MOTION_SOURCES: dict[str, MotionSource] = {}
+
+
+def register_source(source: MotionSource) -> MotionSource:
+    """Add a motion source under its name (a name already taken is refused); returns it."""
+    if not source.name or source.name in MOTION_SOURCES:
+        raise ValueError(f"motion source name {source.name!r} is empty or taken ({sorted(MOTION_SOURCES)})")
+    MOTION_SOURCES[source.name] = source
+    return source
+
+
+def _builtin_walk(path, speed_mps: float = 1.0, **_) -> Motion:
     from .skeleton.humanoid import default_humanoid
-    if source == "builtin_walk":
-        from .skeleton.procedural_walk import gait_period, procedural_walk
-        period = gait_period(speed_mps)
-        traj = procedural_walk(WALK_CYCLES * period, speed=speed_mps)
-        return Motion(default_humanoid().urdf, traj,
-                      f"built-in walk ({WALK_CYCLES} gait periods of {period:.2f} s at {speed_mps:g} m/s)", True)
-    if source not in SOURCES:
-        raise ValueError(f"motion source {source!r} is unknown: choose one of {', '.join(SOURCES)}")
-    if not str(file):
-        kind = {"bvh": ".bvh", "joint_sweep": ".urdf"}.get(source, ".yaml/.csv")
-        raise ValueError(f"motion source {source!r} needs a file: set the 'file' parameter to a {kind} path")
-    from .body.fit import find_data_file
-    path = find_data_file(str(file), what=f"motion source {source!r}: file")
-    if source == "bvh":
-        from .skeleton.bvh import load_bvh
-        from .skeleton.bvh_to_urdf import bvh_trajectory, bvh_urdf
-        capture = load_bvh(path, unit, up)
-        traj = bvh_trajectory(capture)
-        # a position channel is horizontal when its file axis maps to a ROS axis without a vertical part
-        carry = np.array([n.endswith("pos") and abs(capture.to_ros[2, "XYZ".index(n[-4])]) < 0.5 for n in traj.names])
-        skipped = ", frame 0 (a prepended pose) skipped" if traj.times.size < capture.n_frames else ""
-        return Motion(bvh_urdf(capture), traj, f"BVH {path.name} ({capture.n_frames} frames{skipped}, "
-                      f"{traj.duration:.2f} s)", False, carry, capture.placement, capture)
-    if source == "joint_sweep":
-        from .skeleton.joint_sweep import joint_sweep
-        urdf = path.read_text()
-        sweep = joint_sweep(urdf)
-        tr = sweep.trajectory
-        return Motion(urdf, tr, f"joint sweep of {path.name} ({len(tr.names)} joints, {tr.duration:.2f} s)"
-                      + "".join(f"; {note}" for note in sweep.notes), False)
+    from .skeleton.procedural_walk import gait_period, procedural_walk
+    period = gait_period(speed_mps)
+    traj = procedural_walk(WALK_CYCLES * period, speed=speed_mps)
+    return Motion(default_humanoid().urdf, traj,
+                  f"built-in walk ({WALK_CYCLES} gait periods of {period:.2f} s at {speed_mps:g} m/s)", True)
+
+
+def _bvh(path, unit="auto", up: str = "auto", **_) -> Motion:
+    from .skeleton.bvh import load_bvh
+    from .skeleton.bvh_to_urdf import bvh_trajectory, bvh_urdf
+    capture = load_bvh(path, unit, up)
+    traj = bvh_trajectory(capture)
+    # a position channel is horizontal when its file axis maps to a ROS axis without a vertical part
+    carry = np.array([n.endswith("pos") and abs(capture.to_ros[2, "XYZ".index(n[-4])]) < 0.5 for n in traj.names])
+    skipped = ", frame 0 (a prepended pose) skipped" if traj.times.size < capture.n_frames else ""
+    return Motion(bvh_urdf(capture), traj, f"BVH {path.name} ({capture.n_frames} frames{skipped}, "
+                  f"{traj.duration:.2f} s)", False, carry, capture.placement, capture)
+
+
+def _keyframes(path, **_) -> Motion:
+    from .skeleton.humanoid import default_humanoid
     from .skeleton.keyframes import load_keyframes
     spec = default_humanoid()
     traj = load_keyframes(path, joint_names=spec.joint_names)
     return Motion(spec.urdf, traj, f"key frames {path.name} ({traj.duration:.2f} s)", True)
+
+
+def _joint_sweep(path, **_) -> Motion:
+    from .skeleton.joint_sweep import joint_sweep
+    urdf = path.read_text()
+    sweep = joint_sweep(urdf)
+    tr = sweep.trajectory
+    return Motion(urdf, tr, f"joint sweep of {path.name} ({len(tr.names)} joints, {tr.duration:.2f} s)"
+                  + "".join(f"; {note}" for note in sweep.notes), False)
+
+
+for _source in (MotionSource("builtin_walk", "the built-in humanoid walking", _builtin_walk),
+                # a capture plays on its own skeleton, which the player latches on robot_description
+                MotionSource("bvh", "a BVH capture on its own skeleton", _bvh, ".bvh", "robot_description"),
+                MotionSource("keyframes", "timed targets for the built-in humanoid's joints", _keyframes,
+                             ".yaml/.csv"),
+                # the URDF file the sweep reads (or the same URDF latched on robot_description)
+                MotionSource("joint_sweep", "a URDF's joints through their ranges", _joint_sweep, ".urdf",
+                             "urdf_file")):
+    register_source(_source)
+SOURCES = tuple(MOTION_SOURCES)                 # the built-in ones; MOTION_SOURCES holds what is registered
+
+
+PLAYER_NODE = "mocap_player"
+# The player's parameters (nodes/player_node.py declares them, a scene file's mocap_player section holds them),
+# typed and checked by config.check_param as the simulation node's are.
+PLAYER_TABLE: tuple[Param, ...] = (
+    Param("source", "builtin_walk", "; ".join(f"{m.name}: {m.description}" for m in MOTION_SOURCES.values()),
+          choices=SOURCES),
+    Param("file", "", "BVH, key-frame or URDF file for those sources: a path, package://<package>/<path> of an "
+          "installed package, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder"),
+    Param("rate_hz", 120.0, "JointState publish rate [Hz]", 1.0, 2000.0),
+    Param("speed", 1.0, "playback speed factor", 0.01, 100.0),
+    Param("start_offset", 0.0, "start this far into the motion [s]", 0.0, 1e6),
+    Param("start_delay", 0.0, "wait this long before playing, the skeleton latched at once: a node that builds its "
+          "body from robot_description (a new mesh takes minutes) then gets the motion from its start [s]",
+          0.0, 3600.0),
+    Param("loop", True, "loop the motion at its end"),
+    Param("loop_blend", 0.5, "looping a motion that does not end where it starts: its last seconds are blended into "
+          "its start over this time (a capture's joints as rotations), the root's horizontal position and heading "
+          "carried on (0 = jump back to the start, which the node takes as a teleport and re-places the body) [s]",
+          0.0, 60.0),
+    Param("unit", "auto", "a BVH file's length unit: auto (found from the skeleton: a standing human), m, cm, mm, "
+          "inch, cmu (0.056444 m) or metres per file unit as a number", length_unit=True),
+    Param("up", "auto", "a BVH file's up axis: auto (found from the legs of the rest pose), X, Y, Z, -X, -Y or -Z",
+          choices=BVH_UP),
+)
+PLAYER_PARAMS = tuple(p.name for p in PLAYER_TABLE)
+_PLAYER_BY_NAME = {p.name: p for p in PLAYER_TABLE}
+
+
+def load_motion(source: str = "builtin_walk", file: str | Path = "", speed_mps: float = 1.0, unit="auto",
+                up: str = "auto") -> Motion:
+    """The named motion (a source of MOTION_SOURCES); raises ValueError naming the source or file and the way out.
+    ``unit`` and ``up`` are a BVH file's length unit and up axis ('auto': found from its skeleton;
+    skeleton/bvh_placement.py)."""
+    if source not in MOTION_SOURCES:
+        raise ValueError(f"motion source {source!r} is unknown: choose one of {', '.join(MOTION_SOURCES)}")
+    kind = MOTION_SOURCES[source]
+    path = None
+    if kind.file_kind is not None:
+        if not str(file):
+            raise ValueError(f"motion source {source!r} needs a file: set the 'file' parameter to a "
+                             f"{kind.file_kind} path")
+        from .body.fit import find_data_file
+        path = find_data_file(str(file), what=f"motion source {source!r}: file")
+    return kind.load(path, speed_mps=speed_mps, unit=unit, up=up)
 
 
 def unknown_player_parameter(name: str) -> ConfigError:
@@ -195,7 +246,7 @@ def capture_bind_pose(bvh_file: str | Path) -> tuple[str, str]:
 
 
 def skeleton_source_for(source: str) -> str:
-    """The node's skeleton.source that fits a player source: the built-in humanoid for the walk and key frames,
-    the URDF the player latches on robot_description for a BVH (its own skeleton), the URDF file the joint sweep
-    reads (or the same URDF latched on robot_description) for the joint sweep."""
-    return {"bvh": "robot_description", "joint_sweep": "urdf_file"}.get(source, "builtin")
+    """The node's skeleton.source that fits a player source (MotionSource.skeleton_source): the built-in humanoid
+    for the walk and key frames, the URDF the player latches on robot_description for a BVH (its own skeleton),
+    the URDF file the joint sweep reads for the joint sweep."""
+    return MOTION_SOURCES[source].skeleton_source if source in MOTION_SOURCES else "builtin"

@@ -1,0 +1,46 @@
+"""Motion sources are registered (motion.MOTION_SOURCES): loading a motion, the node's fitting skeleton and the
+player's choices read the registry, so a new source is one function and one registration."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clusterfem_ros import motion
+from clusterfem_ros.skeleton.humanoid import default_humanoid
+from clusterfem_ros.skeleton.trajectory import JointTrajectory
+
+
+@pytest.fixture
+def toy_source():
+    """A source of its own: the built-in humanoid standing still for a second, from no file."""
+    def still(path, **_):
+        spec = default_humanoid()
+        times = np.array([0.0, 1.0])
+        traj = JointTrajectory(times, list(spec.joint_names), np.zeros((2, len(spec.joint_names))))
+        return motion.Motion(spec.urdf, traj, "standing still (1 s)", True)
+    source = motion.register_source(motion.MotionSource("toy_still", "the humanoid standing still", still))
+    yield source
+    motion.MOTION_SOURCES.pop(source.name)
+
+
+def test_a_registered_source_loads_by_name_and_names_its_skeleton(toy_source):
+    got = motion.load_motion("toy_still")
+    assert got.description == "standing still (1 s)" and got.trajectory.duration == 1.0
+    assert motion.skeleton_source_for("toy_still") == "builtin"
+    with pytest.raises(ValueError, match="taken"):
+        motion.register_source(toy_source)
+
+
+def test_an_unknown_source_or_a_missing_file_is_refused_naming_the_choices():
+    with pytest.raises(ValueError, match="unknown: choose one of builtin_walk, bvh, keyframes, joint_sweep"):
+        motion.load_motion("bvhh")
+    with pytest.raises(ValueError, match="'bvh' needs a file: set the 'file' parameter to a .bvh path"):
+        motion.load_motion("bvh")
+
+
+def test_the_player_offers_every_built_in_source_and_the_node_fits_each_one_skeleton():
+    source = next(p for p in motion.PLAYER_TABLE if p.name == "source")
+    assert tuple(source.choices) == tuple(motion.MOTION_SOURCES) == motion.SOURCES
+    assert all(m.name in source.description for m in motion.MOTION_SOURCES.values())
+    assert {name: motion.skeleton_source_for(name) for name in motion.SOURCES} == {
+        "builtin_walk": "builtin", "bvh": "robot_description", "keyframes": "builtin", "joint_sweep": "urdf_file"}
