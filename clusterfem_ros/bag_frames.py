@@ -187,10 +187,11 @@ def _skeleton_urdf(scene: SceneConfig, bag_urdf: str | None, folder: Path) -> st
         urdf = humanoid_urdf()
     if not urdf:
         return None
+    from .scene_build import body_kind
     from .skeleton.link_shapes import prepare_urdf
     check_urdf(urdf, CEILING)               # a bag's description is the world's: a bounded tree first (urdf_check.py)
     return prepare_urdf(urdf, scene.skeleton.up_axis, scene.skeleton.root_joint,
-                        leaf_shapes=scene.body.kind == "jelly_man", urdf_file=where).urdf
+                        leaf_shapes=body_kind(scene.body.kind).leaf_shapes, urdf_file=where).urdf
 
 
 def read_bag_frames(folder: str | Path) -> BagFrames:

@@ -112,8 +112,8 @@ def load_skeleton(config: SceneConfig, urdf_xml: str | None, progress: Callable[
         tree = check_urdf(urdf_xml, limits)     # before anything reads it (skeleton/urdf_check.py)
         say(progress, f"URDF checked: a tree of {tree.n_links} links and {tree.n_joints} joints from {tree.root!r}, "
                       f"{tree.depth} deep")
-        prepared = prepare_urdf(urdf_xml, sk.up_axis, sk.root_joint, leaf_shapes=config.body.kind == "jelly_man",
-                                urdf_file=urdf_path)
+        prepared = prepare_urdf(urdf_xml, sk.up_axis, sk.root_joint,
+                                leaf_shapes=body_kind(config.body.kind).leaf_shapes, urdf_file=urdf_path)
         for note in prepared.notes:
             say(progress, note)
         return Skeleton.from_urdf_string(prepared.urdf, limits.prepared()), prepared.urdf, prepared.leaf_shapes
@@ -165,61 +165,111 @@ def jelly_radii(skeleton: Skeleton, leaf_shapes: dict, body, progress: Callable[
     return {name: 0.0 if name in leaf_shapes else radius for name, radius in radii.items()}, bare
 
 
-def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
-                progress: Callable[[str], None] | None = None) -> SceneParts:
-    """Everything the config asks for (and nothing else): the error budget's choice, the skeleton, the body."""
-    if config.budget.max_error_mm > 0:
-        config = apply_error_budget(config, progress)
-    skeleton, urdf_xml, leaf_shapes = load_skeleton(config, urdf_xml, progress)
-    source = config.skeleton.source
-    body = config.body
-    kind = body.kind
-    fixed = allowed = bind_q = None
+@dataclass(frozen=True)
+class BodyKind:
+    """A kind of body a scene builds (``body.kind``), registered by name (``register_body_kind``): the scene's
+    parts are built by ``build(config, skeleton, urdf_xml, leaf_shapes, progress)``; ``leaf_shapes``: the
+    skeleton's URDF is prepared with its leaf links' own shapes as flesh (skeleton/link_shapes.prepare_urdf);
+    ``needs_skeleton``: built around a skeleton, refused with skeleton.source 'none'."""
+    name: str
+    build: Callable[..., SceneParts]
+    leaf_shapes: bool = False
+    needs_skeleton: bool = False
+
+
+BODY_KINDS: dict[str, BodyKind] = {}
+
+
+def register_body_kind(kind: BodyKind) -> BodyKind:
+    """Add a body kind under its name (a name already taken is refused); returns it. A scene chooses it by
+    body.kind once its name is among config.BODIES (the configuration checks names without building)."""
+    if not kind.name or kind.name in BODY_KINDS:
+        raise ValueError(f"body kind name {kind.name!r} is empty or taken ({sorted(BODY_KINDS)})")
+    BODY_KINDS[kind.name] = kind
+    return kind
+
+
+def body_kind(name: str) -> BodyKind:
+    if name not in BODY_KINDS:
+        raise ValueError(f"body.kind = {name!r}: choose one of {', '.join(BODY_KINDS)}")
+    return BODY_KINDS[name]
+
+
+def _jelly_man(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
+    source, body = config.skeleton.source, config.body
+    bind_q = None
     bare: list[str] = []
-    if kind == "jelly_man":
-        if skeleton is None:
-            raise ValueError("body.kind 'jelly_man' is built around a skeleton, but skeleton.source is 'none': "
-                             "choose a skeleton source or a paper shape / mesh body")
-        if source == "builtin":
-            spec = default_humanoid()
-        else:
-            bind_q = jelly_bind_pose(config, skeleton, progress)
-            radii, bare = jelly_radii(skeleton, leaf_shapes, body, progress, bind_q)
-            spec = HumanoidSpec(urdf_xml, radii, leaf_shapes=leaf_shapes)
-        # radii by role differ from bone to bone: keep each voxel nearest its own bone's axis (the binding's rule)
-        axis_consistent = source != "builtin" and body.flesh == "auto"
-        if body.skin == "smooth":
-            say(progress, f"meshing the jelly man (~{body.target_tets} tets): voxels, skin on the blended capsules")
-            mesh = smooth_jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
-        else:
-            say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
-            mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
-        allowed = voxel_bones(spec, mesh, bind_q) if source != "builtin" else None
-    elif kind == "robot_cover":
-        say(progress, f"covering the robot's links (~{body.target_tets} tets)")
-        urdf_file = (find_data_file(config.skeleton.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")
-                     if source == "urdf_file" else None)
-        cover = robot_cover(urdf_xml, skeleton, thickness=body.cover_thickness, target_tets=body.target_tets,
-                            source=body.cover_shapes, urdf_file=urdf_file, bare_radius=body.bone_radius)
-        for note in cover.notes:
-            say(progress, note)
-        return SceneParts(config, cover.mesh, np.zeros(cover.mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
-                          cover=cover)
-    elif kind == "mesh":
-        mesh = read_mesh(body.mesh_file)
-    elif kind == "surface":
-        surface = build_surface_body(config, skeleton, progress)
-        return SceneParts(config, surface.mesh, np.zeros(surface.mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
-                          surface=surface)
+    if source == "builtin":
+        spec = default_humanoid()
     else:
-        mesh = paper_mesh(kind, body.scale)
-    if skeleton is None and kind != "mesh" and body.fix_bottom:
-        z = mesh.vertices[:, 2]
-        fixed = z <= z.min() + 0.2 * np.ptp(z)
-    if fixed is None:
-        fixed = np.zeros(mesh.n_vertices, dtype=bool)
+        bind_q = jelly_bind_pose(config, skeleton, progress)
+        radii, bare = jelly_radii(skeleton, leaf_shapes, body, progress, bind_q)
+        spec = HumanoidSpec(urdf_xml, radii, leaf_shapes=leaf_shapes)
+    # radii by role differ from bone to bone: keep each voxel nearest its own bone's axis (the binding's rule)
+    axis_consistent = source != "builtin" and body.flesh == "auto"
+    if body.skin == "smooth":
+        say(progress, f"meshing the jelly man (~{body.target_tets} tets): voxels, skin on the blended capsules")
+        mesh = smooth_jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
+    else:
+        say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
+        mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
+    allowed = voxel_bones(spec, mesh, bind_q) if source != "builtin" else None
     # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
     # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
-    bind_all = kind == "jelly_man" and source != "builtin"
-    return SceneParts(config, mesh, fixed, skeleton, urdf_xml, bind_all=bind_all, bind_q=bind_q,
-                      bare_bones=tuple(bare), vertex_bones=allowed)
+    return SceneParts(config, mesh, np.zeros(mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
+                      bind_all=source != "builtin", bind_q=bind_q, bare_bones=tuple(bare), vertex_bones=allowed)
+
+
+def _robot_cover(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
+    body = config.body
+    say(progress, f"covering the robot's links (~{body.target_tets} tets)")
+    urdf_file = (find_data_file(config.skeleton.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")
+                 if config.skeleton.source == "urdf_file" else None)
+    cover = robot_cover(urdf_xml, skeleton, thickness=body.cover_thickness, target_tets=body.target_tets,
+                        source=body.cover_shapes, urdf_file=urdf_file, bare_radius=body.bone_radius)
+    for note in cover.notes:
+        say(progress, note)
+    return SceneParts(config, cover.mesh, np.zeros(cover.mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
+                      cover=cover)
+
+
+def _volume_mesh(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
+    mesh = read_mesh(config.body.mesh_file)
+    return SceneParts(config, mesh, np.zeros(mesh.n_vertices, dtype=bool), skeleton, urdf_xml)
+
+
+def _surface(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
+    surface = build_surface_body(config, skeleton, progress)
+    return SceneParts(config, surface.mesh, np.zeros(surface.mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
+                      surface=surface)
+
+
+def _paper_shape(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
+    """One of the paper's shapes; without a skeleton its bottom fifth is held when body.fix_bottom asks."""
+    mesh = paper_mesh(config.body.kind, config.body.scale)
+    fixed = np.zeros(mesh.n_vertices, dtype=bool)
+    if skeleton is None and config.body.fix_bottom:
+        z = mesh.vertices[:, 2]
+        fixed = z <= z.min() + 0.2 * np.ptp(z)
+    return SceneParts(config, mesh, fixed, skeleton, urdf_xml)
+
+
+for _kind in (BodyKind("jelly_man", _jelly_man, leaf_shapes=True, needs_skeleton=True),
+              BodyKind("sphere", _paper_shape), BodyKind("cube", _paper_shape), BodyKind("torus", _paper_shape),
+              BodyKind("mesh", _volume_mesh), BodyKind("surface", _surface, needs_skeleton=True),
+              BodyKind("robot_cover", _robot_cover, needs_skeleton=True)):
+    register_body_kind(_kind)
+
+
+def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
+                progress: Callable[[str], None] | None = None) -> SceneParts:
+    """Everything the config asks for (and nothing else): the error budget's choice, the skeleton, the body
+    (its kind's ``build``: BODY_KINDS)."""
+    if config.budget.max_error_mm > 0:
+        config = apply_error_budget(config, progress)
+    kind = body_kind(config.body.kind)
+    skeleton, urdf_xml, leaf_shapes = load_skeleton(config, urdf_xml, progress)
+    if kind.needs_skeleton and skeleton is None:
+        raise ValueError(f"body.kind {kind.name!r} is built around a skeleton, but skeleton.source is 'none': "
+                         "choose a skeleton source or a paper shape / mesh body")
+    return kind.build(config, skeleton, urdf_xml, leaf_shapes, progress)

@@ -172,3 +172,28 @@ def test_the_step_loop_lets_the_gil_go_only_in_the_integrator_step(step_loop_run
     called = step_loop_run.split("CALLED FROM PYTHON:")[1].splitlines()[0]
     assert "tree_forward" in called and "_bone_targets" in called, step_loop_run[-2000:]
     assert "RELEASE THE GIL: []" in step_loop_run, step_loop_run[-2000:]
+
+
+def test_body_kinds_are_registered_and_a_new_kind_builds_a_scene_by_being_registered(monkeypatch):
+    """Every body.kind a scene may choose has a registered builder (scene_build.BODY_KINDS), and a kind of one's
+    own is built by scene_parts through the registry alone (a paper cube, slid 1 m along x)."""
+    from clusterfem_ros import config as config_module
+    from clusterfem_ros import scene_build
+    from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
+    assert tuple(scene_build.BODY_KINDS) == config_module.BODIES
+
+    def slid(config, skeleton, urdf_xml, leaf_shapes, progress):
+        mesh = paper_mesh("cube", config.body.scale)
+        mesh = type(mesh)(mesh.vertices + [1.0, 0.0, 0.0], mesh.tets)
+        return scene_build.SceneParts(config, mesh, np.zeros(mesh.n_vertices, dtype=bool), skeleton, urdf_xml)
+    kind = scene_build.register_body_kind(scene_build.BodyKind("slid_cube", slid))
+    try:
+        monkeypatch.setattr(config_module, "BODIES", config_module.BODIES + ("slid_cube",))
+        config = SceneConfig().with_values({"skeleton.source": "none", "body.kind": "cube"})
+        parts = scene_build.scene_parts(SceneConfig({**config.values, "body.kind": "slid_cube"}))
+        cube = paper_mesh("cube", config.body.scale).vertices
+        assert np.array_equal(parts.mesh.vertices, cube + [1.0, 0.0, 0.0]) and not parts.fixed.any()
+        with pytest.raises(ValueError, match="taken"):
+            scene_build.register_body_kind(kind)
+    finally:
+        scene_build.BODY_KINDS.pop("slid_cube")
