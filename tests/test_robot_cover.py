@@ -147,6 +147,48 @@ def test_cover_puts_capsules_on_bare_bones_and_refuses_a_urdf_with_nothing_to_co
         robot_cover(lone, Skeleton.from_urdf_string(lone))
 
 
+def _no_pinocchio_data(monkeypatch):
+    """Make any use of the skeleton's pinocchio Data fail (its size grows with the cube of the joints)."""
+    def refuse(*_args, **_kw):
+        raise AssertionError("the cover made pinocchio's Data")
+    monkeypatch.setattr(Skeleton, "data", property(refuse))
+    monkeypatch.setattr(Skeleton, "pinocchio_data", refuse, raising=False)
+
+
+def _cover_robots():
+    """(name, prepared URDF, urdf_file): the arm, and example-robot-data's Panda (meshes on fixed-joint links,
+    links beyond them) prepared as the robot scene does, when installed."""
+    out = [("arm", ARM, None)]
+    panda = package_file("package://example-robot-data/robots/panda_description/urdf/panda.urdf")
+    if panda is not None:
+        from clusterfem_ros.skeleton.link_shapes import prepare_urdf
+        out.append(("panda", prepare_urdf(panda.read_text(), root_joint="fixed", urdf_file=panda).urdf, panda))
+    return out
+
+
+@pytest.mark.parametrize("name, urdf, path", _cover_robots(), ids=[n for n, _, _ in _cover_robots()])
+def test_cover_parts_place_the_shapes_where_pinocchio_puts_their_links_without_its_data(monkeypatch, name, urdf,
+                                                                                      path):
+    """cover_parts places each link's shapes by the skeleton's own kinematics: equal, to round-off, to the shapes
+    moved by pinocchio's oMf of the link's BODY frame, and pinocchio's Data is never made."""
+    import pinocchio as pin
+
+    from clusterfem_ros.skeleton.robot_cover import cover_parts, link_geometry, search_folders
+    sk = Skeleton.from_urdf_string(urdf)
+    data = sk.model.createData()                    # the reference, made before Data is forbidden
+    pin.forwardKinematics(sk.model, data, pin.neutral(sk.model))
+    pin.updateFramePlacements(sk.model, data)
+    geometry, _ = link_geometry(urdf, "collision", search_folders(path))
+    _no_pinocchio_data(monkeypatch)
+    parts, _ = cover_parts(urdf, sk, geometry, spacing=0.01)
+    assert len(parts) >= 7, [p.link for p in parts]
+    for part in parts:
+        M = data.oMf[sk.model.getFrameId(part.link, pin.BODY)]
+        for mesh, world in zip(geometry[part.link], part.meshes):
+            want = np.asarray(mesh.vertices) @ M.rotation.T + M.translation
+            np.testing.assert_allclose(np.asarray(world.vertices), want, atol=1e-12, err_msg=f"{name} {part.link}")
+
+
 def test_package_names_resolve_only_in_installed_packages():
     from clusterfem_ros.body.fit import FitError, find_data_file
     assert package_file("package://no-such-package/robots/x.urdf") is None

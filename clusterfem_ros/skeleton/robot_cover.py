@@ -201,22 +201,20 @@ def bone_capsules(xml: str, skeleton, geometry: dict, radius: float) -> dict:
 
 
 def cover_parts(xml: str, skeleton, geometry: dict, spacing: float) -> tuple[list[CoverPart], list[str]]:
-    """The shapes of ``geometry`` placed at the skeleton's rest pose, sampled every ``spacing`` [m]."""
-    import pinocchio as pin
+    """The shapes of ``geometry`` placed at the skeleton's rest pose (its own kinematics, ``link_placements``:
+    no pinocchio Data, whose size grows with the cube of the joints), sampled every ``spacing`` [m]."""
     import trimesh
-    model, data = skeleton.model, skeleton.data
-    pin.forwardKinematics(model, data, pin.neutral(model))
-    pin.updateFramePlacements(model, data)
     owner, body = rigid_bodies(xml, skeleton.bone_names)
-    parts, away = [], []
-    for link, meshes in geometry.items():
-        if link not in owner or not model.existFrame(link, pin.BODY):
-            away.append(link)
-            continue
-        M = data.oMf[model.getFrameId(link, pin.BODY)]
+    known = set(skeleton.link_names)
+    placed = [link for link in geometry if link in owner and link in known]
+    away = [link for link in geometry if link not in owner or link not in known]
+    notes = [f"links on no bone through fixed joints have no cover: {', '.join(away)}"] if away else []
+    R, p = skeleton.link_placements(skeleton.neutral(), placed)
+    parts = []
+    for k, link in enumerate(placed):
         T = np.eye(4)
-        T[:3, :3], T[:3, 3] = M.rotation, M.translation
-        world = [m.copy().apply_transform(T) for m in meshes]
+        T[:3, :3], T[:3, 3] = R[k], p[k]
+        world = [m.copy().apply_transform(T) for m in geometry[link]]
         points = []
         for m in world:
             count = int(min(max(m.area / spacing ** 2 * 1.5, 50), 400000))
@@ -224,7 +222,6 @@ def cover_parts(xml: str, skeleton, geometry: dict, spacing: float) -> tuple[lis
         points = np.concatenate(points)
         b = owner[link]
         parts.append(CoverPart(link, b, body[b], points, world, points.min(axis=0), points.max(axis=0)))
-    notes = [f"links on no bone through fixed joints have no cover: {', '.join(away)}"] if away else []
     return parts, notes
 
 
