@@ -2,6 +2,8 @@
 robot scene (config/robot_*.yaml) played headless with 0 resets."""
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +14,7 @@ from clusterfem_ros.skeleton.joint_sweep import joint_sweep
 from clusterfem_ros.skeleton.kinematics import Skeleton
 from clusterfem_ros.skeleton.robot_cover import robot_cover
 from clusterfem_ros.skeleton.robot_data import package_file, robot_data_folder
+from clusterfem_ros.skeleton.urdf_check import DEFAULT_MAX_LINKS
 
 ROOT = Path(__file__).resolve().parents[1]
 ROBOT_SCENES = sorted((ROOT / "config").glob("robot_*.yaml"))
@@ -187,6 +190,68 @@ def test_cover_parts_place_the_shapes_where_pinocchio_puts_their_links_without_i
         for mesh, world in zip(geometry[part.link], part.meshes):
             want = np.asarray(mesh.vertices) @ M.rotation.T + M.translation
             np.testing.assert_allclose(np.asarray(world.vertices), want, atol=1e-12, err_msg=f"{name} {part.link}")
+
+
+def boxed_star(n: int) -> str:
+    """A root and n - 1 leaves on revolute joints, each link with a 2 cm box, the leaves 5 cm apart on a grid of 32
+    columns at height 0.1 m (leaf k at (0.05 (k % 32), 0.05 (k // 32), 0.1))."""
+    box = "<box size='0.02 0.02 0.02'/>"
+    return ("<robot name='boxed_star'>" + "".join(_link(f"l{k}", box) for k in range(n))
+            + "".join(_joint(f"j{k}", "revolute", "l0", f"l{k}", f"{0.05 * (k % 32):g} {0.05 * (k // 32):g} 0.1",
+                             limit="<limit lower='-1' upper='1' effort='1' velocity='1'/>") for k in range(1, n))
+            + "</robot>")
+
+
+_LARGE_COVER = """
+import os, resource, sys
+import numpy as np
+resource.setrlimit(resource.RLIMIT_AS, (6 << 30, 6 << 30))  # a regression fails with MemoryError, not the host's OOM
+from benchmarks.hostile_urdf import memory_kb
+from clusterfem_ros.config import SceneConfig
+from clusterfem_ros.scene import Scene
+from clusterfem_ros.skeleton.kinematics import UrdfError
+from clusterfem_ros.skeleton.urdf_check import DEFAULT_MAX_LINKS
+from tests.test_robot_cover import boxed_star
+config = SceneConfig().with_values({"skeleton.source": "robot_description", "body.kind": "robot_cover",
+                                    "body.target_tets": 3000})
+Scene.build(config, urdf_xml=boxed_star(3))               # imports and compiled kernels, before the measurement
+before = memory_kb(os.getpid())[1]
+notes = []
+scene = Scene.build(config, urdf_xml=boxed_star(DEFAULT_MAX_LINKS), progress=notes.append)
+grew = (memory_kb(os.getpid())[1] - before) / 1024
+sk, b, x = scene.skeleton, scene.binding, scene.model.rest
+k = np.array([int(sk.bone_names[i][1:]) for i in b.bone])
+centre = np.stack([0.05 * (k % 32), 0.05 * (k // 32), np.where(k > 0, 0.1, 0.0)], axis=1)
+print("joints", sk.nq, "bones", sk.n_bones, "covered", len(np.unique(b.bone)))
+print("farthest", np.linalg.norm(x - centre, axis=1).max())
+print("notes", " | ".join(n for n in notes if "robot cover:" in n or "surface samples" in n))
+try:
+    sk.data
+    print("data made")
+except UrdfError as e:
+    print("data refused", e)
+print("grew_mb", grew)
+"""
+
+
+def test_a_cover_on_the_largest_star_the_limits_accept_builds_small_and_on_its_links():
+    """A robot_description of max_links links (a star, each link a 2 cm box on a 5 cm grid) becomes a robot-cover
+    scene in a process of its own whose peak resident memory (its own VmHWM) grows by less than 300 MB: the links are
+    placed without pinocchio's Data (~60 GB for these 1,005 joints, refused), and the cover's surface samples stay
+    within robot_cover.MAX_SAMPLES (at extent / 300 these small shapes took 400,000 samples per link, 17 GB). Each
+    vertex lies at its own link's box. The child's address space is capped (6 GB), so a regression fails here
+    instead of exhausting the host."""
+    out = subprocess.run([sys.executable, "-c", _LARGE_COVER], cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
+    got = {line.split()[0]: line.split(maxsplit=1)[1] for line in out.stdout.splitlines() if line.strip()}
+    joints, bones, covered = (int(v) for v in got["joints"].split()[::2])
+    assert bones == DEFAULT_MAX_LINKS and joints >= DEFAULT_MAX_LINKS - 1 and covered >= 100, got
+    # a link's box, its skin and a voxel (33 mm): 67 mm; a part placed on another link or at the root is farther
+    assert float(got["farthest"]) < 0.1, f"a vertex {float(got['farthest']):.3f} m from its own link's box"
+    assert "surface samples" in got["notes"], got["notes"]
+    assert got["data"].startswith(f"refused pinocchio's Data for {joints} joints"), got["data"]
+    grew = float(got["grew_mb"])
+    assert grew < 300, f"building the cover on {DEFAULT_MAX_LINKS} links added {grew:.0f} MB"
 
 
 def test_package_names_resolve_only_in_installed_packages():

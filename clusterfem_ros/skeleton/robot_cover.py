@@ -46,6 +46,10 @@ from .mounting import rpy_matrix
 
 SOURCES = ("collision", "visual")
 SHELL = 0.5 * np.sqrt(3.0)       # a voxel whose centre is within half its diagonal of a surface touches it
+SAMPLE_DENSITY = 1.5             # surface samples per spacing^2 of area
+# surface samples of one cover (~100 MB with their k-d trees): example-robot-data's robots take at most 2.3 M
+# (romeo_laas_small) at extent / 300; a URDF of 1,000 small shaped links would take 400,000 per link there (17 GB)
+MAX_SAMPLES = 4_000_000
 
 
 @dataclass(frozen=True)
@@ -200,15 +204,23 @@ def bone_capsules(xml: str, skeleton, geometry: dict, radius: float) -> dict:
     return out
 
 
-def cover_parts(xml: str, skeleton, geometry: dict, spacing: float) -> tuple[list[CoverPart], list[str]]:
+def cover_parts(xml: str, skeleton, geometry: dict, spacing: float, max_samples: int = MAX_SAMPLES
+                ) -> tuple[list[CoverPart], list[str]]:
     """The shapes of ``geometry`` placed at the skeleton's rest pose (its own kinematics, ``link_placements``:
-    no pinocchio Data, whose size grows with the cube of the joints), sampled every ``spacing`` [m]."""
+    no pinocchio Data, whose size grows with the cube of the joints), sampled every ``spacing`` [m], or wider
+    where ``max_samples`` samples in all would not reach (said in a note)."""
     import trimesh
     owner, body = rigid_bodies(xml, skeleton.bone_names)
     known = set(skeleton.link_names)
     placed = [link for link in geometry if link in owner and link in known]
     away = [link for link in geometry if link not in owner or link not in known]
     notes = [f"links on no bone through fixed joints have no cover: {', '.join(away)}"] if away else []
+    area = sum(float(m.area) for link in placed for m in geometry[link])
+    wide = float(np.sqrt(SAMPLE_DENSITY * area / max_samples))
+    if wide > spacing:
+        notes.append(f"surface samples {wide * 1e3:.2g} mm apart, not {spacing * 1e3:.2g} mm: {area:.3g} m^2 of "
+                     f"shapes in {max_samples:,} samples (robot_cover.MAX_SAMPLES)")
+        spacing = wide
     R, p = skeleton.link_placements(skeleton.neutral(), placed)
     parts = []
     for k, link in enumerate(placed):
@@ -217,7 +229,7 @@ def cover_parts(xml: str, skeleton, geometry: dict, spacing: float) -> tuple[lis
         world = [m.copy().apply_transform(T) for m in geometry[link]]
         points = []
         for m in world:
-            count = int(min(max(m.area / spacing ** 2 * 1.5, 50), 400000))
+            count = int(min(max(m.area / spacing ** 2 * SAMPLE_DENSITY, 50), 400000))
             points += [np.asarray(m.vertices), np.asarray(trimesh.sample.sample_surface(m, count, seed=0)[0])]
         points = np.concatenate(points)
         b = owner[link]
