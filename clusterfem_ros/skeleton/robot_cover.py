@@ -11,10 +11,11 @@ without any shape (a URDF drawn without shapes, or links left bare) gets a capsu
 
 Why voxels (a signed-distance shell) rather than fTetWild: robot meshes are often open, self-intersecting
 or made of several overlapping pieces; a voxel shell needs none of them to be closed, costs a second, and
-gives the tet count asked for directly. Each link's surface is sampled densely (``spacing``), the distance
-of every voxel centre to it taken from a k-d tree; the voxels within ``max(thickness, 0.87 h)`` of the
-surface form a closed shell (0.87 h: half a voxel diagonal, so the shell has no gaps), and the shell's holes
-filled (``ndimage.binary_fill_holes``) give the link's solid: its volume plus a skin of ``thickness``.
+gives the tet count asked for directly. Each link's surface is sampled densely (``spacing``; at most
+``MAX_SAMPLES`` in all), the distance of every voxel centre to it taken from a k-d tree; the voxels within
+``max(thickness, 0.87 h)`` of the surface form a closed shell (0.87 h: half a voxel diagonal, so the shell has
+no gaps), and the shell's holes filled (``ndimage.binary_fill_holes``) give the link's solid: its volume plus a
+skin of ``thickness``.
 The voxel spacing ``h`` is chosen so the cover has about ``target_tets`` tets (five per voxel).
 
 Links of different rigid bodies are never glued: a voxel belongs to the link it lies in (else the nearest),
