@@ -254,6 +254,25 @@ def test_a_cover_on_the_largest_star_the_limits_accept_builds_small_and_on_its_l
     assert grew < 300, f"building the cover on {DEFAULT_MAX_LINKS} links added {grew:.0f} MB"
 
 
+def test_shapes_past_the_triangle_budget_are_refused_with_one_line_before_any_meshing():
+    """body.cover_max_triangles bounds the shapes a cover reads (a mesh named 2,000 times, or 20,000 spheres, in
+    a URDF within the size limits held gigabytes): past it the scene refuses, naming the count and the parameter."""
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.scene_build import scene_parts
+    from clusterfem_ros.skeleton.urdf_check import UrdfRefused
+    spheres = "".join(f"<collision><origin xyz='{0.05 * k} 0 0'/><geometry><sphere radius='0.02'/></geometry>"
+                      "</collision>" for k in range(4))                 # 4 x 320 triangles
+    urdf = ARM.replace("<link name='base'>", f"<link name='base'>{spheres}")
+    config = SceneConfig().with_values({"skeleton.source": "robot_description", "body.kind": "robot_cover",
+                                        "body.cover_max_triangles": 1000})
+    with pytest.raises(UrdfRefused, match=r"more than 1,000 triangles \(body.cover_max_triangles; 1,\d{3} read up to "
+                                          r"link 'base', <collision>\).*raise body.cover_max_triangles") as refused:
+        scene_parts(config, urdf)
+    assert refused.value.kind == "too_many_triangles" and "\n" not in str(refused.value)
+    sk = Skeleton.from_urdf_string(urdf)
+    assert robot_cover(urdf, sk, target_tets=300, max_triangles=2000).mesh.n_tets > 0     # 1,280 + the arm's
+
+
 def test_package_names_resolve_only_in_installed_packages():
     from clusterfem_ros.body.fit import FitError, find_data_file
     assert package_file("package://no-such-package/robots/x.urdf") is None

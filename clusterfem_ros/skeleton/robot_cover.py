@@ -44,6 +44,7 @@ from ..fem.mesh.tet_mesh import TetMesh
 from ..fem.mesh.voxel_mesh import grid_mesh, voxel_centres
 from .link_shapes import _floats, _mesh_file, search_folders
 from .mounting import rpy_matrix
+from .urdf_check import UrdfRefused
 
 SOURCES = ("collision", "visual")
 SHELL = 0.5 * np.sqrt(3.0)       # a voxel whose centre is within half its diagonal of a surface touches it
@@ -51,6 +52,9 @@ SAMPLE_DENSITY = 1.5             # surface samples per spacing^2 of area
 # surface samples of one cover (~100 MB with their k-d trees): example-robot-data's robots take at most 2.3 M
 # (romeo_laas_small) at extent / 300; a URDF of 1,000 small shaped links would take 400,000 per link there (17 GB)
 MAX_SAMPLES = 4_000_000
+# triangles of the shapes of one cover (body.cover_max_triangles): ~0.7 kB each held while the cover is built (a
+# 56,000-triangle STL named 20 times took 724 MB); example-robot-data's robots have at most 0.4 M (so101)
+MAX_TRIANGLES = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -119,14 +123,17 @@ def _geometry(element: ET.Element, link: str, source: str, search: list[Path]):
     return m, ""
 
 
-def link_geometry(xml: str, source: str = "collision", search: list[Path] | None = None):
-    """({link: [trimesh in the link frame]}, notes): each link's shapes from ``source``, else from the other."""
+def link_geometry(xml: str, source: str = "collision", search: list[Path] | None = None,
+                  max_triangles: int = MAX_TRIANGLES):
+    """({link: [trimesh in the link frame]}, notes): each link's shapes from ``source``, else from the other.
+    UrdfRefused ('too_many_triangles') as soon as the shapes read pass ``max_triangles`` triangles in all (a
+    primitive counts its triangulation's: a sphere 320, a box 12)."""
     if source not in SOURCES:
         raise ValueError(f"cover shapes source = {source!r}: choose one of {', '.join(SOURCES)}")
     root = ET.fromstring(xml)
     search = search if search is not None else search_folders()
     order = (source,) + tuple(s for s in SOURCES if s != source)
-    out, problems = {}, []
+    out, problems, triangles = {}, [], 0
     for link in root.findall("link"):
         name = link.get("name")
         for s in order:
@@ -135,6 +142,14 @@ def link_geometry(xml: str, source: str = "collision", search: list[Path] | None
                 m, why = _geometry(e, name, s, search)
                 if m is not None:
                     found.append(m)
+                    triangles += len(m.faces)
+                    if triangles > max_triangles:
+                        raise UrdfRefused(
+                            "too_many_triangles",
+                            f"the URDF's link shapes have more than {max_triangles:,} triangles (body.cover_max_"
+                            f"triangles; {triangles:,} read up to link {name!r}, <{s}>): a robot cover holds them all "
+                            "while it is built; refused; simplify the meshes or raise body.cover_max_triangles if "
+                            "this robot is real")
                 else:
                     problems.append(why)
             if found:
@@ -291,14 +306,16 @@ def _separate(mask: np.ndarray, label: np.ndarray, body_of: np.ndarray) -> np.nd
 
 
 def robot_cover(xml: str, skeleton, thickness: float = 0.02, target_tets: int = 4800, source: str = "collision",
-                urdf_file: str | Path | None = None, iterations: int = 6, bare_radius: float = 0.05) -> RobotCover:
+                urdf_file: str | Path | None = None, iterations: int = 6, bare_radius: float = 0.05,
+                max_triangles: int = MAX_TRIANGLES) -> RobotCover:
     """The cover of the module docstring around ``skeleton`` (built from the prepared URDF ``xml``) at rest; a rigid
-    body without any shape gets capsules of ``bare_radius`` [m] around its bones' segments (bone_capsules)."""
+    body without any shape gets capsules of ``bare_radius`` [m] around its bones' segments (bone_capsules). Shapes
+    of more than ``max_triangles`` triangles in all are refused (link_geometry)."""
     if not (np.isfinite(thickness) and thickness > 0):
         raise ValueError(f"cover thickness = {thickness!r}: give a positive length in metres")
     if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
         raise ValueError(f"target_tets = {target_tets!r}: give a whole number >= 50")
-    geometry, notes = link_geometry(xml, source, search_folders(urdf_file))
+    geometry, notes = link_geometry(xml, source, search_folders(urdf_file), max_triangles)
     capsules = bone_capsules(xml, skeleton, geometry, bare_radius)
     if capsules:
         notes.append(f"links without a shape in their rigid body get a capsule of {bare_radius:g} m around their "
