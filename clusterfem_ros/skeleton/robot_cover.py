@@ -52,8 +52,9 @@ SAMPLE_DENSITY = 1.5             # surface samples per spacing^2 of area
 # surface samples of one cover (~100 MB with their k-d trees): example-robot-data's robots take at most 2.3 M
 # (romeo_laas_small) at extent / 300; a URDF of 1,000 small shaped links would take 400,000 per link there (17 GB)
 MAX_SAMPLES = 4_000_000
-# triangles of the shapes of one cover (body.cover_max_triangles): ~0.7 kB each held while the cover is built (a
-# 56,000-triangle STL named 20 times took 724 MB); example-robot-data's robots have at most 0.4 M (so101)
+# triangles of the shapes of one cover (body.cover_max_triangles): ~0.6 kB each held while the cover is built (a
+# 56,264-triangle STL named 17 times, 0.96 M, took 642 MB; 35 times, 1.97 M, 1,142 MB). example-robot-data's
+# URDFs have at most 0.4 M collision triangles (so101) and 1.03 M visual ones (b1-z1, the only one past this)
 MAX_TRIANGLES = 1_000_000
 
 
