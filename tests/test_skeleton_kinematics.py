@@ -140,6 +140,10 @@ def test_link_placements_equal_pinocchio_s_frames_on_every_link(name, urdf):
         np.testing.assert_allclose(p, want_p, atol=1e-13, err_msg=name)
     with pytest.raises(KeyError, match="no link 'ghost'"):
         sk.link_placements(sk.neutral(), ["ghost"])
+    q = sk.neutral()
+    q[-1] = np.nan
+    with pytest.raises(ValueError, match=f"joint {sk.joint_names[-1]!r} position is nan"):
+        sk.link_placements(q, sk.link_names)
 
 
 def test_pinocchio_s_data_is_refused_past_its_limit_before_it_is_made():

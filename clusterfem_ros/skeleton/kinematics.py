@@ -398,8 +398,9 @@ class Skeleton:
         fR = np.array([m.frames[f].placement.rotation for f in frames]).reshape(k, 3, 3)
         fp = np.array([m.frames[f].placement.translation for f in frames]).reshape(k, 3)
         R, p, tw = np.empty((k, 3, 3)), np.empty((k, 3)), np.empty((k, 6))
-        tree_forward(self._k_parent, self._k_R, self._k_p, self._k_axis, self._k_prismatic, qs, vs,
-                     joint, fR, fp, *self._scratch, R, p, tw)
+        if not tree_forward(self._k_parent, self._k_R, self._k_p, self._k_axis, self._k_prismatic, qs, vs,
+                            joint, fR, fp, *self._scratch, R, p, tw):
+            self._to_pin(qs, vs)        # a value is not finite: raises naming the joint
         return R, p
 
     def joint_index(self, name: str) -> int:
