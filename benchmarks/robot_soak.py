@@ -41,10 +41,12 @@ SCENE = "config/robot_panda.yaml"
 PREFIX = "package://example-robot-data/robots/"
 
 # family -> (name, URDF under example-robot-data's robots/): every URDF of the package's arms, legged robots and
-# humanoids (hands, aerial robots, mobile manipulators and toy pendulums are other families)
+# humanoids (hands, aerial robots, mobile manipulators and toy pendulums are other families; ur3.urdf is a stub
+# without links)
 ROBOTS = {
     "arms": [
         ("panda", "panda_description/urdf/panda.urdf"),
+        ("panda_collision", "panda_description/urdf/panda_collision.urdf"),
         ("ur3", "ur_description/urdf/ur3_robot.urdf"),
         ("ur3_gripper", "ur_description/urdf/ur3_gripper.urdf"),
         ("ur3_limited", "ur_description/urdf/ur3_joint_limited_robot.urdf"),
@@ -86,6 +88,8 @@ ROBOTS = {
         ("talos_full", "talos_data/robots/talos_full_v2.urdf"),
         ("talos_full_box", "talos_data/robots/talos_full_v2_box.urdf"),
         ("romeo", "romeo_description/urdf/romeo.urdf"),
+        ("romeo_small", "romeo_description/urdf/romeo_small.urdf"),
+        ("romeo_laas_small", "romeo_description/urdf/romeo_laas_small.urdf"),
         ("icub", "icub_description/robots/icub.urdf"),
         ("icub_reduced", "icub_description/robots/icub_reduced.urdf"),
         ("g1", "g1_description/urdf/g1_29dof_rev_1_0.urdf"),

@@ -24,6 +24,7 @@ from .fem.materials.warping_models import (ACKNOWLEDGEMENT, AUTO, EXPLICIT_ONLY,
                                            unacknowledged_undamped, vertex_refusal)
 from .skeleton.bvh_placement import AXES as BVH_AXES, parse_unit
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
+from .skeleton.robot_cover import MAX_TRIANGLES
 from .skeleton.urdf_check import (CEILING_BYTES, CEILING_DEPTH, CEILING_LINKS, CEILING_MESHES, DEFAULT_MAX_BYTES,
                                   DEFAULT_MAX_DEPTH, DEFAULT_MAX_JOINTS, DEFAULT_MAX_LINKS, DEFAULT_MAX_MESHES)
 
@@ -65,6 +66,9 @@ PARAMS: tuple[Param, ...] = (
           "0.87 voxel edges, so the skin has no gaps) [m]", 0.001, 0.5),
     Param("body.cover_shapes", "collision", "body.kind 'robot_cover': the links' shapes it is built around, "
           "'collision' or 'visual' (a link without the one takes the other)", choices=("collision", "visual")),
+    Param("body.cover_max_triangles", MAX_TRIANGLES, "body.kind 'robot_cover': a URDF whose link shapes have more "
+          "triangles than this in all is refused (~0.6 kB each while the cover is built; example-robot-data's robots "
+          "have at most 0.4 M collision triangles, 1.03 M visual ones: b1-z1)", 1000, 20_000_000),
     Param("body.scale", 1.0, "refinement of the paper shapes (1 = the paper's sizes)", 0.25, 8.0),
     Param("body.fix_bottom", True, "hold the lowest 20% of a paper shape fixed (shapes without skeleton)"),
     Param("body.min_tet_quality", 1e-8, "refuse a mesh with a tet of lower shape quality (6 sqrt2 V / l_rms^3, 1 = "
@@ -318,6 +322,7 @@ class BodySection:
     flesh: str                      # 'auto' (radii by bone role) or 'uniform' (body.bone_radius)
     cover_thickness: float          # [m]
     cover_shapes: str               # 'collision' or 'visual'
+    cover_max_triangles: int        # skeleton/robot_cover.MAX_TRIANGLES
     scale: float
     fix_bottom: bool
     min_tet_quality: float          # fem/mesh/tet_quality.py

@@ -226,7 +226,8 @@ def _robot_cover(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress)
     urdf_file = (find_data_file(config.skeleton.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")
                  if config.skeleton.source == "urdf_file" else None)
     cover = robot_cover(urdf_xml, skeleton, thickness=body.cover_thickness, target_tets=body.target_tets,
-                        source=body.cover_shapes, urdf_file=urdf_file, bare_radius=body.bone_radius)
+                        source=body.cover_shapes, urdf_file=urdf_file, bare_radius=body.bone_radius,
+                        max_triangles=body.cover_max_triangles)
     for note in cover.notes:
         say(progress, note)
     return SceneParts(config, cover.mesh, np.zeros(cover.mesh.n_vertices, dtype=bool), skeleton, urdf_xml,

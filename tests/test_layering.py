@@ -250,3 +250,15 @@ def test_every_error_the_core_defines_derives_from_the_common_root():
                 assert issubclass(obj, (ValueError, RuntimeError)), f"{name}.{obj.__name__} lost its builtin base"
     names = {e.__name__ for e in found}
     assert {"ConfigError", "DivergenceError", "StabilityError", "MeshError", "ChoiceError"} <= names, names
+
+
+def test_no_module_imports_a_private_name_of_another():
+    """What one module builds on in another is public there (a leading underscore says: nobody else uses it)."""
+    found = []
+    for top in INSTALLED:
+        for f in sorted((ROOT / top).rglob("*.py")):
+            for node in ast.walk(ast.parse(f.read_text(), str(f))):
+                if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").split(".")[0] in INSTALLED):
+                    found += [f"{f.relative_to(ROOT)}:{node.lineno} imports {a.name}" for a in node.names
+                              if a.name.startswith("_") and not a.name.startswith("__")]
+    assert found == []

@@ -2,6 +2,8 @@
 robot scene (config/robot_*.yaml) played headless with 0 resets."""
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +14,7 @@ from clusterfem_ros.skeleton.joint_sweep import joint_sweep
 from clusterfem_ros.skeleton.kinematics import Skeleton
 from clusterfem_ros.skeleton.robot_cover import robot_cover
 from clusterfem_ros.skeleton.robot_data import package_file, robot_data_folder
+from clusterfem_ros.skeleton.urdf_check import DEFAULT_MAX_LINKS
 
 ROOT = Path(__file__).resolve().parents[1]
 ROBOT_SCENES = sorted((ROOT / "config").glob("robot_*.yaml"))
@@ -145,6 +148,129 @@ def test_cover_puts_capsules_on_bare_bones_and_refuses_a_urdf_with_nothing_to_co
     lone = "<robot name='r'>" + _link("a") + "</robot>"
     with pytest.raises(ValueError, match="no link of this URDF has a usable collision or visual shape"):
         robot_cover(lone, Skeleton.from_urdf_string(lone))
+
+
+def _no_pinocchio_data(monkeypatch):
+    """Make any use of the skeleton's pinocchio Data fail (its size grows with the cube of the joints)."""
+    def refuse(*_args, **_kw):
+        raise AssertionError("the cover made pinocchio's Data")
+    monkeypatch.setattr(Skeleton, "data", property(refuse))
+    monkeypatch.setattr(Skeleton, "pinocchio_data", refuse, raising=False)
+
+
+def _cover_robots():
+    """(name, prepared URDF, urdf_file): the arm, and example-robot-data's Panda (meshes on fixed-joint links,
+    links beyond them) prepared as the robot scene does, when installed."""
+    out = [("arm", ARM, None)]
+    panda = package_file("package://example-robot-data/robots/panda_description/urdf/panda.urdf")
+    if panda is not None:
+        from clusterfem_ros.skeleton.link_shapes import prepare_urdf
+        out.append(("panda", prepare_urdf(panda.read_text(), root_joint="fixed", urdf_file=panda).urdf, panda))
+    return out
+
+
+@pytest.mark.parametrize("name, urdf, path", _cover_robots(), ids=[n for n, _, _ in _cover_robots()])
+def test_cover_parts_place_the_shapes_where_pinocchio_puts_their_links_without_its_data(monkeypatch, name, urdf,
+                                                                                      path):
+    """cover_parts places each link's shapes by the skeleton's own kinematics: equal, to round-off, to the shapes
+    moved by pinocchio's oMf of the link's BODY frame, and pinocchio's Data is never made."""
+    import pinocchio as pin
+
+    from clusterfem_ros.skeleton.robot_cover import cover_parts, link_geometry, search_folders
+    sk = Skeleton.from_urdf_string(urdf)
+    data = sk.model.createData()                    # the reference, made before Data is forbidden
+    pin.forwardKinematics(sk.model, data, pin.neutral(sk.model))
+    pin.updateFramePlacements(sk.model, data)
+    geometry, _ = link_geometry(urdf, "collision", search_folders(path))
+    _no_pinocchio_data(monkeypatch)
+    parts, _ = cover_parts(urdf, sk, geometry, spacing=0.01)
+    assert len(parts) >= 7, [p.link for p in parts]
+    for part in parts:
+        M = data.oMf[sk.model.getFrameId(part.link, pin.BODY)]
+        for mesh, world in zip(geometry[part.link], part.meshes):
+            want = np.asarray(mesh.vertices) @ M.rotation.T + M.translation
+            np.testing.assert_allclose(np.asarray(world.vertices), want, atol=1e-12, err_msg=f"{name} {part.link}")
+
+
+def boxed_star(n: int) -> str:
+    """A root and n - 1 leaves on revolute joints, each link with a 2 cm box, the leaves 5 cm apart on a grid of 32
+    columns at height 0.1 m (leaf k at (0.05 (k % 32), 0.05 (k // 32), 0.1))."""
+    box = "<box size='0.02 0.02 0.02'/>"
+    return ("<robot name='boxed_star'>" + "".join(_link(f"l{k}", box) for k in range(n))
+            + "".join(_joint(f"j{k}", "revolute", "l0", f"l{k}", f"{0.05 * (k % 32):g} {0.05 * (k // 32):g} 0.1",
+                             limit="<limit lower='-1' upper='1' effort='1' velocity='1'/>") for k in range(1, n))
+            + "</robot>")
+
+
+_LARGE_COVER = """
+import os, resource, sys
+import numpy as np
+resource.setrlimit(resource.RLIMIT_AS, (6 << 30, 6 << 30))  # a regression fails with MemoryError, not the host's OOM
+from benchmarks.hostile_urdf import memory_kb
+from clusterfem_ros.config import SceneConfig
+from clusterfem_ros.scene import Scene
+from clusterfem_ros.skeleton.kinematics import UrdfError
+from clusterfem_ros.skeleton.urdf_check import DEFAULT_MAX_LINKS
+from tests.test_robot_cover import boxed_star
+config = SceneConfig().with_values({"skeleton.source": "robot_description", "body.kind": "robot_cover",
+                                    "body.target_tets": 3000})
+Scene.build(config, urdf_xml=boxed_star(3))               # imports and compiled kernels, before the measurement
+before = memory_kb(os.getpid())[1]
+notes = []
+scene = Scene.build(config, urdf_xml=boxed_star(DEFAULT_MAX_LINKS), progress=notes.append)
+grew = (memory_kb(os.getpid())[1] - before) / 1024
+sk, b, x = scene.skeleton, scene.binding, scene.model.rest
+k = np.array([int(sk.bone_names[i][1:]) for i in b.bone])
+centre = np.stack([0.05 * (k % 32), 0.05 * (k // 32), np.where(k > 0, 0.1, 0.0)], axis=1)
+print("joints", sk.nq, "bones", sk.n_bones, "covered", len(np.unique(b.bone)))
+print("farthest", np.linalg.norm(x - centre, axis=1).max())
+print("notes", " | ".join(n for n in notes if "robot cover:" in n or "surface samples" in n))
+try:
+    sk.data
+    print("data made")
+except UrdfError as e:
+    print("data refused", e)
+print("grew_mb", grew)
+"""
+
+
+def test_a_cover_on_the_largest_star_the_limits_accept_builds_small_and_on_its_links():
+    """A robot_description of max_links links (a star, each link a 2 cm box on a 5 cm grid) becomes a robot-cover
+    scene in a process of its own whose peak resident memory (its own VmHWM) grows by less than 300 MB: the links are
+    placed without pinocchio's Data (~60 GB for these 1,005 joints, refused), and the cover's surface samples stay
+    within robot_cover.MAX_SAMPLES (at extent / 300 these small shapes took 400,000 samples per link, 17 GB). Each
+    vertex lies at its own link's box. The child's address space is capped (6 GB), so a regression fails here
+    instead of exhausting the host."""
+    out = subprocess.run([sys.executable, "-c", _LARGE_COVER], cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
+    got = {line.split()[0]: line.split(maxsplit=1)[1] for line in out.stdout.splitlines() if line.strip()}
+    joints, bones, covered = (int(v) for v in got["joints"].split()[::2])
+    assert bones == DEFAULT_MAX_LINKS and joints >= DEFAULT_MAX_LINKS - 1 and covered >= 100, got
+    # a link's box, its skin and a voxel (33 mm): 67 mm; a part placed on another link or at the root is farther
+    assert float(got["farthest"]) < 0.1, f"a vertex {float(got['farthest']):.3f} m from its own link's box"
+    assert "surface samples" in got["notes"], got["notes"]
+    assert got["data"].startswith(f"refused pinocchio's Data for {joints} joints"), got["data"]
+    grew = float(got["grew_mb"])
+    assert grew < 300, f"building the cover on {DEFAULT_MAX_LINKS} links added {grew:.0f} MB"
+
+
+def test_shapes_past_the_triangle_budget_are_refused_with_one_line_before_any_meshing():
+    """body.cover_max_triangles bounds the shapes a cover reads (a mesh named 2,000 times, or 20,000 spheres, in
+    a URDF within the size limits held gigabytes): past it the scene refuses, naming the count and the parameter."""
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.scene_build import scene_parts
+    from clusterfem_ros.skeleton.urdf_check import UrdfRefused
+    spheres = "".join(f"<collision><origin xyz='{0.05 * k} 0 0'/><geometry><sphere radius='0.02'/></geometry>"
+                      "</collision>" for k in range(4))                 # 4 x 320 triangles
+    urdf = ARM.replace("<link name='base'>", f"<link name='base'>{spheres}")
+    config = SceneConfig().with_values({"skeleton.source": "robot_description", "body.kind": "robot_cover",
+                                        "body.cover_max_triangles": 1000})
+    with pytest.raises(UrdfRefused, match=r"more than 1,000 triangles \(body.cover_max_triangles; 1,\d{3} read up to "
+                                          r"link 'base', <collision>\).*raise body.cover_max_triangles") as refused:
+        scene_parts(config, urdf)
+    assert refused.value.kind == "too_many_triangles" and "\n" not in str(refused.value)
+    sk = Skeleton.from_urdf_string(urdf)
+    assert robot_cover(urdf, sk, target_tets=300, max_triangles=2000).mesh.n_tets > 0     # 1,280 + the arm's
 
 
 def test_package_names_resolve_only_in_installed_packages():

@@ -103,3 +103,60 @@ def test_errors_name_the_problem(tmp_path):
     p = tmp_path / "two.urdf"
     p.write_text(TWO_LINK)
     assert Skeleton.from_urdf_file(p).nq == 2
+
+
+def _pinocchio_link_frames(sk, q, links):
+    """(R, p) of the links' BODY frames through pinocchio's own Data (the reference; small robots only)."""
+    import pinocchio as pin
+    sk._to_pin(q, None)
+    data = sk.model.createData()
+    pin.forwardKinematics(sk.model, data, sk._q_pin)
+    pin.updateFramePlacements(sk.model, data)
+    frames = [data.oMf[sk.model.getFrameId(n, pin.BODY)] for n in links]
+    return np.array([f.rotation for f in frames]), np.array([f.translation for f in frames])
+
+
+def _link_placement_robots():
+    """(name, URDF text): the two-link arm, the humanoid, and example-robot-data's Panda mounted as a scene does
+    (fixed joints to a hand and fingers, links beyond them) when it is installed."""
+    from clusterfem_ros.skeleton.mounting import mount_urdf
+    from clusterfem_ros.skeleton.robot_data import package_file
+    out = [("two_link", TWO_LINK), ("humanoid", default_humanoid().urdf)]
+    panda = package_file("package://example-robot-data/robots/panda_description/urdf/panda.urdf")
+    if panda is not None:
+        out.append(("panda", mount_urdf(panda.read_text()).urdf))
+    return out
+
+
+@pytest.mark.parametrize("name, urdf", _link_placement_robots(), ids=[n for n, _ in _link_placement_robots()])
+def test_link_placements_equal_pinocchio_s_frames_on_every_link(name, urdf):
+    """Every URDF link (bones, helpers, tips, links on fixed joints, the root) at the rest pose and at a random one:
+    the kernel's placements equal pinocchio's oMf to round-off."""
+    sk = Skeleton.from_urdf_string(urdf)
+    for q in (sk.neutral(), np.random.default_rng(11).uniform(-1.5, 1.5, sk.nq)):
+        R, p = sk.link_placements(q, sk.link_names)
+        want_R, want_p = _pinocchio_link_frames(sk, q, sk.link_names)
+        np.testing.assert_allclose(R, want_R, atol=1e-13, err_msg=name)
+        np.testing.assert_allclose(p, want_p, atol=1e-13, err_msg=name)
+    with pytest.raises(KeyError, match="no link 'ghost'"):
+        sk.link_placements(sk.neutral(), ["ghost"])
+    q = sk.neutral()
+    q[-1] = np.nan
+    with pytest.raises(ValueError, match=f"joint {sk.joint_names[-1]!r} position is nan"):
+        sk.link_placements(q, sk.link_names)
+
+
+def test_pinocchio_s_data_is_refused_past_its_limit_before_it_is_made():
+    """Data's size grows with the cube of the joints: pinocchio_data refuses, with one line naming the joint
+    count, the size, the limit and the parameter to raise, before anything is allocated; under the limit it is
+    made once."""
+    from benchmarks.hostile_urdf import star
+    from clusterfem_ros.skeleton.kinematics import MAX_DATA_BYTES, data_bytes
+    sk = Skeleton.from_urdf_string(star(30))
+    with pytest.raises(UrdfError, match=r"pinocchio's Data for 29 joints would take 2 MB, past max_data_bytes = 1 MB"
+                                        r".*raise max_data_bytes"):
+        sk.forward_pinocchio(sk.neutral(), max_data_bytes=2 ** 20)
+    assert sk._data is None
+    assert sk.pinocchio_data() is sk.pinocchio_data() is sk.data
+    # the largest star the default URDF limits accept (999 joints) would need ~60 GB; real robots stay far below
+    assert data_bytes(999) > 100 * MAX_DATA_BYTES and data_bytes(101) < MAX_DATA_BYTES / 3

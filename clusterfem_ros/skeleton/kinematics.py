@@ -1,8 +1,11 @@
 """A skeleton from a URDF: scalar joints by name, bones, and their world poses and twists (Pinocchio).
 
-``Skeleton`` wraps a fixed pinocchio ``Model`` (built only from a text that passed ``urdf_check.check_urdf``)
-and a scratch ``Data`` made on first use (only ``forward_pinocchio`` needs it: its size grows with the cube of
-the joints; ``forward`` and ``bone_segments`` use the numba kernel). Its configuration is *scalar*:
+``Skeleton`` wraps a fixed pinocchio ``Model`` (built only from a text that passed ``urdf_check.check_urdf``);
+``forward``, ``bone_segments`` and ``link_placements`` compute placements and twists with the numba kernel from the
+model's constants. Pinocchio's scratch ``Data`` is made only by ``pinocchio_data`` (``forward_pinocchio``, the tests'
+reference), and refused when it would pass ``max_data_bytes``: its size grows with the cube of the joints (pinocchio
+4.1, a child's VmHWM, star and chain alike: 68 MB at 100 joints, 513 MB at 200, 4.0 GB at 400; a 999-link star
+that passes the default URDF limits would need ~60 GB). No scene or node path makes it. Its configuration is *scalar*:
 one entry per revolute, continuous or prismatic joint, in ``joint_names`` order (pinocchio's q order),
 so a ``sensor_msgs/JointState`` maps onto it by name; ``nq == nv``. A continuous joint's angle is
 turned into pinocchio's (cos, sin) pair internally.
@@ -38,6 +41,14 @@ from .urdf_builder import HELPER_MASS, TIP_SUFFIX
 from .urdf_check import SKELETON_LIMITS, UrdfError, UrdfLimits, check_urdf, read_urdf_file
 
 SCALAR_KINDS = ("revolute", "continuous", "prismatic")
+# pinocchio 4.1's Data for nv scalar joints, fitted to its measured peak (benchmarks/pinocchio_data_size.py)
+DATA_BYTES_CUBIC, DATA_BYTES_QUADRATIC = 63.0, 880.0
+MAX_DATA_BYTES = 256 * 2 ** 20      # ~157 joints; example-robot-data's largest robot (tiago_dual, 101) needs 68 MB
+
+
+def data_bytes(nv: int) -> float:
+    """Pinocchio's Data size for ``nv`` scalar joints [bytes], from the fit above (within 2 % from 100 to 400)."""
+    return DATA_BYTES_CUBIC * nv ** 3 + DATA_BYTES_QUADRATIC * nv ** 2
 
 
 @dataclass(frozen=True)
@@ -123,8 +134,9 @@ class Skeleton:
             self.model = pin.buildModelFromXML(xml)
         except (ValueError, RuntimeError) as e:
             raise UrdfError(f"pinocchio cannot build a model from this URDF: {e}") from e
-        self._data = None               # pinocchio's Data, made on first use (forward_pinocchio): its size grows
-        m = self.model                  # with the cube of the joints (0.5 GB at 200), the scene path never needs it
+        self._data = None               # pinocchio's Data, made by pinocchio_data only (see the module docstring)
+        m = self.model
+        self.link_names: list[str] = list(links)        # every link has a BODY frame in the model
         self.joint_names: list[str] = []
         q_index, continuous = [], []
         for jid in range(1, m.njoints):
@@ -320,15 +332,29 @@ class Skeleton:
 
     @property
     def data(self) -> pin.Data:
-        """Pinocchio's scratch Data (made on first use)."""
+        """Pinocchio's scratch Data, made on first use, within ``MAX_DATA_BYTES`` (``pinocchio_data``)."""
+        return self.pinocchio_data()
+
+    def pinocchio_data(self, max_data_bytes: float = MAX_DATA_BYTES) -> pin.Data:
+        """Pinocchio's scratch Data (made on first use); UrdfError, before any allocation, when its size
+        (``data_bytes``) would pass ``max_data_bytes``."""
         if self._data is None:
+            need = data_bytes(self.nv)
+            if need > max_data_bytes:
+                raise UrdfError(
+                    f"pinocchio's Data for {self.nv} joints would take {need / 2 ** 20:,.0f} MB, past max_data_bytes "
+                    f"= {max_data_bytes / 2 ** 20:,.0f} MB (it grows with the cube of the joints): use forward, "
+                    "bone_segments or link_placements, which need no Data, or raise max_data_bytes")
             self._data = self.model.createData()
         return self._data
 
-    def forward_pinocchio(self, q: np.ndarray, v: np.ndarray | None = None) -> BonePoses:
-        """``forward`` through pinocchio's ``forwardKinematics`` / ``getFrameVelocity`` (LOCAL_WORLD_ALIGNED)."""
+    def forward_pinocchio(self, q: np.ndarray, v: np.ndarray | None = None,
+                          max_data_bytes: float = MAX_DATA_BYTES) -> BonePoses:
+        """``forward`` through pinocchio's ``forwardKinematics`` / ``getFrameVelocity`` (LOCAL_WORLD_ALIGNED), with
+        its Data (``pinocchio_data``: refused past ``max_data_bytes``)."""
+        d = self.pinocchio_data(max_data_bytes)
         self._to_pin(q, v if v is not None else np.zeros(self.nv))
-        m, d = self.model, self.data
+        m = self.model
         pin.forwardKinematics(m, d, self._q_pin, self._v_pin)
         pin.updateFramePlacements(m, d)
         nb = self.n_bones
@@ -355,6 +381,27 @@ class Skeleton:
                 cand = p[[self._e_row[f] for f in fs]]
                 ends[b] = cand[np.argmax(np.linalg.norm(cand - starts[b], axis=1))]
         return starts, ends
+
+    def link_placements(self, q: np.ndarray, links: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        """(rotation (k, 3, 3), translation (k, 3)): the frames of URDF links ``links`` (any link: bones, helpers,
+        tips, links on fixed joints) in the world at q, x = R c + p, by the kernel of ``forward`` (equal to
+        pinocchio's ``oMf`` of their BODY frames to round-off)."""
+        qs, vs = self._check(q, None)
+        m, frames = self.model, []
+        for n in links:
+            if not m.existFrame(n, pin.BODY):
+                raise KeyError(f"no link {n!r} in this skeleton's URDF ({len(self.link_names)} links, e.g. "
+                               f"{self.link_names[:4]})")
+            frames.append(int(m.getFrameId(n, pin.BODY)))
+        k = len(frames)
+        joint = np.array([m.frames[f].parentJoint - 1 for f in frames], dtype=np.int64)
+        fR = np.array([m.frames[f].placement.rotation for f in frames]).reshape(k, 3, 3)
+        fp = np.array([m.frames[f].placement.translation for f in frames]).reshape(k, 3)
+        R, p, tw = np.empty((k, 3, 3)), np.empty((k, 3)), np.empty((k, 6))
+        if not tree_forward(self._k_parent, self._k_R, self._k_p, self._k_axis, self._k_prismatic, qs, vs,
+                            joint, fR, fp, *self._scratch, R, p, tw):
+            self._to_pin(qs, vs)        # a value is not finite: raises naming the joint
+        return R, p
 
     def joint_index(self, name: str) -> int:
         try:

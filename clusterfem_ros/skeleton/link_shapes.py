@@ -61,7 +61,7 @@ class LeafGeometry:
     warnings: list[str] = field(default_factory=list)
 
 
-def _floats(text: str | None, count: int, where: str, signed: bool = False) -> np.ndarray:
+def urdf_floats(text: str | None, count: int, where: str, signed: bool = False) -> np.ndarray:
     """``count`` finite numbers (non-negative unless ``signed``) from a URDF attribute; ShapeError naming it."""
     try:
         out = np.array([float(x) for x in (text or "").split()])
@@ -73,7 +73,7 @@ def _floats(text: str | None, count: int, where: str, signed: bool = False) -> n
     return out
 
 
-def _mesh_file(name: str, search: list[Path]) -> Path | None:
+def find_mesh_file(name: str, search: list[Path]) -> Path | None:
     """The mesh a URDF names (a path, file://path or package://<package>/<path>): the installed package's file
     (robot_data.package_file), the path itself, or under a search folder by its path, or by its path less
     leading folders (the package's own layout)."""
@@ -95,8 +95,8 @@ def _mesh_file(name: str, search: list[Path]) -> Path | None:
 def _shape(link: str, element: ET.Element, source: str, search: list[Path]) -> tuple[LinkShape | None, str]:
     """One <collision>/<visual> element as a LinkShape, or None and why not."""
     o = element.find("origin")
-    xyz = _floats(o.get("xyz", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin xyz", True)
-    rpy = _floats(o.get("rpy", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin rpy", True)
+    xyz = urdf_floats(o.get("xyz", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin xyz", True)
+    rpy = urdf_floats(o.get("rpy", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin rpy", True)
     R = rpy_matrix(*rpy)
     g = element.find("geometry")
     geo = g[0] if g is not None and len(g) else None
@@ -104,17 +104,17 @@ def _shape(link: str, element: ET.Element, source: str, search: list[Path]) -> t
     if geo is None:
         return None, f"{where} has no geometry"
     if geo.tag == "box":
-        return LinkShape(link, "box", R, xyz, 0.5 * _floats(geo.get("size"), 3, f"{where} box size"), source), ""
+        return LinkShape(link, "box", R, xyz, 0.5 * urdf_floats(geo.get("size"), 3, f"{where} box size"), source), ""
     if geo.tag in ("cylinder", "capsule"):
-        r = _floats(geo.get("radius"), 1, f"{where} {geo.tag} radius")[0]
-        length = _floats(geo.get("length"), 1, f"{where} {geo.tag} length")[0]
+        r = urdf_floats(geo.get("radius"), 1, f"{where} {geo.tag} radius")[0]
+        length = urdf_floats(geo.get("length"), 1, f"{where} {geo.tag} length")[0]
         return LinkShape(link, geo.tag, R, xyz, np.array([r, r, 0.5 * length]), source), ""
     if geo.tag == "sphere":
-        r = _floats(geo.get("radius"), 1, f"{where} sphere radius")[0]
+        r = urdf_floats(geo.get("radius"), 1, f"{where} sphere radius")[0]
         return LinkShape(link, "sphere", R, xyz, np.full(3, r), source), ""
     if geo.tag == "mesh":
         name = geo.get("filename", "")
-        path = _mesh_file(name, search)
+        path = find_mesh_file(name, search)
         if path is None:
             return None, f"{where} mesh {name!r} not found"
         import trimesh
@@ -122,7 +122,7 @@ def _shape(link: str, element: ET.Element, source: str, search: list[Path]) -> t
             lo, hi = np.asarray(trimesh.load(path, force="mesh").bounds, dtype=np.float64)
         except Exception as exc:  # trimesh raises many kinds for unreadable files
             return None, f"{where} mesh {str(path)!r} cannot be read ({exc})"
-        scale = _floats(geo.get("scale", "1 1 1"), 3, f"{where} mesh scale")
+        scale = urdf_floats(geo.get("scale", "1 1 1"), 3, f"{where} mesh scale")
         lo, hi = lo * scale, hi * scale
         return LinkShape(link, "box", R, xyz + R @ (0.5 * (lo + hi)), 0.5 * (hi - lo), "mesh bounding box"), ""
     return None, f"{where} has a <{geo.tag}>, not box, cylinder, sphere, capsule or mesh"

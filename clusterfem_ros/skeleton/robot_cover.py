@@ -11,10 +11,11 @@ without any shape (a URDF drawn without shapes, or links left bare) gets a capsu
 
 Why voxels (a signed-distance shell) rather than fTetWild: robot meshes are often open, self-intersecting
 or made of several overlapping pieces; a voxel shell needs none of them to be closed, costs a second, and
-gives the tet count asked for directly. Each link's surface is sampled densely (``spacing``), the distance
-of every voxel centre to it taken from a k-d tree; the voxels within ``max(thickness, 0.87 h)`` of the
-surface form a closed shell (0.87 h: half a voxel diagonal, so the shell has no gaps), and the shell's holes
-filled (``ndimage.binary_fill_holes``) give the link's solid: its volume plus a skin of ``thickness``.
+gives the tet count asked for directly. Each link's surface is sampled densely (``spacing``; at most
+``MAX_SAMPLES`` in all), the distance of every voxel centre to it taken from a k-d tree; the voxels within
+``max(thickness, 0.87 h)`` of the surface form a closed shell (0.87 h: half a voxel diagonal, so the shell has
+no gaps), and the shell's holes filled (``ndimage.binary_fill_holes``) give the link's solid: its volume plus a
+skin of ``thickness``.
 The voxel spacing ``h`` is chosen so the cover has about ``target_tets`` tets (five per voxel).
 
 Links of different rigid bodies are never glued: a voxel belongs to the link it lies in (else the nearest),
@@ -41,11 +42,20 @@ from scipy.spatial import cKDTree
 
 from ..fem.mesh.tet_mesh import TetMesh
 from ..fem.mesh.voxel_mesh import grid_mesh, voxel_centres
-from .link_shapes import _floats, _mesh_file, search_folders
+from .link_shapes import find_mesh_file, search_folders, urdf_floats
 from .mounting import rpy_matrix
+from .urdf_check import UrdfRefused
 
 SOURCES = ("collision", "visual")
 SHELL = 0.5 * np.sqrt(3.0)       # a voxel whose centre is within half its diagonal of a surface touches it
+SAMPLE_DENSITY = 1.5             # surface samples per spacing^2 of area
+# surface samples of one cover (~100 MB with their k-d trees): example-robot-data's robots take at most 2.3 M
+# (romeo_laas_small) at extent / 300; a URDF of 1,000 small shaped links would take 400,000 per link there (17 GB)
+MAX_SAMPLES = 4_000_000
+# triangles of the shapes of one cover (body.cover_max_triangles): ~0.6 kB each held while the cover is built (a
+# 56,264-triangle STL named 17 times, 0.96 M, took 642 MB; 35 times, 1.97 M, 1,142 MB). example-robot-data's
+# URDFs have at most 0.4 M collision triangles (so101) and 1.03 M visual ones (b1-z1, the only one past this)
+MAX_TRIANGLES = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -74,25 +84,25 @@ def _geometry(element: ET.Element, link: str, source: str, search: list[Path]):
     """One <collision>/<visual> element as a trimesh in its link's frame, or (None, why not)."""
     import trimesh
     o = element.find("origin")
-    xyz = _floats(o.get("xyz", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin xyz", True)
-    rpy = _floats(o.get("rpy", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin rpy", True)
+    xyz = urdf_floats(o.get("xyz", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin xyz", True)
+    rpy = urdf_floats(o.get("rpy", "0 0 0") if o is not None else "0 0 0", 3, f"link {link!r} shape origin rpy", True)
     g = element.find("geometry")
     geo = g[0] if g is not None and len(g) else None
     where = f"link {link!r} <{source}>"
     if geo is None:
         return None, f"{where} has no geometry"
     if geo.tag == "box":
-        m = trimesh.creation.box(extents=_floats(geo.get("size"), 3, f"{where} box size"))
+        m = trimesh.creation.box(extents=urdf_floats(geo.get("size"), 3, f"{where} box size"))
     elif geo.tag in ("cylinder", "capsule"):
-        r = _floats(geo.get("radius"), 1, f"{where} {geo.tag} radius")[0]
-        length = _floats(geo.get("length"), 1, f"{where} {geo.tag} length")[0]
+        r = urdf_floats(geo.get("radius"), 1, f"{where} {geo.tag} radius")[0]
+        length = urdf_floats(geo.get("length"), 1, f"{where} {geo.tag} length")[0]
         m = (trimesh.creation.cylinder(radius=r, height=length, sections=24) if geo.tag == "cylinder"
              else trimesh.creation.capsule(height=length, radius=r, count=[12, 12]))
     elif geo.tag == "sphere":
-        m = trimesh.creation.icosphere(subdivisions=2, radius=_floats(geo.get("radius"), 1, f"{where} sphere radius")[0])
+        m = trimesh.creation.icosphere(subdivisions=2, radius=urdf_floats(geo.get("radius"), 1, f"{where} sphere radius")[0])
     elif geo.tag == "mesh":
         name = geo.get("filename", "")
-        path = _mesh_file(name, search)
+        path = find_mesh_file(name, search)
         if path is None:
             return None, f"{where} mesh {name!r} not found"
         try:
@@ -101,7 +111,7 @@ def _geometry(element: ET.Element, link: str, source: str, search: list[Path]):
             return None, f"{where} mesh {path.name!r} cannot be read ({exc})"
         if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
             return None, f"{where} mesh {path.name!r} has no triangles"
-        scale = _floats(geo.get("scale", "1 1 1"), 3, f"{where} mesh scale", signed=True)   # -1: mirrored
+        scale = urdf_floats(geo.get("scale", "1 1 1"), 3, f"{where} mesh scale", signed=True)   # -1: mirrored
         if not scale.all():
             return None, f"{where} mesh {path.name!r} has scale {geo.get('scale')!r}: a zero flattens it"
         m = m.copy()
@@ -114,14 +124,17 @@ def _geometry(element: ET.Element, link: str, source: str, search: list[Path]):
     return m, ""
 
 
-def link_geometry(xml: str, source: str = "collision", search: list[Path] | None = None):
-    """({link: [trimesh in the link frame]}, notes): each link's shapes from ``source``, else from the other."""
+def link_geometry(xml: str, source: str = "collision", search: list[Path] | None = None,
+                  max_triangles: int = MAX_TRIANGLES):
+    """({link: [trimesh in the link frame]}, notes): each link's shapes from ``source``, else from the other.
+    UrdfRefused ('too_many_triangles') as soon as the shapes read pass ``max_triangles`` triangles in all (a
+    primitive counts its triangulation's: a sphere 320, a box 12)."""
     if source not in SOURCES:
         raise ValueError(f"cover shapes source = {source!r}: choose one of {', '.join(SOURCES)}")
     root = ET.fromstring(xml)
     search = search if search is not None else search_folders()
     order = (source,) + tuple(s for s in SOURCES if s != source)
-    out, problems = {}, []
+    out, problems, triangles = {}, [], 0
     for link in root.findall("link"):
         name = link.get("name")
         for s in order:
@@ -130,6 +143,14 @@ def link_geometry(xml: str, source: str = "collision", search: list[Path] | None
                 m, why = _geometry(e, name, s, search)
                 if m is not None:
                     found.append(m)
+                    triangles += len(m.faces)
+                    if triangles > max_triangles:
+                        raise UrdfRefused(
+                            "too_many_triangles",
+                            f"the URDF's link shapes have more than {max_triangles:,} triangles (body.cover_max_"
+                            f"triangles; {triangles:,} read up to link {name!r}, <{s}>): a robot cover holds them all "
+                            "while it is built; refused; simplify the meshes or raise body.cover_max_triangles if "
+                            "this robot is real")
                 else:
                     problems.append(why)
             if found:
@@ -200,31 +221,36 @@ def bone_capsules(xml: str, skeleton, geometry: dict, radius: float) -> dict:
     return out
 
 
-def cover_parts(xml: str, skeleton, geometry: dict, spacing: float) -> tuple[list[CoverPart], list[str]]:
-    """The shapes of ``geometry`` placed at the skeleton's rest pose, sampled every ``spacing`` [m]."""
-    import pinocchio as pin
+def cover_parts(xml: str, skeleton, geometry: dict, spacing: float, max_samples: int = MAX_SAMPLES
+                ) -> tuple[list[CoverPart], list[str]]:
+    """The shapes of ``geometry`` placed at the skeleton's rest pose (its own kinematics, ``link_placements``:
+    no pinocchio Data, whose size grows with the cube of the joints), sampled every ``spacing`` [m], or wider
+    where ``max_samples`` samples in all would not reach (said in a note)."""
     import trimesh
-    model, data = skeleton.model, skeleton.data
-    pin.forwardKinematics(model, data, pin.neutral(model))
-    pin.updateFramePlacements(model, data)
     owner, body = rigid_bodies(xml, skeleton.bone_names)
-    parts, away = [], []
-    for link, meshes in geometry.items():
-        if link not in owner or not model.existFrame(link, pin.BODY):
-            away.append(link)
-            continue
-        M = data.oMf[model.getFrameId(link, pin.BODY)]
+    known = set(skeleton.link_names)
+    placed = [link for link in geometry if link in owner and link in known]
+    away = [link for link in geometry if link not in owner or link not in known]
+    notes = [f"links on no bone through fixed joints have no cover: {', '.join(away)}"] if away else []
+    area = sum(float(m.area) for link in placed for m in geometry[link])
+    wide = float(np.sqrt(SAMPLE_DENSITY * area / max_samples))
+    if wide > spacing:
+        notes.append(f"surface samples {wide * 1e3:.2g} mm apart, not {spacing * 1e3:.2g} mm: {area:.3g} m^2 of "
+                     f"shapes in {max_samples:,} samples (robot_cover.MAX_SAMPLES)")
+        spacing = wide
+    R, p = skeleton.link_placements(skeleton.neutral(), placed)
+    parts = []
+    for k, link in enumerate(placed):
         T = np.eye(4)
-        T[:3, :3], T[:3, 3] = M.rotation, M.translation
-        world = [m.copy().apply_transform(T) for m in meshes]
+        T[:3, :3], T[:3, 3] = R[k], p[k]
+        world = [m.copy().apply_transform(T) for m in geometry[link]]
         points = []
         for m in world:
-            count = int(min(max(m.area / spacing ** 2 * 1.5, 50), 400000))
+            count = int(min(max(m.area / spacing ** 2 * SAMPLE_DENSITY, 50), 400000))
             points += [np.asarray(m.vertices), np.asarray(trimesh.sample.sample_surface(m, count, seed=0)[0])]
         points = np.concatenate(points)
         b = owner[link]
         parts.append(CoverPart(link, b, body[b], points, world, points.min(axis=0), points.max(axis=0)))
-    notes = [f"links on no bone through fixed joints have no cover: {', '.join(away)}"] if away else []
     return parts, notes
 
 
@@ -281,14 +307,16 @@ def _separate(mask: np.ndarray, label: np.ndarray, body_of: np.ndarray) -> np.nd
 
 
 def robot_cover(xml: str, skeleton, thickness: float = 0.02, target_tets: int = 4800, source: str = "collision",
-                urdf_file: str | Path | None = None, iterations: int = 6, bare_radius: float = 0.05) -> RobotCover:
+                urdf_file: str | Path | None = None, iterations: int = 6, bare_radius: float = 0.05,
+                max_triangles: int = MAX_TRIANGLES) -> RobotCover:
     """The cover of the module docstring around ``skeleton`` (built from the prepared URDF ``xml``) at rest; a rigid
-    body without any shape gets capsules of ``bare_radius`` [m] around its bones' segments (bone_capsules)."""
+    body without any shape gets capsules of ``bare_radius`` [m] around its bones' segments (bone_capsules). Shapes
+    of more than ``max_triangles`` triangles in all are refused (link_geometry)."""
     if not (np.isfinite(thickness) and thickness > 0):
         raise ValueError(f"cover thickness = {thickness!r}: give a positive length in metres")
     if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
         raise ValueError(f"target_tets = {target_tets!r}: give a whole number >= 50")
-    geometry, notes = link_geometry(xml, source, search_folders(urdf_file))
+    geometry, notes = link_geometry(xml, source, search_folders(urdf_file), max_triangles)
     capsules = bone_capsules(xml, skeleton, geometry, bare_radius)
     if capsules:
         notes.append(f"links without a shape in their rigid body get a capsule of {bare_radius:g} m around their "
