@@ -1,6 +1,6 @@
 """The topics of the nodes, declared once: each name (relative to a node's namespace unless it starts with '/'),
-message type and the QoS it is recorded with. The simulation node publishes, records and serves the live view
-from these; the player publishes two of them; a bag's reader and the renderer find them in a bag by
+message type and the QoS it is recorded with. The simulation node's output streams (nodes/outputs.py) are made
+from them, and it records and serves on the live view what it takes in and publishes; the player publishes two; a bag's reader and the renderer find them in a bag by
 ``recorded`` (rosbag2 names topics fully qualified; a body in a namespace records them under it, which
 recording.bag_reader.topic_in finds). Nothing here imports ROS."""
 from __future__ import annotations
@@ -25,7 +25,3 @@ SURFACE = Topic("clusterfem/surface", "visualization_msgs/msg/Marker", "reliable
 STRESS = Topic("clusterfem/stress", "sensor_msgs/msg/PointCloud2", "reliable")
 DIAGNOSTICS = Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", "reliable")
 ROBOT_DESCRIPTION = Topic("robot_description", "std_msgs/msg/String", "transient_local")   # latched
-
-# what the simulation node records and serves live: its input, its outputs, and the skeleton it was built on
-# when that came on robot_description
-NODE_TOPICS = (JOINT_STATES, SURFACE, STRESS, DIAGNOSTICS)

@@ -140,3 +140,35 @@ def test_the_default_scene_file_starts_the_node_with_its_empty_lists(world, tmp_
     node = world.add(ClusterFemNode(context=world.context, cli_args=["--ros-args", "--params-file", str(path)]))
     assert node.config["anchors.points"] == [] and node.config["anchors.sliding"] == []
     assert node.scene is not None and node.scene.anchors == []
+
+
+def test_an_output_stream_of_ones_own_is_published_recorded_and_served_by_being_registered(world, tmp_path):
+    """A stream registered with nodes.outputs (the volume error as a std_msgs/Float64 at 20 Hz) gets a publisher,
+    a timer and a channel in the bag from that declaration alone; the node's own streams go on beside it."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    from std_msgs.msg import Float64
+
+    from clusterfem_ros.nodes import outputs
+    from rosbags.highlevel import AnyReader
+    from clusterfem_ros.topics import Topic
+
+    def volume_error(node, snap):
+        return serialize_message(Float64(data=node.scene.volume_error_of(node.scene.model.rest + snap.u)))
+    stream = outputs.register_output(outputs.OutputStream(Topic("clusterfem/volume_error", "std_msgs/msg/Float64",
+                                                                "reliable"), Float64, lambda c: 20.0, volume_error))
+    try:
+        node = _node(world, **{"recording.enabled": True, "recording.dir": str(tmp_path)})
+        got = world.collect(Float64, "clusterfem/volume_error")
+        world.wait_for(lambda: len(got) >= 5, 20, "the registered stream's messages")
+        errors = [deserialize_message(m, Float64).data for m in got]
+        assert all(np.isfinite(errors)) and max(abs(e) for e in errors) < 0.5
+        with pytest.raises(ValueError, match="registered already"):
+            outputs.register_output(stream)
+        node.close()
+        with AnyReader([node.recording_path]) as bag:
+            recorded = {c.topic: c for c in bag.connections}
+            assert recorded["/clusterfem/volume_error"].msgtype == "std_msgs/msg/Float64"
+            assert sum(1 for _ in bag.messages(connections=[recorded["/clusterfem/volume_error"]])) >= 5
+            assert {"/clusterfem/surface", "/clusterfem/stress", "/diagnostics"} <= set(recorded)
+    finally:
+        outputs.OUTPUTS.pop(stream.topic.name)

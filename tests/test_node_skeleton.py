@@ -97,7 +97,7 @@ def test_every_bad_input_is_counted_and_outputs_stay_finite(world):
                 continue
         raise AssertionError(f"{kind} was never counted")
 
-    world.wait_for(lambda: sim._marker_pub.get_subscription_count() > 0, 10, "probe matched")
+    world.wait_for(lambda: sim._pubs["clusterfem/surface"].get_subscription_count() > 0, 10, "probe matched")
     for _ in range(5):
         good()
     world.wait_for(lambda: sim.scene.inputs.accepted >= 3, 10, "good samples")

@@ -25,26 +25,21 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from rclpy.serialization import deserialize_message, serialize_message
-from sensor_msgs.msg import JointState, PointCloud2
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState
 from std_msgs.msg import String
-from visualization_msgs.msg import Marker
 
-from msg_adapters import colormap
-from msg_adapters.colormap import map_scalars
 from msg_adapters.diagnostics import diagnostic_array
 from msg_adapters.joint_state import joint_state_cdr_extent, joint_state_fields, joint_state_name_count
-from msg_adapters.marker import surface_marker_cdr
-from msg_adapters.pointcloud import stress_cloud_cdr
 
 from .. import topics
+from .outputs import OUTPUTS
 from ..scene import Scene
 from ..skeleton.urdf_check import UrdfLimits, UrdfRefused, check_urdf
 from ..sim_loop import SimLoop, Snapshot
 from .params import declare_scene_parameters
 from .spinning import run_node
 
-SURFACE_TOPIC, STRESS_TOPIC, DIAG_TOPIC = topics.SURFACE.name, topics.STRESS.name, topics.DIAGNOSTICS.name
 JOINTS_TOPIC = topics.JOINT_STATES.name
 URDF_TOPIC = topics.ROBOT_DESCRIPTION.name      # latched by the player when skeleton.source is robot_description
 ERROR_HOLD_S = 10.0         # /diagnostics stays at ERROR this long after a failed physics step
@@ -72,9 +67,7 @@ class ClusterFemNode(Node):
         self._stats = {"t_wall": time.perf_counter(), "steps": 0}
         self._rtf = 0.0
         self._window: dict[str, float] = {}   # headroom and stage shares over the real-time factor's window
-        self._marker_pub = self.create_publisher(Marker, SURFACE_TOPIC, 1)
-        self._stress_pub = self.create_publisher(PointCloud2, STRESS_TOPIC, 1)
-        self._diag_pub = self.create_publisher(DiagnosticArray, DIAG_TOPIC, 10)
+        self._pubs = {name: self.create_publisher(s.msg_class, name, s.depth) for name, s in OUTPUTS.items()}
         self.live = None                      # the Foxglove live view (nodes/live_view.py), if output.live_port
         if c.recording.enabled:
             self._open_recording()
@@ -147,11 +140,12 @@ class ClusterFemNode(Node):
         self._record(URDF_TOPIC, data)    # the bag carries its skeleton (the renderer poses it)
 
     def _served_topics(self) -> tuple:
-        """What the bag records and the live view serves (topics.NODE_TOPICS), with the skeleton the scene was
-        built on when it came on robot_description."""
+        """What the bag records and the live view serves: the joint states taken in, every output stream
+        (nodes/outputs.py) and the skeleton the scene was built on when it came on robot_description."""
+        served = (topics.JOINT_STATES, *(s.topic for s in OUTPUTS.values()))
         if self.config.skeleton.source == "robot_description":
-            return (*topics.NODE_TOPICS, topics.ROBOT_DESCRIPTION)
-        return topics.NODE_TOPICS
+            return (*served, topics.ROBOT_DESCRIPTION)
+        return served
 
     def _open_recording(self) -> None:
         from ..recording.rosbag2_mcap import Rosbag2McapWriter, default_bag_path
@@ -186,15 +180,12 @@ class ClusterFemNode(Node):
         for t in self._output_timers.values():
             self.destroy_timer(t)
         self._output_timers = {}
-        out = self.config.output
-        if out.marker_rate_hz > 0:
-            # the colour table now: made on the first marker, its matplotlib import held the executor 0.2 s and
-            # the joint states came late, in a burst (the body re-placed at the start of every run)
-            colormap.colormap_lut(out.colormap)
-        for rate, fn in ((out.marker_rate_hz, self._publish_surface), (out.stress_rate_hz, self._publish_stress),
-                         (out.diagnostics_rate_hz, self._publish_diagnostics)):
+        for name, stream in OUTPUTS.items():
+            if stream.warm is not None:
+                stream.warm(self.config)
+            rate = stream.rate(self.config)
             if rate > 0:
-                self._output_timers[fn.__name__] = self.create_timer(1.0 / rate, fn)
+                self._output_timers[name] = self.create_timer(1.0 / rate, lambda s=stream: self._publish(s))
 
     def _on_live_change(self, changes: dict) -> None:
         self.config = self.config.with_values(changes)
@@ -328,65 +319,43 @@ class ClusterFemNode(Node):
         scene.take_joint_state(stamp, names, q, v, received=now_ns * 1e-9, on_judged=judged)
 
     # -- outputs ---------------------------------------------------------------------------------
-    def _snapshot_for(self, pub) -> Snapshot | None:
-        """The state to publish on ``pub``, if anybody consumes it and physics has handed one over."""
-        if self.physics is None or not self._consumed(pub):
-            return None
-        return self.physics.shown()
-
     def _stamp(self):
         return self.get_clock().now().nanoseconds
 
     @staticmethod
-    def _sim_stamp(snap: Snapshot) -> int:
+    def sim_stamp(snap: Snapshot) -> int:
         """Outputs carry the simulated time of the state they show (behind the clock in slow motion)."""
         return int(round(snap.sim_time * 1e9))
 
-    def _stress_max(self) -> float:
-        return self.config.marker_stress_max
-
-    def _stress(self, snap: Snapshot):
+    def stress_of(self, snap: Snapshot):
+        """The stress of a snapshot (made once per snapshot, timed as the 'stress' stage)."""
         return snap.stress(self.scene.model, self.config.warping, self.physics.stages)
 
-    def _publish_surface(self) -> None:
-        snap = self._snapshot_for(self._marker_pub)
-        if snap is None:
+    def _publish(self, stream) -> None:
+        """One output stream's message of the state shown (nodes/outputs.py), if anybody consumes it: published,
+        recorded and served live; a state or stress that is not finite is never published (logged)."""
+        pub = self._pubs[stream.topic.name]
+        if not self._consumed(pub):
             return
-        scene, stages = self.scene, self.physics.stages
-        try:                               # non-finite state or stress: never published
-            vm = self._stress(snap).vertex_von_mises[scene.surface_vertices]
-            t0 = time.perf_counter()
-            verts = scene.model.rest[scene.surface_vertices] + snap.u[scene.surface_vertices]
-            rgba = map_scalars(vm, self.config.output.colormap, 0.0, self._stress_max())
-            data = surface_marker_cdr(verts, scene.surface_triangles, rgba, self.config.output.frame_id,
-                                      self._sim_stamp(snap), "clusterfem", 0)
-        except ValueError as exc:
-            self.get_logger().error(f"surface not published: {exc}", throttle_duration_sec=2.0)
-            return
-        self._marker_pub.publish(data)
-        t1 = time.perf_counter()
-        self.physics.latency.published(snap.inputs_used, t1)
-        self._record(SURFACE_TOPIC, data)
-        stages.add("markers", t1 - t0)
-        stages.add("recording", time.perf_counter() - t1)
-
-    def _publish_stress(self) -> None:
-        snap = self._snapshot_for(self._stress_pub)
-        if snap is None:
-            return
+        snap = None
+        if stream.needs_snapshot:
+            snap = self.physics.shown() if self.physics is not None else None
+            if snap is None:
+                return
         try:
-            vm = self._stress(snap).vertex_von_mises
-            t0 = time.perf_counter()
-            data = stress_cloud_cdr(self.scene.model.rest + snap.u, vm, self.config.output.frame_id,
-                                    self._sim_stamp(snap))
+            data = stream.encode(self, snap)
         except ValueError as exc:
-            self.get_logger().error(f"stress not published: {exc}", throttle_duration_sec=2.0)
+            self.get_logger().error(f"{stream.topic.name} not published: {exc}", throttle_duration_sec=2.0)
             return
-        self._stress_pub.publish(data)
+        if data is None:
+            return
+        pub.publish(data)
         t1 = time.perf_counter()
-        self._record(STRESS_TOPIC, data)
-        self.physics.stages.add("cloud", t1 - t0)
-        self.physics.stages.add("recording", time.perf_counter() - t1)
+        if stream.published is not None:
+            stream.published(self, snap, t1)
+        self._record(stream.topic.name, data)
+        if self.physics is not None:
+            self.physics.stages.add("recording", time.perf_counter() - t1)
 
     def diagnostics(self) -> dict:
         """The values /diagnostics carries (also read by the demo's progress lines and summary). The state's
@@ -455,14 +424,13 @@ class ClusterFemNode(Node):
         s = self.scene
         return s.volume_error_of(s.model.rest + snap.u)
 
-    def _publish_diagnostics(self) -> None:
-        if not self._consumed(self._diag_pub):
-            return
-        t0 = time.perf_counter()
+    def diagnostic_array(self) -> DiagnosticArray:
+        """The node's /diagnostics message now: its values (``diagnostics``), and its level and message: ERROR
+        while physics is stopped, for ERROR_HOLD_S after a failed step and once the recording stopped, WARN
+        while anything is refused or has diverged, else OK. A value that is not finite is sent as -1."""
         values = self.diagnostics()
         finite = all(np.isfinite(v) for v in values.values() if isinstance(v, float))
         loop = self.physics
-        # ERROR while physics is stopped or for ERROR_HOLD_S after a failed step (then WARN: the count stays)
         failed = loop is not None and (loop.stopped or time.perf_counter() - loop.error_at < ERROR_HOLD_S)
         level = "ERROR" if failed else ("OK" if finite and not values["inputs_rejected"] and not self.divergences
                                         and not values.get("physics_failures")
@@ -475,14 +443,7 @@ class ClusterFemNode(Node):
             message = (message + "; " if message else "") + f"recording stopped: {self.recording_error}"
         values = {k: (v if not isinstance(v, float) or np.isfinite(v) else -1.0) for k, v in values.items()}
         me = self.get_fully_qualified_name().lstrip("/")     # "clusterfem", or "<namespace>/clusterfem"
-        msg = diagnostic_array(self._stamp(), f"{me}: simulation", me, values, level, message)
-        self._diag_pub.publish(msg)
-        data = serialize_message(msg)
-        t1 = time.perf_counter()
-        self._record(DIAG_TOPIC, data)
-        if self.physics is not None:
-            self.physics.stages.add("diagnostics", t1 - t0)
-            self.physics.stages.add("recording", time.perf_counter() - t1)
+        return diagnostic_array(self._stamp(), f"{me}: simulation", me, values, level, message)
 
 
 def main(args=None) -> None:
