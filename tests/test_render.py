@@ -35,6 +35,26 @@ def test_the_surface_decoder_equals_rosbags_deserialisation():
     assert len(frame.corners) % 3 == 0 and len(frame.corners) > 3000
 
 
+def test_the_decoders_read_back_what_the_node_s_encoders_write_now():
+    """bag_frames reads CDR by hand (the core imports no msg_adapters): a fresh Marker and stress cloud from the
+    encoders the node publishes with come back exactly, so an encoder and its decoder cannot drift apart."""
+    from msg_adapters.marker import surface_marker_cdr
+    from msg_adapters.pointcloud import stress_cloud_cdr
+    rng = np.random.default_rng(2)
+    vertices = rng.normal(size=(40, 3))
+    triangles = rng.integers(0, 40, size=(60, 3))
+    rgba = rng.uniform(size=(40, 4)).astype(np.float32)
+    frame = decode_surface_marker(surface_marker_cdr(vertices, triangles, rgba, "world", 12_345_678_901, "c", 0))
+    assert frame.stamp_ns == 12_345_678_901
+    assert np.array_equal(frame.corners, vertices[triangles.reshape(-1)])
+    assert np.array_equal(frame.rgba, rgba[triangles.reshape(-1)])
+    vm = rng.uniform(0.0, 1e4, size=40)
+    cloud = decode_stress_cloud(stress_cloud_cdr(vertices, vm, "world", 7_000_000_001))
+    assert cloud.stamp_ns == 7_000_000_001
+    assert np.array_equal(cloud.points, vertices.astype(np.float32).astype(np.float64))
+    assert np.array_equal(cloud.von_mises, vm.astype(np.float32).astype(np.float64))
+
+
 def test_the_sample_bag_gives_frames_joint_states_and_the_humanoid():
     frames = read_bag_frames(SAMPLE)
     meta = (SAMPLE / "metadata.yaml").read_text()
