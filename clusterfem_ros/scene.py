@@ -26,7 +26,6 @@ from .body.bone_distance import any_beyond, segment_distances
 from .config import SceneConfig
 from .fem.model import Control, State
 from .fem.stability import DivergenceError
-from .fem.materials.stress import compute_stress
 from .fem.mesh.tet_mesh import total_volume
 from .scene_build import scene_parts
 from .scene_setup import RunningParts, set_up, warm_up
@@ -459,7 +458,7 @@ class Scene:
         """The element and vertex stress of the current state (computed on the first call after a step)."""
         key = (self.steps_done, id(self.state))
         if self._stress_cache is None or self._stress_cache[0] != key:
-            self._stress_cache = (key, compute_stress(self.model, self.state.u, corotated=self.config.warping))
+            self._stress_cache = (key, self.integrator.material_model.stress(self.model, self.state.u))
         return self._stress_cache[1]
 
     def vertex_von_mises(self) -> np.ndarray:

@@ -22,7 +22,6 @@ from .config import SceneConfig
 from .fem.integrators import make_integrator
 from .fem.integrators.base import Integrator
 from .fem.model import Attachments, Control, FemModel, State, build_model
-from .fem.materials.stress import compute_stress
 from .fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from .numba_cache import is_cached
 from .scene_build import SceneParts, integrator_choice, material_of, say
@@ -234,4 +233,4 @@ def warm_up(parts: RunningParts, control: Callable[[State], Control], h: float,
         parts.driver.reset()
     if parts.stream is not None:
         parts.stream.load_kernels()
-    compute_stress(parts.model, state.u, corotated=parts.config.warping)
+    parts.integrator.material_model.stress(parts.model, state.u)

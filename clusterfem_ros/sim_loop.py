@@ -40,7 +40,6 @@ from typing import Callable
 import numpy as np
 
 from .fem.stability import DivergenceError, StabilityError
-from .fem.materials.stress import compute_stress
 
 MAX_CRASHES_IN_A_ROW = 5
 GIL_SWITCH_INTERVAL = 2e-4     # s: see SimLoop.start
@@ -93,11 +92,12 @@ class Snapshot:
                 stages.add("output_checks", time.perf_counter() - t0)
         return self._problem
 
-    def stress(self, model, corotated: bool, stages: "StageClock | None" = None):
-        """The stress field of this state, computed once (the surface colours and the cloud share it)."""
+    def stress(self, model, material, stages: "StageClock | None" = None):
+        """The stress field of this state by the running material model (MaterialModel.stress), computed once
+        (the surface colours and the cloud share it)."""
         if self._stress is None:
             t0 = time.perf_counter()
-            self._stress = compute_stress(model, self._own[0], corotated=corotated)
+            self._stress = material.stress(model, self._own[0])
             if stages is not None:
                 stages.add("stress", time.perf_counter() - t0)
         return self._stress

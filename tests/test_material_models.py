@@ -151,3 +151,16 @@ def test_every_name_a_scene_may_choose_has_a_model_and_a_name_is_registered_once
         registry.register(StVenantKirchhoff())
     with pytest.raises(ValueError, match="choose one of"):
         registry.material_model(True, "no_such_model")
+
+
+@pytest.mark.parametrize("name", _models())
+def test_the_stress_of_a_rigid_motion_is_zero_and_of_a_small_strain_the_linear_one(model, name):
+    material = registry.MODELS[name]
+    x0 = model.rest
+    turn = Rotation.from_rotvec([0.3, -0.5, 0.8]).as_matrix() if material.rotation_invariant else np.eye(3)
+    rigid = (x0 - x0.mean(0)) @ turn.T + x0.mean(0) + [0.05, -0.02, 0.1] - x0
+    small = 1e-6 * np.random.default_rng(9).standard_normal(x0.shape)
+    linear = registry.LINEAR.stress(model, small).element_von_mises
+    assert linear.max() > 0
+    assert material.stress(model, rigid).element_von_mises.max() < 1e-9 * model.material.E
+    assert np.allclose(material.stress(model, small).element_von_mises, linear, rtol=1e-4, atol=1e-12 * linear.max())

@@ -77,8 +77,8 @@ def test_the_colour_table_is_made_before_the_first_marker_and_on_a_colour_map_ch
 def test_nothing_is_computed_without_a_consumer(world, monkeypatch):
     from clusterfem_ros import sim_loop
     calls = []
-    original = sim_loop.compute_stress
-    monkeypatch.setattr(sim_loop, "compute_stress", lambda *a, **k: calls.append(1) or original(*a, **k))
+    original = sim_loop.Snapshot.stress             # where every output's stress is made
+    monkeypatch.setattr(sim_loop.Snapshot, "stress", lambda *a, **k: calls.append(1) or original(*a, **k))
     node = _node(world)
     world.wait_for(lambda: node.scene.steps_done > 50 and node.physics.snapshot is not None, 20, "physics steps")
     assert calls == [], "stress was computed with no subscriber and no recording"

@@ -329,7 +329,7 @@ class ClusterFemNode(Node):
 
     def stress_of(self, snap: Snapshot):
         """The stress of a snapshot (made once per snapshot, timed as the 'stress' stage)."""
-        return snap.stress(self.scene.model, self.config.warping, self.physics.stages)
+        return snap.stress(self.scene.model, self.scene.integrator.material_model, self.physics.stages)
 
     def _publish(self, stream) -> None:
         """One output stream's message of the state shown (nodes/outputs.py), if anybody consumes it: published,

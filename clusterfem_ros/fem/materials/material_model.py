@@ -11,7 +11,8 @@ model's name: they ask the object
 - ``standard``: its force, rotations and stiffness for the standard explicit and implicit methods
   (``StandardParts``), or a refusal for a model only the clustered method runs;
 - ``stretch_energy``: which stretch bound plans its explicit sub-steps (fem/materials/stretch.py);
-- ``energy_function``: its elastic energy of a body, which /diagnostics reports.
+- ``energy_function``: its elastic energy of a body, which /diagnostics reports;
+- ``stress``: the stress of a state, which the node colours the surface by and publishes.
 
 Adding a model: one module with a ``MaterialModel`` subclass and one ``register`` call; the parametrised
 tests over the registry (tests/test_material_models.py) then test it.
@@ -25,6 +26,7 @@ import numpy as np
 
 from ..model import FemModel
 from ..stability import StabilityError
+from .stress import StressField, compute_stress
 from .warping_models import (UnboundedWarpingWarning, explicit_only_refusal, undamped_corotation_refusal,
                              vertex_refusal)
 
@@ -93,6 +95,12 @@ class MaterialModel:
     def standard(self, model: FemModel) -> StandardParts | None:
         """None: the linear force of the assembled K (the methods' own path)."""
         raise ValueError(explicit_only_refusal(self.name, "standard"))
+
+    def stress(self, model: FemModel, u: np.ndarray) -> StressField:
+        """The stress of displacement u [Pa]: the linear stress of each element's strain measured in its rotated
+        frame (fem/materials/stress.py, corotated), which every warped model here reports; the small-strain
+        stress of the Neo-Hookean model as well."""
+        return compute_stress(model, u, corotated=True)
 
     def energy_function(self, model: FemModel) -> Callable[[np.ndarray], float]:
         """u -> the body's elastic energy [J] (what a body needs for it made once, here)."""

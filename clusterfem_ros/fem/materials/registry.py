@@ -13,6 +13,7 @@ from .assembled_warp import AssembledWarp
 from .corotational import ElementCorotation
 from .element_warping import ElementFrames, element_e_parallel, element_e_serial, element_force, element_rotations
 from .material_model import ClusteredParts, MaterialModel, StandardParts
+from .stress import compute_stress
 from .neohookean import energy as neohookean_energy, largest_bound, neohookean_e_parallel, neohookean_e_serial
 from .warping import VertexFrames, vertex_rotations, warped_e_parallel, warped_e_serial, warped_force
 from .warping_models import WARPING_MODELS
@@ -37,6 +38,10 @@ class Linear(MaterialModel):
 
     def energy_function(self, model: FemModel):
         return model.elastic_energy
+
+    def stress(self, model: FemModel, u: np.ndarray):
+        """The linear stress of the strain (sym grad u), unrotated."""
+        return compute_stress(model, u, corotated=False)
 
 
 class ElementCorotated(MaterialModel):
