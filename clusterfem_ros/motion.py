@@ -18,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from .config import BVH_UP, ConfigError, Param, check_param
+from .registries import Registry
 from .skeleton.trajectory import JointTrajectory
 
 WALK_CYCLES = 4          # the built-in walk is this many whole gait periods, so looping is seamless
@@ -54,15 +55,12 @@ class MotionSource:
     skeleton_source: str = "builtin"    # the node's skeleton.source its skeleton fits
 
 
-MOTION_SOURCES: dict[str, MotionSource] = {}
+MOTION_SOURCES = Registry("motion source")
 
 
 def register_source(source: MotionSource) -> MotionSource:
     """Add a motion source under its name (a name already taken is refused); returns it."""
-    if not source.name or source.name in MOTION_SOURCES:
-        raise ValueError(f"motion source name {source.name!r} is empty or taken ({sorted(MOTION_SOURCES)})")
-    MOTION_SOURCES[source.name] = source
-    return source
+    return MOTION_SOURCES.register(source.name, source)
 
 
 def _builtin_walk(path, speed_mps: float = 1.0, **_) -> Motion:
@@ -112,6 +110,7 @@ for _source in (MotionSource("builtin_walk", "the built-in humanoid walking", _b
                 MotionSource("joint_sweep", "a URDF's joints through their ranges", _joint_sweep, ".urdf",
                              "urdf_file")):
     register_source(_source)
+MOTION_SOURCES.seal()
 SOURCES = tuple(MOTION_SOURCES)                 # the built-in ones; MOTION_SOURCES holds what is registered
 
 

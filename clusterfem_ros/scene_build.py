@@ -21,6 +21,7 @@ from .fem.mesh.mesh_io import read_mesh
 from .fem.mesh.tet_mesh import TetMesh
 from .fem.mesh.voxel_mesh import paper_mesh
 from .method_choice import SHIPPED_POINTS, choose_from_file
+from .registries import Registry
 from .skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
 from .skeleton.humanoid import HumanoidSpec, default_humanoid
 from .skeleton.jelly_body import jelly_man_mesh, voxel_bones
@@ -177,16 +178,13 @@ class BodyKind:
     needs_skeleton: bool = False
 
 
-BODY_KINDS: dict[str, BodyKind] = {}
+BODY_KINDS = Registry("body kind")
 
 
 def register_body_kind(kind: BodyKind) -> BodyKind:
     """Add a body kind under its name (a name already taken is refused); returns it. A scene chooses it by
     body.kind once its name is among config.BODIES (the configuration checks names without building)."""
-    if not kind.name or kind.name in BODY_KINDS:
-        raise ValueError(f"body kind name {kind.name!r} is empty or taken ({sorted(BODY_KINDS)})")
-    BODY_KINDS[kind.name] = kind
-    return kind
+    return BODY_KINDS.register(kind.name, kind)
 
 
 def body_kind(name: str) -> BodyKind:
@@ -260,6 +258,7 @@ for _kind in (BodyKind("jelly_man", _jelly_man, leaf_shapes=True, needs_skeleton
               BodyKind("mesh", _volume_mesh), BodyKind("surface", _surface, needs_skeleton=True),
               BodyKind("robot_cover", _robot_cover, needs_skeleton=True)):
     register_body_kind(_kind)
+BODY_KINDS.seal()
 
 
 def scene_parts(config: SceneConfig, urdf_xml: str | None = None,

@@ -27,6 +27,7 @@ ALLOWED = {
     "numba_cache": set(),                         # where numba's cache lives (the package keys it at import)
     "numba_config": set(),                        # numba build flags for every part that compiles code
     "data_dirs": set(),                           # where data files given by name are looked for
+    "registries": set(),                          # the name tables the registered kinds of things live in
     "topics": set(),                              # the topics' names, types and QoS, declared once
     "recording": {"errors", "topics"},            # a leaf: it records bytes, knows no physics and no scene
     # the numerical core's own layers, bottom up (clusterfem_ros/fem/__init__.py); 'fem' is its modules model.py
@@ -35,15 +36,16 @@ ALLOWED = {
     "fem.linear": {"errors", "fem.mesh"},
     "fem.kernels": {"errors", "numba_config", "fem.mesh", "fem.linear"},
     "fem": {"errors", "numba_config", "fem.mesh", "fem.linear", "fem.kernels"},
-    "fem.materials": {"errors", "numba_config", "fem.mesh", "fem.linear", "fem.kernels", "fem"},
-    "fem.integrators": {"errors", "numba_config", "fem.mesh", "fem.linear", "fem.kernels", "fem", "fem.materials"},
+    "fem.materials": {"errors", "numba_config", "registries", "fem.mesh", "fem.linear", "fem.kernels", "fem"},
+    "fem.integrators": {"errors", "numba_config", "registries", "fem.mesh", "fem.linear", "fem.kernels", "fem",
+                        "fem.materials"},
 }
 FEM = {p for p in ALLOWED if p.split(".")[0] == "fem"}
 ALLOWED.update({
     "skeleton": {"errors", "numba_config", "data_dirs"} | FEM,      # the jelly body's mesh; URDF mesh files
     "body": {"errors", "numba_config", "data_dirs", "skeleton"} | FEM,
-    "": {"errors", "numba_cache", "numba_config", "data_dirs", "topics", "recording", "skeleton", "body",
-         ""} | FEM,  # config, scene, ...
+    "": {"errors", "numba_cache", "numba_config", "data_dirs", "registries", "topics", "recording", "skeleton",
+         "body", ""} | FEM,  # config, scene, ...
 })
 PHYSICS = {"numba", "scipy", "pinocchio", "llvmlite"}
 def module_files(root: Path = ROOT, packages=PACKAGES) -> dict[str, Path]:

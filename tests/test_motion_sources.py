@@ -20,7 +20,7 @@ def toy_source():
         return motion.Motion(spec.urdf, traj, "standing still (1 s)", True)
     source = motion.register_source(motion.MotionSource("toy_still", "the humanoid standing still", still))
     yield source
-    motion.MOTION_SOURCES.pop(source.name)
+    motion.MOTION_SOURCES.unregister(source.name)
 
 
 def test_a_registered_source_loads_by_name_and_names_its_skeleton(toy_source):

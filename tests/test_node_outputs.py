@@ -162,7 +162,7 @@ def test_an_output_stream_of_ones_own_is_published_recorded_and_served_by_being_
         world.wait_for(lambda: len(got) >= 5, 20, "the registered stream's messages")
         errors = [deserialize_message(m, Float64).data for m in got]
         assert all(np.isfinite(errors)) and max(abs(e) for e in errors) < 0.5
-        with pytest.raises(ValueError, match="registered already"):
+        with pytest.raises(ValueError, match="taken"):
             outputs.register_output(stream)
         node.close()
         with AnyReader([node.recording_path]) as bag:
@@ -171,4 +171,4 @@ def test_an_output_stream_of_ones_own_is_published_recorded_and_served_by_being_
             assert sum(1 for _ in bag.messages(connections=[recorded["/clusterfem/volume_error"]])) >= 5
             assert {"/clusterfem/surface", "/clusterfem/stress", "/diagnostics"} <= set(recorded)
     finally:
-        outputs.OUTPUTS.pop(stream.topic.name)
+        outputs.OUTPUTS.unregister(stream.topic.name)

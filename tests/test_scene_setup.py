@@ -196,4 +196,4 @@ def test_body_kinds_are_registered_and_a_new_kind_builds_a_scene_by_being_regist
         with pytest.raises(ValueError, match="taken"):
             scene_build.register_body_kind(kind)
     finally:
-        scene_build.BODY_KINDS.pop("slid_cube")
+        scene_build.BODY_KINDS.unregister("slid_cube")

@@ -23,6 +23,7 @@ from msg_adapters.pointcloud import stress_cloud_cdr
 
 from .. import topics
 from ..config import SceneConfig
+from ..registries import Registry
 from ..topics import Topic
 
 
@@ -38,15 +39,12 @@ class OutputStream:
     warm: Callable[[SceneConfig], None] | None = None     # made when the timers are (not on the first message)
 
 
-OUTPUTS: dict[str, OutputStream] = {}
+OUTPUTS = Registry("output stream")
 
 
 def register_output(stream: OutputStream) -> OutputStream:
     """Add an output stream under its topic's name (a name already taken is refused); returns it."""
-    if stream.topic.name in OUTPUTS:
-        raise ValueError(f"an output stream on {stream.topic.name!r} is registered already")
-    OUTPUTS[stream.topic.name] = stream
-    return stream
+    return OUTPUTS.register(stream.topic.name, stream)
 
 
 def _surface(node, snap) -> bytes:
@@ -94,3 +92,4 @@ register_output(OutputStream(topics.SURFACE, Marker, lambda c: c.output.marker_r
 register_output(OutputStream(topics.STRESS, PointCloud2, lambda c: c.output.stress_rate_hz, _stress))
 register_output(OutputStream(topics.DIAGNOSTICS, DiagnosticArray, lambda c: c.output.diagnostics_rate_hz,
                              _diagnostics, depth=10, needs_snapshot=False))
+OUTPUTS.seal()

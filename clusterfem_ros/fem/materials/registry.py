@@ -8,6 +8,7 @@ import numpy as np
 
 from ..kernels.cluster_force_kernel import cluster_args, scratch
 from ..kernels.cluster_slices import host_slices
+from ...registries import Registry
 from ..model import FemModel
 from .assembled_warp import AssembledWarp
 from .corotational import ElementCorotation
@@ -21,6 +22,14 @@ from .warping_models import WARPING_MODELS
 # the implicit step with per-vertex rotations held misses the dR/dx coupling through the volumetric stiffness,
 # which grows as 1 / (1 - 2 nu): it diverged at every step size tried above this
 VERTEX_IMPLICIT_MAX_NU = 0.49
+
+
+def _element_parts(model: FemModel, kernels: tuple, suffix: str) -> ClusteredParts:
+    """An element model's clustered parts: its element data (ElementFrames) and its force pass's builds; w holds
+    x0 + u + zeta v by vertex, e the gathered rows."""
+    frames = ElementFrames.from_model(model)
+    return ClusteredParts(frames, (frames.elems, frames.gather, frames.rest, frames.work), frames.w, frames.e,
+                          kernels, suffix)
 
 
 class Linear(MaterialModel):
@@ -52,9 +61,7 @@ class ElementCorotated(MaterialModel):
     stretch_energy = "corotated"
 
     def clustered(self, model: FemModel) -> ClusteredParts:
-        frames = ElementFrames.from_model(model)
-        return ClusteredParts(frames, (frames.elems, frames.gather, frames.rest, frames.work), frames.w, frames.e,
-                              (element_e_serial, element_e_parallel), "_element")
+        return _element_parts(model, (element_e_serial, element_e_parallel), "_element")
 
     def standard(self, model: FemModel) -> StandardParts:
         frames = ElementFrames.from_model(model)
@@ -109,38 +116,28 @@ class NeoHookean(MaterialModel):
     stretch_energy = "neohookean"
 
     def clustered(self, model: FemModel) -> ClusteredParts:
-        frames = ElementFrames.from_model(model)
-        return ClusteredParts(frames, (frames.elems, frames.gather, frames.rest, frames.work), frames.w, frames.e,
-                              (neohookean_e_serial, neohookean_e_parallel), "_neohookean",
-                              bound=lambda: largest_bound(frames))
+        parts = _element_parts(model, (neohookean_e_serial, neohookean_e_parallel), "_neohookean")
+        parts.bound = lambda: largest_bound(parts.frames)   # the step plans from the bounds its first force leaves
+        return parts
 
     def energy_function(self, model: FemModel):
         return lambda u: neohookean_energy(model, u)
 
 
-MODELS: dict[str, MaterialModel] = {}
+MODELS = Registry("material model")
 
 
 def register(model: MaterialModel) -> MaterialModel:
     """Add ``model`` under its name (a name already taken is refused); returns it."""
-    if not model.name or model.name in MODELS:
-        raise ValueError(f"material model name {model.name!r} is empty or taken ({sorted(MODELS)})")
-    MODELS[model.name] = model
-    return model
+    return MODELS.register(model.name, model)
 
 
-def unregister(name: str) -> None:
-    """Remove a model ``register`` added (a test's own)."""
-    if name in BUILT_IN:
-        raise ValueError(f"{name!r} is a built-in material model")
-    MODELS.pop(name)
-
-
+unregister = MODELS.unregister
 LINEAR = register(Linear())
-BUILT_IN = ("linear",) + WARPING_MODELS
 for _model in (ElementCorotated(), VertexWarped(), NeoHookean()):
     register(_model)
-assert tuple(MODELS) == BUILT_IN, "every name a scene may choose has its model"
+MODELS.seal()
+assert MODELS.built_in == ("linear",) + WARPING_MODELS, "every name a scene may choose has its model"
 
 
 def material_model(warp: bool, name: str) -> MaterialModel:
