@@ -150,3 +150,22 @@ def test_the_demo_runs_two_bodies_as_two_processes(tmp_path):
                for b in bodies)
     bags = sorted(p.name.rsplit("_", 2)[0] for p in tmp_path.iterdir() if p.is_dir())
     assert bags == ["clusterfem_body1", "clusterfem_body2"]          # a recording each
+
+
+def test_the_demo_s_summary_of_two_bodies_in_one_process_tells_each_body_s_own_numbers(tmp_path):
+    """scripts/run --bodies 2 in one process: each body's printed summary reports the same timed run as the
+    summary table (its JSON): the real-time factor and steps of that body, not of the other or of the wall."""
+    import re
+    out = tmp_path / "summary.json"
+    run = subprocess.run([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--bodies", "2", "--duration", "3",
+                          "--no-png", "--no-record", "--summary-json", str(out)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    bodies = {b["namespace"].strip("/"): b for b in json.loads(out.read_text())["bodies"]}
+    assert sorted(bodies) == ["body1", "body2"], run.stdout[-3000:]
+    for ns, b in bodies.items():
+        found = re.search(rf"summary of /?{ns}\n(?:.*\n)*?  physics steps   (\d+) of .*real-time factor ([\d.]+)",
+                          run.stdout)
+        assert found, (ns, run.stdout[-3000:])
+        steps, rtf = found.groups()
+        assert int(steps) == b["steps"] and float(rtf) == pytest.approx(b["real_time_factor"], abs=0.006), ns

@@ -268,3 +268,15 @@ def test_a_triangle_is_brightest_facing_the_light_either_way_round_and_ambient_e
     assert facing_shade(v, tris, np.array([1.0, 0, 0])) == pytest.approx([AMBIENT, AMBIENT], abs=1e-15)
     lit = facing_shade(v, tris[:1], np.array([1.0, 0, 1]))[0]     # 45 deg: cos = 1/sqrt(2)
     assert lit == pytest.approx(AMBIENT + (1 - AMBIENT) / np.sqrt(2), rel=1e-14)
+
+
+def test_the_main_job_s_picture_is_on_its_video_s_stress_scale():
+    """final_state.png and run.mp4 of one recording share one scale: the run's (render.run_scale), named with its
+    unit on the picture's colour bar; without a recording the picture says it uses its own state's scale."""
+    from clusterfem_ros.nodes.demo import _png_scale
+    from clusterfem_ros.render import VideoOptions, run_scale
+    vmax, label = _png_scale(SAMPLE)
+    _, video_vmax, _, _ = run_scale(read_bag_frames(SAMPLE), VideoOptions(), progress=lambda _: None)
+    assert vmax == video_vmax and vmax > 0
+    assert "[Pa]" in label and "of the run" in label
+    assert _png_scale(None) == (None, "von Mises stress [Pa], 0 to the 99th percentile of this state")
