@@ -175,7 +175,7 @@ def _builds(step_source, free_source, suffix, **kernel):
 # (attached, attachment-free) builds of the linear step, serial and threaded sweeps
 _step_serial = _builds(_symplectic_euler, _free_symplectic_euler, "", stiffness=stiffness_slices_serial)
 _step_parallel = _builds(_symplectic_euler, _free_symplectic_euler, "_parallel", stiffness=stiffness_slices_parallel)
-_WARPED_BUILDS: dict[str, tuple] = {}       # a model's build_suffix -> its step builds (step_builds)
+_WARPED_BUILDS: dict[str, tuple] = {}       # a model's build_suffix -> (its kernels, its step builds)
 
 
 def step_builds(parts: ClusteredParts) -> tuple:
@@ -191,10 +191,15 @@ def step_builds(parts: ClusteredParts) -> tuple:
         if parts.bound is not None:     # the step makes its first force before it plans from the bounds
             first = (compiled(_warped_first_force, key, warped_e=serial),
                      compiled(_warped_first_force, key + "_parallel", warped_e=parallel))
-        _WARPED_BUILDS[key] = (_builds(_warped_symplectic_euler, _free_warped_symplectic_euler, key, warped_e=serial),
-                               _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, key + "_parallel",
-                                       warped_e=parallel), first)
-    return _WARPED_BUILDS[key]
+        steps = (_builds(_warped_symplectic_euler, _free_warped_symplectic_euler, key, warped_e=serial),
+                 _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, key + "_parallel",
+                         warped_e=parallel), first)
+        _WARPED_BUILDS[key] = (parts.warped_e, steps)
+    kernels, steps = _WARPED_BUILDS[key]
+    if kernels != parts.warped_e:
+        raise ValueError(f"build_suffix {key!r} names another model's step builds: give each material model's "
+                         "ClusteredParts a build_suffix of its own")
+    return steps
 
 
 class ThreadChoice:

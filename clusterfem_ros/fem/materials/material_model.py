@@ -19,6 +19,7 @@ tests over the registry (tests/test_material_models.py) then test it.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Callable
 
@@ -75,7 +76,6 @@ class MaterialModel:
         (given the explicit method's ``material``) for a model refused undamped, ValueError for a method that
         does not run it. An acknowledged unbounded model warns: once per process under Python's default warning
         filter (one call site, one message per model)."""
-        import warnings
         if not self.bounded:
             if not allow_unbounded:
                 raise StabilityError(vertex_refusal())
