@@ -118,3 +118,21 @@ def grid_mesh(mask: np.ndarray, lo: np.ndarray, spacing: np.ndarray) -> tuple[np
     neg = np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) < 0
     tets[neg, 2], tets[neg, 3] = tets[neg, 3], tets[neg, 2].copy()
     return vertices, tets
+
+
+def separate(mask: np.ndarray, body: np.ndarray) -> np.ndarray:
+    """``mask`` (nx, ny, nz) without the voxels that share a face, edge or corner with a voxel of another body
+    (``body`` per voxel): of each such pair the voxel of the body with more voxels goes, of equal ones the body
+    with the higher index. One voxel and one neighbour at a time."""
+    size = np.bincount(body[mask])
+    keep = mask.copy()
+    n = mask.shape
+    for a in np.argwhere(mask):
+        for off in np.ndindex(3, 3, 3):
+            b = a + np.array(off) - 1
+            if (b < 0).any() or (b >= n).any() or not mask[tuple(b)]:
+                continue
+            ba, bb = body[tuple(a)], body[tuple(b)]
+            if ba != bb and (size[ba] > size[bb] or (size[ba] == size[bb] and ba > bb)):
+                keep[tuple(a)] = False
+    return keep
