@@ -318,7 +318,9 @@ def _voxels(parts: list[CoverPart], trees: list, lo: np.ndarray, n: np.ndarray, 
             continue
         axes = [np.arange(a[x], b[x]) for x in range(3)]
         centres = np.stack(np.meshgrid(*[lo[x] + (axes[x] + 0.5) * h for x in range(3)], indexing="ij"), -1)
-        d, _ = trees[k].query(centres.reshape(-1, 3))
+        # a distance past the reach only ever counts as 'past the reach' (inf): bounding the search keeps a voxel
+        # far from every sample (inside a large box) as cheap as one near them
+        d, _ = trees[k].query(centres.reshape(-1, 3), distance_upper_bound=1.001 * reach)
         d = d.reshape(centres.shape[:3])
         del centres
         solid = ndimage.binary_fill_holes(d <= reach)
