@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.cover_extent import diagonal_bar, far_apart
 from clusterfem_ros.body.link_binding import bind_to_links
 from clusterfem_ros.skeleton.joint_sweep import joint_sweep
 from clusterfem_ros.skeleton.kinematics import Skeleton
@@ -273,17 +274,6 @@ def test_shapes_past_the_triangle_budget_are_refused_with_one_line_before_any_me
     assert robot_cover(urdf, sk, target_tets=300, max_triangles=2000).mesh.n_tets > 0     # 1,280 + the arm's
 
 
-def far_apart(d: float, plane: bool = False) -> str:
-    """Three links, each a 5 cm box: a root at the origin and two leaves on revolute joints, ``d`` metres apart across
-    it on the space diagonal (at +-d/2 (1, 1, 1) / sqrt 3), or, with ``plane``, at a right angle in the floor plane
-    (at d / sqrt 2 on x and on y)."""
-    box, lim = "<box size='0.05 0.05 0.05'/>", "<limit lower='-1' upper='1' effort='1' velocity='1'/>"
-    a, b = (d / np.sqrt(2) * np.eye(3)[:2]) if plane else (d / 2 / np.sqrt(3) * np.array([[1, 1, 1], [-1, -1, -1]]))
-    return ("<robot name='far_apart'>" + _link("root", box) + _link("a", box) + _link("b", box)
-            + _joint("ja", "revolute", "root", "a", " ".join(f"{v:.9g}" for v in a), limit=lim)
-            + _joint("jb", "revolute", "root", "b", " ".join(f"{v:.9g}" for v in b), limit=lim) + "</robot>")
-
-
 _FAR_COVER = """
 import os, resource
 import numpy as np
@@ -291,7 +281,7 @@ resource.setrlimit(resource.RLIMIT_AS, (6 << 30, 6 << 30))  # a regression fails
 from benchmarks.hostile_urdf import memory_kb
 from clusterfem_ros.config import SceneConfig
 from clusterfem_ros.scene import Scene
-from tests.test_robot_cover import far_apart
+from benchmarks.cover_extent import far_apart
 config = SceneConfig().with_values({"skeleton.source": "robot_description", "body.kind": "robot_cover"})
 Scene.build(config, urdf_xml=far_apart(0.3))                # imports and compiled kernels, before the measurement
 before = memory_kb(os.getpid())[1]
@@ -326,17 +316,6 @@ def test_links_far_apart_get_a_cover_whose_cost_follows_their_shapes():
         assert covered == "'3 of 3'", case
     grew = float(out.stdout.split("grew_mb")[1])
     assert grew < 300, f"the four far-apart covers added {grew:.0f} MB"
-
-
-def diagonal_bar(length: float) -> str:
-    """A root link whose shape is a 1 cm bar of ``length`` [m] along the space diagonal, and a 5 cm box on it."""
-    rpy = f"0 {-np.arctan(1 / np.sqrt(2)):.9f} {np.pi / 4:.9f}"            # x onto (1, 1, 1) / sqrt 3
-    bar = (f"<link name='bar'><inertial><mass value='1'/><inertia ixx='1' iyy='1' izz='1' ixy='0' ixz='0' iyz='0'/>"
-           f"</inertial><collision><origin rpy='{rpy}'/><geometry><box size='{length:g} 0.01 0.01'/></geometry>"
-           "</collision></link>")
-    return ("<robot name='diagonal_bar'>" + bar + _link("tip", "<box size='0.05 0.05 0.05'/>")
-            + _joint("j", "revolute", "bar", "tip", "0 0 0.5", limit="<limit lower='-1' upper='1' effort='1' "
-                     "velocity='1'/>") + "</robot>")
 
 
 def test_a_cover_past_the_voxel_limit_is_refused_with_one_line():
