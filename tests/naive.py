@@ -93,3 +93,46 @@ def tet_quality(x: np.ndarray) -> tuple[float, float]:
     s = 0.5 * (p + q + r)
     r_circ = np.sqrt(s * (s - p) * (s - q) * (s - r)) / (6.0 * volume)
     return float(min(angles)), float(3.0 * r_in / r_circ)
+
+
+_CORNER = np.array([[(c >> 0) & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)])
+
+
+def grid_mesh(mask: np.ndarray, lo: np.ndarray, spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, tets) of the voxels of ``mask`` split in five tets each, on the dense grid of every corner: each
+    voxel's corners numbered over the whole (nx + 1, ny + 1, nz + 1) grid, the unused corners dropped, then each
+    tet oriented positively."""
+    from clusterfem_ros.fem.mesh.voxel_mesh import _SPLIT
+    nx, ny, nz = mask.shape
+    vid = lambda p: (p[..., 0] * (ny + 1) + p[..., 1]) * (nz + 1) + p[..., 2]  # noqa: E731
+    ijk = np.argwhere(mask)
+    tets = np.concatenate([vid(c[:, None, :] + _CORNER)[:, _SPLIT[parity]].reshape(-1, 4)
+                           for parity in (0, 1) for c in [ijk[ijk.sum(axis=1) % 2 == parity]]])
+    g = np.stack(np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), np.arange(nz + 1), indexing="ij"), -1)
+    vertices = np.asarray(lo, dtype=np.float64) + g.reshape(-1, 3) * spacing
+    used = np.unique(tets)
+    remap = np.full(len(vertices), -1)
+    remap[used] = np.arange(len(used))
+    vertices, tets = vertices[used], remap[tets]
+    e = vertices[tets[:, 1:]] - vertices[tets[:, :1]]
+    neg = np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) < 0
+    tets[neg, 2], tets[neg, 3] = tets[neg, 3], tets[neg, 2].copy()
+    return vertices, tets
+
+
+def separate(mask: np.ndarray, body: np.ndarray) -> np.ndarray:
+    """``mask`` (nx, ny, nz) without the voxels that share a face, edge or corner with a voxel of another body
+    (``body`` per voxel): of each such pair the voxel of the body with more voxels goes, of equal ones the body
+    with the higher index. One voxel and one neighbour at a time."""
+    size = np.bincount(body[mask])
+    keep = mask.copy()
+    n = mask.shape
+    for a in np.argwhere(mask):
+        for off in np.ndindex(3, 3, 3):
+            b = a + np.array(off) - 1
+            if (b < 0).any() or (b >= n).any() or not mask[tuple(b)]:
+                continue
+            ba, bb = body[tuple(a)], body[tuple(b)]
+            if ba != bb and (size[ba] > size[bb] or (size[ba] == size[bb] and ba > bb)):
+                keep[tuple(a)] = False
+    return keep

@@ -9,7 +9,9 @@ from clusterfem_ros.fem.mesh.tet_mesh import (MeshError, TetMesh, boundary_trian
 from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import build_model
 from clusterfem_ros.fem.mesh.tet_quality import mesh_quality, tet_quality
-from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh, paper_mesh
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh, cells_mesh, grid_mesh, paper_mesh
+
+from . import naive
 
 PAPER = {"sphere": (376, 1091), "cube": (453, 1198), "torus": (609, 1823)}
 
@@ -32,6 +34,34 @@ def test_box_volume_is_exact():
     mesh = box_mesh((0.3, 0.2, 0.1), (3, 4, 5))
     assert mesh.volumes().sum() == pytest.approx(0.3 * 0.2 * 0.1, rel=1e-13)
     assert (mesh.volumes() > 0).all()
+
+
+
+def test_voxel_meshes_equal_the_dense_grid_twin_vertex_for_vertex():
+    """grid_mesh (through cells_mesh, which numbers only the corners its cells use) gives the mesh of the dense
+    corner grid, vertex for vertex and tet for tet, on random masks of random shapes."""
+    rng = np.random.default_rng(7)
+    for trial in range(20):
+        mask = rng.random(tuple(rng.integers(1, 9, 3))) < rng.uniform(0.1, 0.9)
+        mask.flat[rng.integers(mask.size)] = True
+        lo, h = rng.normal(size=3), rng.uniform(0.001, 0.3, 3)
+        vertices, tets = naive.grid_mesh(mask, lo, h)
+        mesh = grid_mesh(mask, lo, h)
+        assert np.array_equal(mesh.vertices, vertices) and np.array_equal(mesh.tets, tets), f"trial {trial}"
+
+
+def test_cells_far_apart_cost_their_own_corners_only():
+    """Two voxels 10,000 voxels apart on every axis: 10 tets on their 16 corners (a dense grid of their corners
+    would be 10^12 vertices), each at lo + its index * spacing."""
+    far = 10_000
+    mesh = cells_mesh(np.array([[0, 0, 0], [far, far + 1, far]]), np.array([1.0, 2.0, 3.0]), np.full(3, 0.01))
+    assert (mesh.n_tets, mesh.n_vertices) == (10, 16)
+    assert mesh.volumes().sum() == pytest.approx(2e-6, rel=1e-6)
+    corner = np.round((mesh.vertices - [1.0, 2.0, 3.0]) / 0.01).astype(np.int64)
+    assert {tuple(c) for c in corner[8:]} == {(far + i, far + 1 + j, far + k) for i in (0, 1) for j in (0, 1)
+                                               for k in (0, 1)}
+    with pytest.raises(MeshError, match=r"indices >= 0"):
+        cells_mesh(np.array([[0, -1, 0]]), np.zeros(3), np.full(3, 0.01))
 
 
 @pytest.mark.parametrize("name", PAPER)

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.cover_extent import diagonal_bar, far_apart
 from clusterfem_ros.body.link_binding import bind_to_links
 from clusterfem_ros.skeleton.joint_sweep import joint_sweep
 from clusterfem_ros.skeleton.kinematics import Skeleton
@@ -271,6 +272,114 @@ def test_shapes_past_the_triangle_budget_are_refused_with_one_line_before_any_me
     assert refused.value.kind == "too_many_triangles" and "\n" not in str(refused.value)
     sk = Skeleton.from_urdf_string(urdf)
     assert robot_cover(urdf, sk, target_tets=300, max_triangles=2000).mesh.n_tets > 0     # 1,280 + the arm's
+
+
+_FAR_COVER = """
+import os, resource
+import numpy as np
+resource.setrlimit(resource.RLIMIT_AS, (6 << 30, 6 << 30))  # a regression fails with MemoryError, not the host's OOM
+from benchmarks.hostile_urdf import memory_kb
+from clusterfem_ros.config import SceneConfig
+from clusterfem_ros.scene import Scene
+from benchmarks.cover_extent import far_apart
+config = SceneConfig().with_values({"skeleton.source": "robot_description", "body.kind": "robot_cover"})
+Scene.build(config, urdf_xml=far_apart(0.3))                # imports and compiled kernels, before the measurement
+before = memory_kb(os.getpid())[1]
+for d, plane in ((9.0, True), (9.0, False), (100.0, True), (100.0, False)):
+    notes = []
+    scene = Scene.build(config, urdf_xml=far_apart(d, plane), progress=notes.append)
+    sk, b, x = scene.skeleton, scene.binding, scene.model.rest
+    centre = {n: sk.link_placements(sk.neutral(), [n])[1][0] for n in ("root", "a", "b")}
+    at = np.array([centre[sk.bone_names[i]] for i in b.bone])
+    cover = [n for n in notes if n.startswith("robot cover:")][0]
+    print(f"case {d:g} {'plane' if plane else 'diagonal'} tets {scene.model.mesh.n_tets} "
+          f"farthest {np.linalg.norm(x - at, axis=1).max():.4f} covered {cover.split(' on ')[1].split(' shaped')[0]!r}")
+print("grew_mb", (memory_kb(os.getpid())[1] - before) / 1024)
+"""
+
+
+def test_links_far_apart_get_a_cover_whose_cost_follows_their_shapes():
+    """A robot_description of three 5 cm boxes, the leaves 9 m and 100 m apart (across the space diagonal, and at a
+    right angle in a plane), becomes a robot-cover scene of the tets asked for on all three links, in a process of its
+    own whose peak resident memory (its own VmHWM) grows by less than 300 MB for the four: the voxels are looked at
+    in each link's box only (over the whole bounding box, 9 m in a plane took ~1 GB and 16 s, and across the diagonal
+    the grid was refused past 5e7 voxels, 'choose a larger spacing'). The child's address space is capped (6 GB)."""
+    out = subprocess.run([sys.executable, "-c", _FAR_COVER], cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-3000:]
+    cases = [line.split() for line in out.stdout.splitlines() if line.startswith("case ")]
+    assert len(cases) == 4, out.stdout
+    for case in cases:
+        tets, farthest, covered = int(case[4]), float(case[6]), " ".join(case[8:])
+        assert abs(tets - 4800) <= 0.2 * 4800, case
+        # a link's box (half-diagonal 43 mm), its skin (20 mm) and a voxel's diagonal (~23 mm)
+        assert farthest < 0.1, f"a vertex {farthest:.3f} m from its own link: {case}"
+        assert covered == "'3 of 3'", case
+    grew = float(out.stdout.split("grew_mb")[1])
+    assert grew < 300, f"the four far-apart covers added {grew:.0f} MB"
+
+
+def test_a_cover_past_the_voxel_limit_is_refused_with_one_line():
+    """A 30 m bar on the space diagonal has a box of 17 m a side: at the spacing of the tets asked for its box alone
+    holds more voxels than robot_cover.MAX_VOXELS, so the scene refuses in one line naming the robot's extent, the
+    count, the link, the limit and what to change; links 1 km apart pass MAX_AXIS_VOXELS along an axis, refused
+    alike."""
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.scene_build import scene_parts
+    from clusterfem_ros.skeleton.urdf_check import UrdfRefused
+    config = SceneConfig().with_values({"skeleton.source": "robot_description", "body.kind": "robot_cover"})
+    with pytest.raises(UrdfRefused, match=r"^a robot cover over links spanning 17.\d x 17.\d x 17.\d m would look at "
+                                          r"[\d,]+ voxels of [\d.]+ mm around its 2 shaped links \([\d,]+ around link "
+                                          r"'bar', 17.\d x 17.\d x 17.\d m\), past the limit of 4,000,000 \(robot_cover"
+                                          r".MAX_VOXELS\); refused; lower body.target_tets \(now 4,800\) for larger "
+                                          r"voxels, or check the URDF's link shapes and joint origins$") as refused:
+        scene_parts(config, diagonal_bar(30.0))
+    assert refused.value.kind == "cover_too_large" and "\n" not in str(refused.value)
+    with pytest.raises(UrdfRefused, match=r"^a robot cover over links spanning 57\d x 57\d x 57\d m would need "
+                                          r"[\d.e+]+ voxels of [\d.]+ mm along an axis, past the limit of 16,384 "
+                                          r"\(robot_cover.MAX_AXIS_VOXELS\); refused; lower body.target_tets"
+                       ) as refused:
+        scene_parts(config, far_apart(1000.0))
+    assert refused.value.kind == "cover_too_large" and "\n" not in str(refused.value)
+
+
+def test_the_voxel_limit_is_checked_before_any_voxel_is_looked_at(monkeypatch):
+    """Every spacing tried looks at the voxels of the links' boxes only when their count is within MAX_VOXELS: with
+    the limit below the arm's boxes the cover is refused and no box was looked at past it."""
+    from clusterfem_ros.skeleton import robot_cover as rc
+    from clusterfem_ros.skeleton.urdf_check import UrdfRefused
+    looked = []
+    voxels = rc._voxels
+
+    def counting(parts, trees, lo, n, i0, i1, h, thickness):
+        looked.append(int(np.prod(np.maximum(i1 - i0, 0), axis=1).sum()))
+        return voxels(parts, trees, lo, n, i0, i1, h, thickness)
+
+    monkeypatch.setattr(rc, "_voxels", counting)
+    cover = robot_cover(ARM, Skeleton.from_urdf_string(ARM), target_tets=2000)
+    assert cover.mesh.n_tets > 0 and looked
+    limit = max(looked) - 1
+    monkeypatch.setattr(rc, "MAX_VOXELS", limit)
+    looked.clear()
+    with pytest.raises(UrdfRefused, match=rf"past the limit of {limit:,} \(robot_cover.MAX_VOXELS\)"):
+        robot_cover(ARM, Skeleton.from_urdf_string(ARM), target_tets=2000)
+    assert all(c <= limit for c in looked), looked
+
+
+def test_separating_rigid_bodies_on_lattice_keys_equals_the_dense_twin():
+    """_separate on the solid voxels' lattice keys drops the voxels the dense, one-neighbour-at-a-time twin
+    (tests/naive.py) drops, on random lattices of random parts and bodies."""
+    from clusterfem_ros.skeleton.robot_cover import _key, _separate
+
+    from . import naive
+    rng = np.random.default_rng(11)
+    body_of = np.array([0, 0, 1, 2, 2, 3])
+    for trial in range(12):
+        n = rng.integers(2, 8, 3)
+        mask = rng.random(tuple(n)) < rng.uniform(0.2, 0.9)
+        part = rng.integers(0, len(body_of), tuple(n))
+        ijk = np.argwhere(mask)
+        kept = _separate(n, _key(n, *ijk.T), part[mask], body_of)
+        assert np.array_equal(kept, naive.separate(mask, body_of[part])[mask]), f"trial {trial}"
 
 
 def test_package_names_resolve_only_in_installed_packages():

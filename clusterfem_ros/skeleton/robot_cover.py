@@ -17,6 +17,11 @@ gives the tet count asked for directly. Each link's surface is sampled densely (
 no gaps), and the shell's holes filled (``ndimage.binary_fill_holes``) give the link's solid: its volume plus a
 skin of ``thickness``.
 The voxel spacing ``h`` is chosen so the cover has about ``target_tets`` tets (five per voxel).
+All links share one lattice of voxels, but only the voxels of each link's own box (its shapes and the reach around
+them) are looked at, and the solid ones kept by their lattice key: the cost follows the links' shapes, not the
+robot's bounding box, so links 100 m apart cost what links side by side do. Past ``MAX_VOXELS`` voxels looked at
+(or ``MAX_AXIS_VOXELS`` along one axis of the lattice) the cover is refused in one line: ``UrdfRefused``
+('cover_too_large') naming the robot's extent, the count, the limit and the way out.
 
 Links of different rigid bodies are never glued: a voxel belongs to the link it lies in (else the nearest),
 links joined by fixed joints form one rigid body, and where voxels of two rigid bodies touch (share a
@@ -41,7 +46,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from ..fem.mesh.tet_mesh import TetMesh
-from ..fem.mesh.voxel_mesh import grid_mesh, voxel_centres
+from ..fem.mesh.voxel_mesh import cells_mesh
 from .link_shapes import find_mesh_file, search_folders, urdf_floats
 from .mounting import rpy_matrix
 from .urdf_check import UrdfRefused
@@ -56,6 +61,14 @@ MAX_SAMPLES = 4_000_000
 # 56,264-triangle STL named 17 times, 0.96 M, took 642 MB; 35 times, 1.97 M, 1,142 MB). example-robot-data's
 # URDFs have at most 0.4 M collision triangles (so101) and 1.03 M visual ones (b1-z1, the only one past this)
 MAX_TRIANGLES = 1_000_000
+# voxels one cover looks at, at one spacing tried (the sum of its links' boxes, never the robot's whole box): ~50 B
+# each (one link, a 10 m bar on the space diagonal: 2.35 M voxels, 107 MB). example-robot-data's robots look at
+# most 62,000 at 4,800 tets (simple_humanoid_classical), 392,000 at body.target_tets' ceiling 400,000 (kinova)
+MAX_VOXELS = 4_000_000
+# voxels along one axis of the lattice the links lie in: TetMesh.validate tolerates a volume of 1e-14 (the mesh's
+# extent)^3 as round-off, which past ~25,000 voxels along an axis passes a voxel's corner tet (h^3 / 6); 16,384
+# voxels of 13 mm (4,800 tets on three 5 cm boxes) span 213 m
+MAX_AXIS_VOXELS = 16_384
 
 
 @dataclass(frozen=True)
@@ -263,47 +276,102 @@ def _inside(meshes: list, points: np.ndarray) -> np.ndarray:
     return out
 
 
-def _voxels(parts: list[CoverPart], trees: list, lo: np.ndarray, hi: np.ndarray, h: float, thickness: float):
-    """(mask (nx, ny, nz), part index per voxel (-1 outside), (nx, ny, nz)) at spacing ``h``."""
-    centres, n = voxel_centres(lo, hi, h)
+def _lattice(lo: np.ndarray, hi: np.ndarray, h: float, parts: list[CoverPart], thickness: float, target_tets: int
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(n (3,) voxels of the lattice of spacing ``h`` from ``lo`` over [lo, hi] per axis, the boxes (p, 2, 3) of the
+    voxels within reach of each part: [i0, i1)), or UrdfRefused ('cover_too_large') in one line when an axis would
+    pass MAX_AXIS_VOXELS or the boxes together MAX_VOXELS."""
     reach = max(thickness, SHELL * h)
-    best = np.full(centres.shape[0], np.inf)
-    label = np.full(centres.shape[0], -1, dtype=np.int64)
-    grid = np.arange(centres.shape[0]).reshape(n)
+    span = hi - lo
+    axes = np.ceil(span / h - 1e-9)
+    ext = " x ".join(f"{v:.3g}" for v in span)
+    way = (f"lower body.target_tets (now {target_tets:,}) for larger voxels, or check the URDF's link shapes and "
+           "joint origins")
+    if axes.max() > MAX_AXIS_VOXELS:
+        raise UrdfRefused("cover_too_large", f"a robot cover over links spanning {ext} m would need {axes.max():.3g} "
+                          f"voxels of {h * 1e3:.3g} mm along an axis, past the limit of {MAX_AXIS_VOXELS:,} "
+                          f"(robot_cover.MAX_AXIS_VOXELS); refused; {way}")
+    n = np.maximum(axes.astype(np.int64), 1)
+    box = np.array([[np.floor((p.lo - reach - lo) / h), np.ceil((p.hi + reach - lo) / h)] for p in parts])
+    box = np.clip(box, 0, n).astype(np.int64)
+    each = np.prod(np.maximum(box[:, 1] - box[:, 0], 0), axis=1)
+    if each.sum() > MAX_VOXELS:
+        big = int(np.argmax(each))
+        size = " x ".join(f"{v:.3g}" for v in parts[big].hi - parts[big].lo)
+        raise UrdfRefused("cover_too_large", f"a robot cover over links spanning {ext} m would look at {each.sum():,} "
+                          f"voxels of {h * 1e3:.3g} mm around its {len(parts)} shaped links ({each[big]:,} around link "
+                          f"{parts[big].link!r}, {size} m), past the limit of {MAX_VOXELS:,} (robot_cover.MAX_VOXELS); "
+                          f"refused; {way}")
+    return n, box[:, 0], box[:, 1]
+
+
+def _voxels(parts: list[CoverPart], trees: list, lo: np.ndarray, n: np.ndarray, i0: np.ndarray, i1: np.ndarray,
+            h: float, thickness: float) -> tuple[np.ndarray, np.ndarray]:
+    """(keys (m,) sorted, part (m,)): the solid voxels of the lattice (n voxels per axis from ``lo``, spacing ``h``),
+    only those of each part's box [i0, i1) looked at, each with the part it belongs to. A voxel's key is
+    ``_key`` of its (i, j, k)."""
+    reach = max(thickness, SHELL * h)
+    keys, scores, owner = [], [], []
     for k, p in enumerate(parts):
-        i0 = np.clip(np.floor((p.lo - reach - lo) / h).astype(int), 0, np.array(n))
-        i1 = np.clip(np.ceil((p.hi + reach - lo) / h).astype(int), 0, np.array(n))
-        if (i1 <= i0).any():
+        a, b = i0[k], i1[k]
+        if (b <= a).any():
             continue
-        sub = grid[i0[0]:i1[0], i0[1]:i1[1], i0[2]:i1[2]]
-        d, _ = trees[k].query(centres[sub.ravel()])
-        d = d.reshape(sub.shape)
+        axes = [np.arange(a[x], b[x]) for x in range(3)]
+        centres = np.stack(np.meshgrid(*[lo[x] + (axes[x] + 0.5) * h for x in range(3)], indexing="ij"), -1)
+        # a distance past the reach only ever counts as 'past the reach' (inf): bounding the search keeps a voxel
+        # far from every sample (inside a large box) as cheap as one near them
+        d, _ = trees[k].query(centres.reshape(-1, 3), distance_upper_bound=1.001 * reach)
+        d = d.reshape(centres.shape[:3])
+        del centres
         solid = ndimage.binary_fill_holes(d <= reach)
         # inside a link (filled, beyond the shell) ranks before any distance; else the nearest surface wins
         score = np.where(solid & (d > reach), -1.0, d)
-        idx = sub[solid]
-        s = score[solid]
-        better = s < best[idx]
-        best[idx[better]], label[idx[better]] = s[better], k
-    return label.reshape(n) >= 0, label.reshape(n), n
+        ijk = np.nonzero(solid)
+        keys.append(_key(n, *(axes[x][ijk[x]] for x in range(3))))
+        scores.append(score[solid])
+        owner.append(np.full(len(keys[-1]), k, dtype=np.int64))
+    if not keys:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    keys, scores, owner = np.concatenate(keys), np.concatenate(scores), np.concatenate(owner)
+    # of the parts claiming a voxel, the lowest score wins; of equal scores, the first part
+    order = np.lexsort((owner, scores, keys))
+    keys, owner = keys[order], owner[order]
+    first = np.ones(len(keys), dtype=bool)
+    first[1:] = keys[1:] != keys[:-1]
+    return keys[first], owner[first]
 
 
-def _separate(mask: np.ndarray, label: np.ndarray, body_of: np.ndarray) -> np.ndarray:
-    """``mask`` without the voxels that share a corner with a voxel of another rigid body: of each such pair the
-    voxel of the body with more voxels goes (of equal ones, the body with the higher index)."""
-    body = np.where(mask, body_of[np.maximum(label, 0)], -1)
-    size = np.bincount(body[mask], minlength=body_of.max() + 1)
-    drop = np.zeros_like(mask)
-    n = mask.shape
+def _key(n: np.ndarray, i, j, k):
+    """The lattice key of voxel (i, j, k) of a lattice of n voxels per axis: its index in the lattice padded by one
+    voxel on every side, so keys sort as (i, j, k) do and the key of the neighbour (i + a, j + b, k + c) is the key
+    plus (a (n[1] + 2) + b) (n[2] + 2) + c, never wrapping past an edge."""
+    return ((np.asarray(i, dtype=np.int64) + 1) * (n[1] + 2) + (np.asarray(j) + 1)) * (n[2] + 2) + (np.asarray(k) + 1)
+
+
+def _cells(n: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """(m, 3) voxel (i, j, k) of each key."""
+    k = keys % (n[2] + 2) - 1
+    j = keys // (n[2] + 2) % (n[1] + 2) - 1
+    return np.stack([keys // ((n[1] + 2) * (n[2] + 2)) - 1, j, k], axis=1)
+
+
+def _separate(n: np.ndarray, keys: np.ndarray, label: np.ndarray, body_of: np.ndarray) -> np.ndarray:
+    """(m,) bool: the voxels ``keys`` kept, without those sharing a corner with a voxel of another rigid body: of each
+    such pair the voxel of the body with more voxels goes (of equal ones, the body with the higher index)."""
+    body = body_of[label]
+    size = np.bincount(body, minlength=body_of.max() + 1)
+    drop = np.zeros(len(keys), dtype=bool)
     for off in [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1) if (i, j, k) > (0, 0, 0)]:
-        a = tuple(slice(max(-o, 0), n[ax] - max(o, 0)) for ax, o in enumerate(off))
-        b = tuple(slice(max(o, 0), n[ax] - max(-o, 0)) for ax, o in enumerate(off))
+        shifted = keys + (off[0] * (n[1] + 2) + off[1]) * (n[2] + 2) + off[2]
+        at = np.minimum(np.searchsorted(keys, shifted), len(keys) - 1)
+        a = np.flatnonzero(keys[at] == shifted)                   # voxel a and its neighbour b at a + off
+        b = at[a]
         ba, bb = body[a], body[b]
-        clash = mask[a] & mask[b] & (ba != bb)
-        sa, sb = size[np.maximum(ba, 0)], size[np.maximum(bb, 0)]
-        drop[a] |= clash & ((sa > sb) | ((sa == sb) & (ba > bb)))
-        drop[b] |= clash & ((sb > sa) | ((sa == sb) & (bb > ba)))
-    return mask & ~drop
+        clash = ba != bb
+        sa, sb = size[ba], size[bb]
+        drop[a[clash & ((sa > sb) | ((sa == sb) & (ba > bb)))]] = True
+        drop[b[clash & ((sb > sa) | ((sa == sb) & (bb > ba)))]] = True
+    return ~drop
 
 
 def robot_cover(xml: str, skeleton, thickness: float = 0.02, target_tets: int = 4800, source: str = "collision",
@@ -311,7 +379,8 @@ def robot_cover(xml: str, skeleton, thickness: float = 0.02, target_tets: int = 
                 max_triangles: int = MAX_TRIANGLES) -> RobotCover:
     """The cover of the module docstring around ``skeleton`` (built from the prepared URDF ``xml``) at rest; a rigid
     body without any shape gets capsules of ``bare_radius`` [m] around its bones' segments (bone_capsules). Shapes
-    of more than ``max_triangles`` triangles in all are refused (link_geometry)."""
+    of more than ``max_triangles`` triangles in all are refused (link_geometry), and so is a cover that would look at
+    more than MAX_VOXELS voxels, or MAX_AXIS_VOXELS along an axis (_lattice)."""
     if not (np.isfinite(thickness) and thickness > 0):
         raise ValueError(f"cover thickness = {thickness!r}: give a positive length in metres")
     if not (isinstance(target_tets, (int, np.integer)) and target_tets >= 50):
@@ -338,13 +407,19 @@ def robot_cover(xml: str, skeleton, thickness: float = 0.02, target_tets: int = 
     hi = np.max([p.hi for p in parts], axis=0) + thickness + 1e-3
     # volume of the solids at a coarse spacing -> first guess of h (5 tets per voxel), then a few secant steps on
     # log(count) against log(h): count ~ h^-3 for a volume, ~ h^-2 for a skin, the slope is measured
-    h = float(np.min(hi - lo)) / 12.0
+    # the first guess is at most 8 times the spacing ``fill`` at which the links' boxes, filled, would hold the tets
+    # asked for: links far apart make the whole box's guess (its smallest side / 12) too coarse for the secant steps
+    # to recover from (one voxel per link); example-robot-data's robots start at most 4.7 fill (solo8, 400,000 tets)
+    boxes = float(np.sum([np.prod(p.hi - p.lo + 2.0 * thickness) for p in parts]))
+    fill = (boxes / (target_tets / 5.0)) ** (1.0 / 3.0)
+    h = min(float(np.min(hi - lo)) / 12.0, 8.0 * fill)
     tried: list[tuple[float, int, tuple]] = []
     for _ in range(iterations):
-        mask, label, n = _voxels(parts, trees, lo, hi, h, thickness)
-        kept = _separate(mask, label, body_of)
+        n, i0, i1 = _lattice(lo, hi, h, parts, thickness, target_tets)
+        keys, label = _voxels(parts, trees, lo, n, i0, i1, h, thickness)
+        kept = _separate(n, keys, label, body_of) if len(keys) else np.zeros(0, dtype=bool)
         count = 5 * int(kept.sum())
-        tried.append((h, count, (kept, label)))
+        tried.append((h, count, (n, keys, label, kept)))
         if count and abs(count - target_tets) <= 0.1 * target_tets:
             break
         if len(tried) >= 2 and tried[-1][1] > 0 and tried[-2][1] > 0 and tried[-1][1] != tried[-2][1]:
@@ -353,12 +428,12 @@ def robot_cover(xml: str, skeleton, thickness: float = 0.02, target_tets: int = 
         else:
             slope = -3.0
         h *= float(np.clip((target_tets / max(count, 1)) ** (1.0 / slope), 0.5, 2.0))
-    h, count, (kept, label) = min(tried, key=lambda x: abs(x[1] - target_tets) if x[1] else np.inf)
-    mesh = grid_mesh(kept, lo, np.full(3, h))
+    h, count, (n, keys, label, kept) = min(tried, key=lambda x: abs(x[1] - target_tets) if x[1] else np.inf)
+    mesh = cells_mesh(_cells(n, keys[kept]), lo, np.full(3, h))
     # each tet's voxel -> its part; a vertex takes the part of its tets (parts of one vertex share a rigid body)
     centroid = mesh.vertices[mesh.tets].mean(axis=1)
-    ijk = np.floor((centroid - lo) / h).astype(int)
-    tet_part = label[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    ijk = np.floor((centroid - lo) / h).astype(np.int64)
+    tet_part = label[np.searchsorted(keys, _key(n, ijk[:, 0], ijk[:, 1], ijk[:, 2]))]
     vpart = np.empty(mesh.n_vertices, dtype=np.int64)
     vpart[mesh.tets.ravel()] = np.repeat(tet_part, 4)
     bone = np.array([p.bone for p in parts])[vpart]

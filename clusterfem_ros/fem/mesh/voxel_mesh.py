@@ -10,7 +10,7 @@ from typing import Callable
 
 import numpy as np
 
-from .tet_mesh import MeshError, TetMesh, orient, remove_unreferenced
+from .tet_mesh import MeshError, TetMesh, orient
 
 # Cube corners numbered by bits (x + 2y + 4z).
 _CORNER = np.array([[(c >> 0) & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)])
@@ -32,22 +32,33 @@ def grid_mesh(mask: np.ndarray, lo: np.ndarray, spacing: np.ndarray) -> TetMesh:
     mask = np.asarray(mask, dtype=bool)
     if mask.ndim != 3:
         raise MeshError(f"voxel mask must be 3-D, got shape {mask.shape}")
-    if not mask.any():
+    return cells_mesh(np.argwhere(mask), lo, spacing)
+
+
+def cells_mesh(cells: np.ndarray, lo: np.ndarray, spacing: np.ndarray) -> TetMesh:
+    """Tet mesh of the voxels ``cells`` (m, 3) integer (i, j, k) >= 0, in lexicographic order (as ``np.argwhere``
+    gives them): voxel (i, j, k) spans lo + [i, i+1] * spacing. Its cost follows the cells, not the grid they lie
+    in; for the cells of a mask it is ``grid_mesh``'s mesh, vertex for vertex."""
+    ijk = np.asarray(cells)
+    if ijk.ndim != 2 or ijk.shape[1] != 3:
+        raise MeshError(f"voxel cells must be (m, 3) integer indices, got shape {ijk.shape}")
+    if len(ijk) == 0:
         raise MeshError("no voxel is inside the shape: make the spacing smaller or the shape larger")
+    ijk = ijk.astype(np.int64)
+    if ijk.min() < 0:
+        raise MeshError(f"voxel cells must have indices >= 0, got {ijk.min(axis=0)}: shift lo instead")
     spacing = np.broadcast_to(np.asarray(spacing, dtype=np.float64), (3,))
-    nx, ny, nz = mask.shape
-    ijk = np.argwhere(mask)
-    vid = lambda p: (p[..., 0] * (ny + 1) + p[..., 1]) * (nz + 1) + p[..., 2]  # noqa: E731
+    size = ijk.max(axis=0) + 2                                                 # corners per axis
+    vid = lambda p: (p[..., 0] * size[1] + p[..., 1]) * size[2] + p[..., 2]  # noqa: E731
     tets = []
     for parity in (0, 1):
-        cells = ijk[ijk.sum(axis=1) % 2 == parity]
-        corners = cells[:, None, :] + _CORNER[None, :, :]                   # (c, 8, 3)
-        ids = vid(corners)                                                   # (c, 8)
-        tets.append(ids[:, _SPLIT[parity]].reshape(-1, 4))
-    tets = np.concatenate(tets)
-    g = np.stack(np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), np.arange(nz + 1), indexing="ij"), -1)
-    vertices = np.asarray(lo, dtype=np.float64) + g.reshape(-1, 3) * spacing
-    return orient(remove_unreferenced(TetMesh(vertices, tets))).validate()
+        cell = ijk[ijk.sum(axis=1) % 2 == parity]
+        corners = cell[:, None, :] + _CORNER[None, :, :]                    # (c, 8, 3)
+        tets.append(vid(corners)[:, _SPLIT[parity]].reshape(-1, 4))
+    used, tets = np.unique(np.concatenate(tets), return_inverse=True)      # vertices in lexicographic order
+    corner = np.stack([used // (size[1] * size[2]), used // size[2] % size[1], used % size[2]], axis=1)
+    vertices = np.asarray(lo, dtype=np.float64) + corner * spacing
+    return orient(TetMesh(vertices, tets.reshape(-1, 4))).validate()
 
 
 def voxel_centres(lo, hi, spacing: float) -> tuple[np.ndarray, tuple[int, int, int]]:
