@@ -62,7 +62,6 @@ import math
 import numba
 import numpy as np
 
-from ..linear.assembly import shape_gradients
 from ..kernels.cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .corotational import deformation_gradients
 from .element_rotation import LANES
@@ -98,9 +97,8 @@ def _cofactor(F: np.ndarray) -> np.ndarray:
 
 def _gradients(model: FemModel, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(F (m, 3, 3), rest gradients (m, 4, 3), rest volumes (m,)) of displacement u."""
-    tets = model.mesh.tets
-    g, vol = shape_gradients(model.rest, tets)
-    return deformation_gradients(g, tets, u), g, vol
+    g, vol = model.rest_gradients                 # made once per model
+    return deformation_gradients(g, model.mesh.tets, u), g, vol
 
 
 def energy(model: FemModel, u: np.ndarray) -> float:
