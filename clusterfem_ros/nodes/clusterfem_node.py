@@ -153,8 +153,9 @@ class ClusterFemNode(Node):
         path = default_bag_path(c.recording.prefix, root=c.recording.dir)
         self.recorder = Rosbag2McapWriter(path, max_queue_bytes=int(c.recording.max_queue_mb * 1e6))
         # bags name topics fully qualified, as rosbag2 does (namespace and remapping applied)
-        self._bag_topics = {t.name: self.resolve_topic_name(t.name) for t in self._served_topics()}
-        for t in self._served_topics():
+        served = self._served_topics()
+        self._bag_topics = {t.name: self.resolve_topic_name(t.name) for t in served}
+        for t in served:
             self.recorder.add_topic(self._bag_topics[t.name], t.type, qos=t.qos)
         self.recording_path = path
         from ..config import scene_file_text
@@ -166,8 +167,9 @@ class ClusterFemNode(Node):
         from .live_view import LiveView
         out = self.config.output
         self.live = LiveView(out.live_host, out.live_port, name=self.get_fully_qualified_name())
-        self._live_topics = {t.name: self.resolve_topic_name(t.name) for t in self._served_topics()}
-        for t in self._served_topics():
+        served = self._served_topics()
+        self._live_topics = {t.name: self.resolve_topic_name(t.name) for t in served}
+        for t in served:
             self.live.add_topic(self._live_topics[t.name], t.type)
         self.get_logger().info(f"live view on {self.live.url} (Foxglove: Open connection, Foxglove WebSocket; "
                                "layout config/foxglove_layout.json)")

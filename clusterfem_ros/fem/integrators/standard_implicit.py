@@ -41,7 +41,7 @@ sub-step). StepInfo.substeps reports the count. With the vertex model, near inco
 set-up (the element model ran nu = 0.499 bounded on the stability table, so it is not refused): with
 nu = 0.499 the warped implicit step diverged at every step tried (h / 64 with up to 64 sub-steps
 included), as the held rotations miss the dR/dx coupling through the volumetric stiffness, which grows
-as 1 / (1 - 2 nu); nu <= WARP_MAX_NU = 0.49 stayed bounded.
+as 1 / (1 - 2 nu); nu <= 0.49 (fem/materials/registry.VERTEX_IMPLICIT_MAX_NU) stayed bounded.
 """
 from __future__ import annotations
 
@@ -52,10 +52,8 @@ import scipy.sparse.linalg as spla
 from ..model import Control, FemModel, State
 from .spd_factor import factorize_spd
 from ..stability import StabilityError
-from ..materials.registry import VERTEX_IMPLICIT_MAX_NU, material_model
+from ..materials.registry import material_model
 from .base import StepCommon, StepInfo
-
-WARP_MAX_NU = VERTEX_IMPLICIT_MAX_NU      # the per-vertex model's (its StandardParts.implicit_max_nu)
 
 
 class StandardImplicit:
