@@ -58,6 +58,10 @@ def test_marker_stress_and_diagnostics_arrive_and_are_finite(world):
                 "inputs_rejected"):
         assert key in values
     assert values["steps"] > 0
+    # the mesh's shape quality measured at set-up travels with every diagnostic
+    quality = node.scene.model.quality
+    assert values["tet_quality_worst"] == pytest.approx(quality.worst, rel=1e-6) and 0 < quality.worst <= 1
+    assert values["tet_slivers"] == quality.slivers
 
 
 def test_the_colour_table_is_made_before_the_first_marker_and_on_a_colour_map_change(world, monkeypatch):
