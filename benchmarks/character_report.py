@@ -4,11 +4,13 @@
         [--scene config/character_walk.yaml] [--bvh ../shared/data/mocap/cmu_06_01_walk.bvh] [--skip-walk] [--late S]
 
 Part 1, per tet count: the time from the surface file to a ready Scene (tetrahedralize, fit, check,
-bind, assemble, load kernels), cold (an empty cache folder) and cached (the same folder again), with the
+bind, assemble, load kernels), cold (an empty cache folder; wall and this process's CPU time, the one a loaded
+host does not inflate) and cached (the same folder again), with the
 tet count, its error from the request, the minimum dihedral angle and radius ratio.
 Part 2, at the scene's body.target_tets: the scene driven by the BVH's trajectory (the skeleton the
 player latches on robot_description, bvh_urdf) for --duration seconds of simulated time, and the voxel
-jelly man on the same skeleton at the same tet count: steps/s (wall, JIT excluded), the worst relative
+jelly man on the same skeleton at the same tet count, the two fed each input in turn (interleaved, so a host's
+changing load falls on both): steps/s (wall, JIT excluded) and their ratio, the worst relative
 volume error, the innermost level's worst tracking error, the worst distance of a surface vertex to its bone,
 the divergence resets and the sampled states the node's output checks would withhold.
 Timings depend on the machine and its load: re-measure on a quiet one.
@@ -54,35 +56,44 @@ def drive(scene: Scene, traj, duration: float, rate_hz: float = 120.0, late: flo
     runs ahead of each sample by a random 0..``late`` s (seeded), as in a node whose executor is starved of CPU,
     stepping up to Scene.wall_target as the node does (the scene's physics.input_wait: how long it waits for late
     samples)."""
+    return drive_all([scene], traj, duration, rate_hz, late, seed)[0]
+
+
+def drive_all(scenes: list[Scene], traj, duration: float, rate_hz: float = 120.0, late: float = 0.0,
+              seed: int = 0) -> list[dict]:
+    """``drive`` for several scenes interleaved: each input goes to every scene in turn, so a host's changing load
+    falls on all of them alike (their steps/s compare; each scene's ``late`` draws are its own, same seed)."""
     from clusterfem_ros.fem.stability import DivergenceError
     names = traj.names
-    rng = np.random.default_rng(seed)
-    worst_volume, worst_track, worst_bone, resets, withheld = 0.0, 0.0, 0.0, 0, 0
-    wall0, steps0 = scene.step_wall_s, scene.steps_done
+    rngs = [np.random.default_rng(seed) for _ in scenes]
+    acc = [{"volume_error": 0.0, "tracking_m": 0.0, "bone_distance_m": 0.0, "resets": 0, "withheld": 0,
+            "wall0": scene.step_wall_s, "steps0": scene.steps_done} for scene in scenes]
     for k in range(int(duration * rate_hz) + 1):
         t = k / rate_hz
         q, v = traj.sample(t, loop=True)
-        scene.push_joint_state(t, names, q, v)
-        try:
-            if late <= 0 or scene.sim_time is None:
-                scene.follow_inputs()
-            else:
-                scene.advance_to(scene.wall_target(t + late * rng.random()), max_steps=250)
-        except DivergenceError:
-            resets += 1
-            scene.reset()
-        if scene.sim_time is not None and k % 12 == 0:
-            if scene.output_problem() is not None:      # what the node would withhold from its topics and bag
-                withheld += 1
-                continue
-            worst_volume = max(worst_volume, abs(scene.volume_error()))
-            worst_track = max(worst_track, innermost_tracking_error(scene))
-            worst_bone = max(worst_bone, float(scene.bone_distance()[0].max()))
-    steps = scene.steps_done - steps0
-    return {"steps": steps, "steps_per_s": steps / max(scene.step_wall_s - wall0, 1e-12),
-            "volume_error": worst_volume, "tracking_m": worst_track, "bone_distance_m": worst_bone, "resets": resets,
-            "withheld": withheld,
-            "finite": bool(np.isfinite(scene.positions()).all())}
+        for scene, a, rng in zip(scenes, acc, rngs):
+            scene.push_joint_state(t, names, q, v)
+            try:
+                if late <= 0 or scene.sim_time is None:
+                    scene.follow_inputs()
+                else:
+                    scene.advance_to(scene.wall_target(t + late * rng.random()), max_steps=250)
+            except DivergenceError:
+                a["resets"] += 1
+                scene.reset()
+            if scene.sim_time is not None and k % 12 == 0:
+                if scene.output_problem() is not None:      # what the node would withhold from its topics and bag
+                    a["withheld"] += 1
+                    continue
+                a["volume_error"] = max(a["volume_error"], abs(scene.volume_error()))
+                a["tracking_m"] = max(a["tracking_m"], innermost_tracking_error(scene))
+                a["bone_distance_m"] = max(a["bone_distance_m"], float(scene.bone_distance()[0].max()))
+    out = []
+    for scene, a in zip(scenes, acc):
+        steps = scene.steps_done - a.pop("steps0")
+        a["steps_per_s"] = steps / max(scene.step_wall_s - a.pop("wall0"), 1e-12)
+        out.append({"steps": steps, **a, "finite": bool(np.isfinite(scene.positions()).all())})
+    return out
 
 
 def ready_times(config, urdf: str, counts: list[int]) -> list[list]:
@@ -94,9 +105,9 @@ def ready_times(config, urdf: str, counts: list[int]) -> list[list]:
             os.environ["CLUSTERFEM_CACHE"] = cache
             try:
                 c = config.with_values({"body.target_tets": n})
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 scene = Scene.build(c, urdf_xml=urdf)
-                cold = time.perf_counter() - t0
+                cold, cold_cpu = time.perf_counter() - t0, time.process_time() - c0
                 t0 = time.perf_counter()
                 Scene.build(c, urdf_xml=urdf)
                 warm = time.perf_counter() - t0
@@ -107,7 +118,8 @@ def ready_times(config, urdf: str, counts: list[int]) -> list[list]:
                     os.environ["CLUSTERFEM_CACHE"] = old
         tets = scene.surface_body.tets
         rows.append([n, scene.model.mesh.n_tets, f"{scene.model.mesh.n_tets / n - 1:+.1%}", tets.attempts,
-                     f"{tets.min_dihedral_deg:.1f}", f"{tets.min_radius_ratio:.3f}", f"{cold:.1f}", f"{warm:.1f}"])
+                     f"{tets.min_dihedral_deg:.1f}", f"{tets.min_radius_ratio:.3f}", f"{cold:.1f}", f"{cold_cpu:.1f}",
+                     f"{warm:.1f}"])
     return rows
 
 
@@ -127,16 +139,17 @@ def main(argv=None) -> None:
     if a.tets:
         print("surface -> ready scene (tetrahedralize, fit, bind, assemble, kernels), cold and cached cache:")
         print(table(["target", "tets", "off", "mesher runs", "min dihedral [deg]", "min radius ratio", "cold [s]",
-                     "cached [s]"], ready_times(config, urdf, a.tets)))
+                     "cold CPU [s]", "cached [s]"], ready_times(config, urdf, a.tets)))
     if a.skip_walk:
         return
     n = config.body.target_tets
+    bodies = (("character (surface)", config),
+              ("voxel jelly man", config.with_values({"body.kind": "jelly_man", "binding.relative_levels": False,
+                                                      "binding.level_radii": [0.035, 0.06]})))
+    scenes = [Scene.build(c, urdf_xml=urdf) for _, c in bodies]
+    results = drive_all(scenes, traj, a.duration, late=a.late)
     rows = []
-    for name, c in (("character (surface)", config),
-                    ("voxel jelly man", config.with_values({"body.kind": "jelly_man", "binding.relative_levels": False,
-                                                            "binding.level_radii": [0.035, 0.06]}))):
-        scene = Scene.build(c, urdf_xml=urdf)
-        r = drive(scene, traj, a.duration, late=a.late)
+    for (name, _), scene, r in zip(bodies, scenes, results):
         rows.append([name, scene.model.mesh.n_tets, f"{r['steps_per_s']:.0f}", f"{r['volume_error']:.2%}",
                      f"{r['tracking_m'] * 1000:.1f}", f"{r['bone_distance_m']:.3f}", r["resets"], r["withheld"],
                      r["finite"]])
@@ -147,11 +160,13 @@ def main(argv=None) -> None:
                                title=f"MakeHuman body on the CMU walk after {a.duration:g} s "
                                      f"({scene.model.mesh.n_tets} tets)")
             print(f"picture: {a.png}")
+    ratio = results[0]["steps_per_s"] / results[1]["steps_per_s"]
     print(f"the walk ({a.bvh.name}, {a.duration:g} s simulated, method {config['method']}, warping "
           f"{config['warping']}, step {config['physics.step']:g} s"
           + (f", inputs up to {a.late:g} s late" if a.late > 0 else "") + "):")
     print(table(["body", "tets", "steps/s", "worst |V/V0-1|", "worst level-0 tracking [mm]",
                  "worst skin to bone [m]", "resets", "withheld", "finite"], rows))
+    print(f"the character runs {ratio:.2f} of the jelly man's steps/s (the two driven interleaved, input by input)")
 
 
 if __name__ == "__main__":

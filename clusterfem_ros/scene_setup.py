@@ -21,6 +21,7 @@ from .body.surface_body import SurfaceBody, unbound_islands
 from .config import SceneConfig
 from .fem.integrators import make_integrator
 from .fem.integrators.base import Integrator
+from .fem.mass_scaling import scale_mass
 from .fem.model import Attachments, Control, FemModel, State, build_model
 from .fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from .numba_cache import is_cached
@@ -62,6 +63,7 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     model = build_model(mesh, material_of(config), fixed=parts.fixed,
                         gravity=(0.0, 0.0, float(config.physics.gravity)), min_quality=config.body.min_tet_quality)
     say(progress, model.quality.summary())
+    model = scaled_mass(config, model, skeleton is not None, progress)
     method, options = integrator_choice(config)
     say(progress, f"setting up method '{method}'"
                   f"{' with ' + config.warping_model + ' warping' if options.get('warp') else ''}")
@@ -85,6 +87,23 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
                         anchors=anchors, anchored=anchored, binding=binding, driver=driver, joints=joints,
                         stream=stream, triangles=triangles, surface_vertices=surface_vertices,
                         surface_triangles=surface_triangles, rest_volume=float(mesh.volumes().sum()))
+
+
+def scaled_mass(config: SceneConfig, model: FemModel, driven: bool,
+                progress: Callable[[str], None] | None = None) -> FemModel:
+    """``model`` with the mass physics.mass_scaling allows added for one explicit sub-step a step (fem/mass_scaling.py),
+    planned with the stiffest gains the skeleton (``driven``) or the anchors will attach; unchanged when off or for an
+    implicit or modal method."""
+    p = config.physics
+    if p.mass_scaling <= 0.0 or config.method not in ("clustered", "standard_explicit"):
+        return model
+    gains = [(max(config.binding.kp), max(config.binding.kd))] if driven else []
+    if config.anchors.points:
+        gains.append((config.anchors.kp, config.anchors.kd))
+    kp, kd = (max(g[0] for g in gains), max(g[1] for g in gains)) if gains else (0.0, 0.0)
+    model, done = scale_mass(model, p.step / p.safety, p.mass_scaling, kp, kd)
+    say(progress, done.summary())
+    return model
 
 
 def boundary_surface(mesh: TetMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -197,3 +197,23 @@ def test_body_kinds_are_registered_and_a_new_kind_builds_a_scene_by_being_regist
             scene_build.register_body_kind(kind)
     finally:
         scene_build.BODY_KINDS.unregister("slid_cube")
+
+
+def test_mass_scaling_is_set_up_for_one_sub_step_within_its_share_and_says_what_it_added():
+    """physics.mass_scaling > 0: the model carries the added mass, within the share, and the integrator plans with
+    it (a longer critical step, one log line with the count and the share); 0: nothing added, nothing said."""
+    base = dict(skeleton__source="none", body__kind="cube", warping=False)
+    plain = set_up(scene_parts(SceneConfig().with_values(**base)))
+    h0 = plain.integrator.critical_step()
+    assert plain.model.added_mass is None
+    said = []
+    step = 2.0 * h0            # safety 0.8: 3 sub-steps unscaled; the goal is one
+    running = set_up(scene_parts(SceneConfig().with_values(**base, physics__step=step, physics__mass_scaling=0.02)),
+                     said.append)
+    added = running.model.added_mass
+    share = float(added.sum() / plain.model.mass.sum())
+    assert 0.0 < share <= 0.02 + 1e-9
+    np.testing.assert_allclose(running.model.mass - added, plain.model.mass)
+    assert running.integrator.critical_step() > h0
+    line = [s for s in said if s.startswith("mass scaling")]
+    assert len(line) == 1 and f"{int((added > 0).sum())} vertices" in line[0] and f"{share:.2%}" in line[0]

@@ -28,6 +28,8 @@ class FemModel:
     fixed: np.ndarray           # (n,) bool: Dirichlet vertices held at zero displacement
     gravity: np.ndarray         # (3,) [m/s^2]
     quality: MeshQuality | None = None      # the tets' shape quality, measured by build_model (fem/mesh/tet_quality.py)
+    added_mass: np.ndarray | None = None    # (n,) [kg] the part of ``mass`` mass scaling added (fem/mass_scaling.py):
+                                            # inertia only, gravity pulls on the material's mass
 
     @property
     def n_vertices(self) -> int:
@@ -48,7 +50,9 @@ class FemModel:
         return np.flatnonzero(np.repeat(~self.fixed, 3))
 
     def gravity_force(self) -> np.ndarray:
-        return self.mass[:, None] * self.gravity[None, :]
+        """The weight of the material's mass (n, 3) [N] (mass scaling's added inertia weighs nothing)."""
+        mass = self.mass if self.added_mass is None else self.mass - self.added_mass
+        return mass[:, None] * self.gravity[None, :]
 
     def damping_matrix(self) -> sp.csr_matrix:
         """D = xi M + zeta K, assembled (for the standard methods; the clustered one never forms it)."""

@@ -73,7 +73,7 @@ def read_surface(path: str | Path, group: str = "") -> tuple[np.ndarray, np.ndar
                                    "OBJ file: leave body.surface_group empty")
             from trimesh.exchange.obj import load_obj
             with open(path, "rb") as f:
-                parts = load_obj(f, split_groups=True, group_material=False, maintain_order=True,
+                parts = load_obj(f, split_groups=True, group_material=False, maintain_order=False,
                                  skip_materials=True)["geometry"]
             if group not in parts:
                 raise SurfaceError(f"{str(path)!r} has no group {group!r}; its groups are "
