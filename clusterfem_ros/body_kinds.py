@@ -44,18 +44,3 @@ for _d in (BodyDeclaration("jelly_man", f"{_BUILD}:build_jelly_man", needs_skele
 BODY_DECLARATIONS.seal()
 BODIES = BODY_DECLARATIONS.names()          # what a scene may choose (a live view)
 
-
-def check_body_choice(out: dict) -> str | None:
-    """Why the flat scene mapping ``out`` cannot build its body.kind (its file missing, a skeleton it needs, relative
-    binding levels it cannot give), or None."""
-    kind = out["body.kind"]
-    d = BODY_DECLARATIONS[kind]
-    if d.file_param and not out[d.file_param]:
-        return f"body.kind = {kind!r} needs {d.file_param}: {d.file_what or 'the path of its file'}"
-    if d.needs_skeleton and out["skeleton.source"] == "none":
-        return f"body.kind = {kind!r} is built around a skeleton: set skeleton.source"
-    if out["binding.relative_levels"] and not d.flesh_depth:
-        return (f"binding.relative_levels is true but body.kind = {kind!r}: relative levels need a surface body, one that "
-                "knows its flesh depth (body.kind " + ", ".join(repr(n) for n, b in BODY_DECLARATIONS.items()
-                                                          if b.flesh_depth) + "); give level_radii in metres instead")
-    return None

@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from .body_kinds import BODIES, BODY_DECLARATIONS, check_body_choice
+from .body_kinds import BODIES, BODY_DECLARATIONS
 from .errors import ClusterFemError
 from .fem.linear.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSON_RATIO,
                                   DEFAULT_STIFFNESS_DAMPING, DEFAULT_YOUNG_MODULUS)
@@ -596,6 +596,22 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
                           "different axes")
     check_material_choice(out)
     return SceneConfig(out)
+
+
+def check_body_choice(out: dict[str, Any]) -> str | None:
+    """Why the flat scene mapping ``out`` cannot build its body.kind (its file missing, a skeleton it needs, relative
+    binding levels it cannot give), by its declaration (body_kinds.BodyDeclaration), or None."""
+    kind = out["body.kind"]
+    d = BODY_DECLARATIONS[kind]
+    if d.file_param and not out[d.file_param]:
+        return f"body.kind = {kind!r} needs {d.file_param}: {d.file_what or 'the path of its file'}"
+    if d.needs_skeleton and out["skeleton.source"] == "none":
+        return f"body.kind = {kind!r} is built around a skeleton: set skeleton.source"
+    if out["binding.relative_levels"] and not d.flesh_depth:
+        deep = ", ".join(repr(n) for n, b in BODY_DECLARATIONS.items() if b.flesh_depth)
+        return (f"binding.relative_levels is true but body.kind = {kind!r}: relative levels need a surface body, "
+                f"one that knows its flesh depth (body.kind {deep}); give level_radii in metres instead")
+    return None
 
 
 def check_material_choice(out: dict[str, Any]) -> None:
