@@ -230,7 +230,6 @@ def read_bag_frames(folder: str | Path) -> BagFrames:
         rate = f"{surface.rate_param} > 0" if surface is not None else "a stream declared to render as 'surface'"
         raise BagFramesError(f"bag {str(folder)!r} has no {shown} messages (topics: {sorted(recorded)}): "
                              f"record with {rate}")
-    topics_found = recorded
-    joints = read_joint_states(folder) if topic_in(topics_found, JOINT_TOPIC) else []
+    joints = read_joint_states(folder) if topic_in(recorded, JOINT_TOPIC) else []
     scene = scene_of(folder)
     return BagFrames(folder, surfaces, joints, _skeleton_urdf(scene, bag_urdf, folder), scene, stresses, streams)

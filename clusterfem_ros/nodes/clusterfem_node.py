@@ -191,7 +191,8 @@ class ClusterFemNode(Node):
 
     def _on_live_change(self, changes: dict) -> None:
         self.config = self.config.with_values(changes)
-        if any(k.endswith("rate_hz") or k == "output.colormap" for k in changes):
+        rates = {s.declaration.rate_param for s in output_streams().values()}
+        if any(k in rates or k == "output.colormap" for k in changes):
             self._make_output_timers()
 
     def stop_physics(self) -> None:
