@@ -1,5 +1,7 @@
 """A recorded bag's surfaces as numpy arrays, for drawing it without ROS: the surface Markers, the joint
-states and the URDF that poses the skeleton.
+states and the URDF that poses the skeleton, and every declared output stream with a decoder
+(topics.OUTPUT_DECLARATIONS), decoded by it; the renderer draws the streams declared to render as 'surface' and
+'stress'.
 
 The surface Markers are decoded straight from their CDR bytes (the layout ``msg_adapters.marker`` writes:
 TRIANGLE_LIST, one point and one RGBA per triangle corner) into arrays, because a message of ~9000 corners
@@ -18,10 +20,9 @@ import numpy as np
 from . import topics
 from .config import ConfigError, SceneConfig, load_scene_file
 from .errors import ClusterFemError
+from .registries import load_object
 from .recording.bag_reader import PARAMS_FILE, JointSample, read_joint_states, topic_in
 
-SURFACE_TOPIC = topics.SURFACE.recorded
-STRESS_TOPIC = topics.STRESS.recorded
 JOINT_TOPIC = topics.JOINT_STATES.recorded
 URDF_TOPIC = topics.ROBOT_DESCRIPTION.recorded
 
@@ -52,6 +53,7 @@ class BagFrames:
     urdf: str | None            # the skeleton's URDF, or None when neither the bag nor its scene gives one
     scene: SceneConfig          # scene_parameters.yaml, read as the node reads a scene file (defaults without one)
     stresses: list[StressFrame] = field(default_factory=list)   # the stress PointClouds, in recording order
+    streams: dict = field(default_factory=dict)     # {topic name: its decoded frames} of every declared stream
 
 
 class _Cdr:
@@ -187,11 +189,11 @@ def _skeleton_urdf(scene: SceneConfig, bag_urdf: str | None, folder: Path) -> st
         urdf = humanoid_urdf()
     if not urdf:
         return None
-    from .scene_build import body_kind
+    from .body_kinds import BODY_DECLARATIONS
     from .skeleton.link_shapes import prepare_urdf
     check_urdf(urdf, CEILING)               # a bag's description is the world's: a bounded tree first (urdf_check.py)
     return prepare_urdf(urdf, scene.skeleton.up_axis, scene.skeleton.root_joint,
-                        leaf_shapes=body_kind(scene.body.kind).leaf_shapes, urdf_file=where).urdf
+                        leaf_shapes=BODY_DECLARATIONS[scene.body.kind].leaf_shapes, urdf_file=where).urdf
 
 
 def read_bag_frames(folder: str | Path) -> BagFrames:
@@ -202,26 +204,32 @@ def read_bag_frames(folder: str | Path) -> BagFrames:
     folder = Path(folder)
     mcap_path = _mcap_file(folder)
     folder = mcap_path.parent
-    surfaces, stresses, bag_urdf, topics = [], [], None, set()
+    decoded = {name: d for name, d in topics.OUTPUT_DECLARATIONS.items() if d.decoder}
+    decoders = {name: load_object(d.decoder) for name, d in decoded.items()}
+    streams: dict[str, list] = {name: [] for name in decoded}
+    bag_urdf, recorded = None, set()
     with open(mcap_path, "rb") as fh:
         reader = make_reader(fh)
         summary = reader.get_summary()
         if summary is not None:
-            topics = {c.topic for c in summary.channels.values()}
+            recorded = {c.topic for c in summary.channels.values()}
         # a node in a namespace records its topics under it ('/body1/clusterfem/surface')
-        surface_topic = topic_in(topics, SURFACE_TOPIC) or SURFACE_TOPIC
-        urdf_topic = topic_in(topics, URDF_TOPIC) or URDF_TOPIC
-        stress_topic = topic_in(topics, STRESS_TOPIC) or STRESS_TOPIC
-        for _, channel, message in reader.iter_messages(topics=[surface_topic, urdf_topic, stress_topic]):
-            if channel.topic == surface_topic:
-                surfaces.append(decode_surface_marker(message.data))
-            elif channel.topic == stress_topic:
-                stresses.append(decode_stress_cloud(message.data))
+        names = {topic_in(recorded, d.topic.recorded) or d.topic.recorded: name for name, d in decoded.items()}
+        urdf_topic = topic_in(recorded, URDF_TOPIC) or URDF_TOPIC
+        for _, channel, message in reader.iter_messages(topics=[*names, urdf_topic]):
+            if channel.topic in names:
+                name = names[channel.topic]
+                streams[name].append(decoders[name](message.data))
             elif bag_urdf is None:
                 bag_urdf = _Cdr(message.data).string()
+    surface, stress = topics.rendered("surface"), topics.rendered("stress")
+    surfaces = streams.get(surface.topic.name, []) if surface is not None else []
+    stresses = streams.get(stress.topic.name, []) if stress is not None else []
     if not surfaces:
-        raise BagFramesError(f"bag {str(folder)!r} has no {SURFACE_TOPIC} Markers (topics: {sorted(topics)}): "
-                             "record with output.marker_rate_hz > 0")
-    joints = read_joint_states(folder) if topic_in(topics, JOINT_TOPIC) else []
+        shown = surface.topic.recorded if surface is not None else "surface"
+        rate = f"{surface.rate_param} > 0" if surface is not None else "a stream declared to render as 'surface'"
+        raise BagFramesError(f"bag {str(folder)!r} has no {shown} messages (topics: {sorted(recorded)}): "
+                             f"record with {rate}")
+    joints = read_joint_states(folder) if topic_in(recorded, JOINT_TOPIC) else []
     scene = scene_of(folder)
-    return BagFrames(folder, surfaces, joints, _skeleton_urdf(scene, bag_urdf, folder), scene, stresses)
+    return BagFrames(folder, surfaces, joints, _skeleton_urdf(scene, bag_urdf, folder), scene, stresses, streams)

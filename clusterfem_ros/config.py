@@ -16,21 +16,21 @@ from typing import Any
 
 import yaml
 
+from .body_kinds import BODIES, BODY_DECLARATIONS
 from .errors import ClusterFemError
 from .fem.linear.material import (DEFAULT_DENSITY, DEFAULT_MASS_DAMPING, DEFAULT_POISSON_RATIO,
                                   DEFAULT_STIFFNESS_DAMPING, DEFAULT_YOUNG_MODULUS)
-from .fem.materials.warping_models import (ACKNOWLEDGEMENT, AUTO, EXPLICIT_ONLY, WARPING_MODELS, auto_model,
-                                           explicit_only_refusal, stretch_plan_refusal, undamped_corotation_refusal,
-                                           unacknowledged_undamped, vertex_refusal)
+from .fem.materials.warping_models import (ACKNOWLEDGEMENT, AUTO, DECLARED, WARPING_MODELS, auto_model, declared,
+                                           explicit_only_refusal, stretch_plan_refusal, unbounded_refusal,
+                                           undamped_corotation_refusal, unacknowledged_undamped)
 from .skeleton.bvh_placement import AXES as BVH_AXES, parse_unit
 from .skeleton.mounting import ROOT_JOINTS, UP_AXES
-from .skeleton.robot_cover import MAX_TRIANGLES
 from .skeleton.urdf_check import (CEILING_BYTES, CEILING_DEPTH, CEILING_LINKS, CEILING_MESHES, DEFAULT_MAX_BYTES,
-                                  DEFAULT_MAX_DEPTH, DEFAULT_MAX_JOINTS, DEFAULT_MAX_LINKS, DEFAULT_MAX_MESHES)
+                                  DEFAULT_MAX_DEPTH, DEFAULT_MAX_JOINTS, DEFAULT_MAX_LINKS, DEFAULT_MAX_MESHES,
+                                  MAX_TRIANGLES)
 
 
 METHODS = ("clustered", "standard_explicit", "implicit_direct", "implicit_cg", "modal")
-BODIES = ("jelly_man", "sphere", "cube", "torus", "mesh", "surface", "robot_cover")
 SKELETONS = ("builtin", "urdf_file", "robot_description", "none")
 COLORMAPS = ("turbo", "viridis", "coolwarm")
 BVH_UP = ("auto",) + BVH_AXES     # a BVH file's up axis: found from its legs, or a signed file axis
@@ -50,7 +50,7 @@ class Param:
 
 
 PARAMS: tuple[Param, ...] = (
-    Param("body.kind", "jelly_man", "soft body: built around the skeleton (jelly_man: capsules around bones; robot_cover: the links' own shapes with a skin), a paper shape, or a mesh file", choices=BODIES),
+    Param("body.kind", "jelly_man", "soft body: built around the skeleton (jelly_man: capsules around bones; robot_cover: the links' own shapes with a skin), a paper shape, or a mesh file", choices=BODY_DECLARATIONS.names()),
     Param("body.mesh_file", "", "volume mesh (.msh/.vtu/.vtk/.mesh) when body.kind is 'mesh', in the skeleton's rest pose"),
     Param("body.target_tets", 4800, "approximate tet count of the jelly man, of a robot cover, or of a surface body (within 20 %)", 100, 400000),
     Param("body.surface_file", "", "triangle surface (.obj/.stl/.ply/.glb) of a character when body.kind is 'surface': a path, "
@@ -93,7 +93,7 @@ PARAMS: tuple[Param, ...] = (
           "inversion (method 'clustered' only; fem/materials/neohookean.py); 'element': per-element corotation, the "
           "gradient of an energy (cannot feed energy in while no element is inverted); 'vertex': the paper's "
           "per-vertex warping (eq. 10), for comparison: not bounded, refused unless physics.allow_unbounded_warping",
-          choices=(AUTO,) + WARPING_MODELS),
+          choices=DECLARED.names(AUTO)),
     Param("physics.step", 1.0e-3, "physics step h [s]", 1.0e-6, 0.1),
     Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this, and the state a batch ends on goes to the outputs when their last snapshot is 1 / this old", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
@@ -323,7 +323,7 @@ class BodySection:
     flesh: str                      # 'auto' (radii by bone role) or 'uniform' (body.bone_radius)
     cover_thickness: float          # [m]
     cover_shapes: str               # 'collision' or 'visual'
-    cover_max_triangles: int        # skeleton/robot_cover.MAX_TRIANGLES
+    cover_max_triangles: int        # skeleton/urdf_check.MAX_TRIANGLES
     scale: float
     fix_bottom: bool
     min_tet_quality: float          # fem/mesh/tet_quality.py
@@ -579,19 +579,12 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
     if any(bones) and out["skeleton.source"] == "none":
         raise ConfigError(f"anchors.bones = {bones} names bones, but skeleton.source is 'none': give '' (fixed in the "
                           "world) or choose a skeleton")
-    if out["body.kind"] == "mesh" and not out["body.mesh_file"]:
-        raise ConfigError("body.kind = 'mesh' needs body.mesh_file: the path of a volume mesh")
+    body_refusal = check_body_choice(out)
+    if body_refusal:
+        raise ConfigError(body_refusal)
     if out["skeleton.source"] == "urdf_file" and not out["skeleton.urdf_file"]:
         raise ConfigError("skeleton.source = 'urdf_file' needs skeleton.urdf_file: the path of a URDF")
-    if out["body.kind"] == "surface":
-        if not out["body.surface_file"]:
-            raise ConfigError("body.kind = 'surface' needs body.surface_file: the path of a triangle surface mesh")
-        if out["skeleton.source"] == "none":
-            raise ConfigError("body.kind = 'surface' is bound to a skeleton: set skeleton.source")
     if out["binding.relative_levels"]:
-        if out["body.kind"] != "surface":
-            raise ConfigError(f"binding.relative_levels is true but body.kind = {out['body.kind']!r}: relative levels "
-                              "need a surface body (body.kind 'surface'); give level_radii in metres instead")
         if radii[-1] > 1.0:
             raise ConfigError(f"binding.level_radii = {radii} with binding.relative_levels: give fractions of the "
                               "flesh thickness in (0, 1], e.g. [0.35, 0.6]")
@@ -603,19 +596,42 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
     if out["skeleton.fit_up"] == out["skeleton.fit_forward"]:
         raise ConfigError(f"skeleton.fit_up and skeleton.fit_forward are both {out['skeleton.fit_up']!r}: give two "
                           "different axes")
-    if out["warping"] and out["method"] != "modal" and out["warping_model"] == "vertex" and not out[ACKNOWLEDGEMENT]:
-        raise ConfigError(vertex_refusal())
-    if out["warping"] and out["warping_model"] in EXPLICIT_ONLY and out["method"] != "clustered":
-        raise ConfigError(explicit_only_refusal(out["warping_model"], out["method"]))
-    if out["method"] in ("clustered", "standard_explicit") and unacknowledged_undamped(
-            SceneConfig(out).warping_model, out["warping"], out["material.mass_damping"],
-            out["material.stiffness_damping"], out[ACKNOWLEDGEMENT]):
-        raise ConfigError(undamped_corotation_refusal(out["method"]))
-    if out["warping"] and out["warping_model"] in EXPLICIT_ONLY and not out["physics.plan_stretch"]:
-        raise ConfigError(stretch_plan_refusal(out["warping_model"]))
-    if out["body.kind"] in ("jelly_man", "robot_cover") and out["skeleton.source"] == "none":
-        raise ConfigError(f"body.kind = {out['body.kind']!r} is built around a skeleton: set skeleton.source")
+    check_material_choice(out)
     return SceneConfig(out)
+
+
+def check_body_choice(out: dict[str, Any]) -> str | None:
+    """Why the flat scene mapping ``out`` cannot build its body.kind (its file missing, a skeleton it needs, relative
+    binding levels it cannot give), by its declaration (body_kinds.BodyDeclaration), or None."""
+    kind = out["body.kind"]
+    d = BODY_DECLARATIONS[kind]
+    if d.file_param and not out[d.file_param]:
+        return f"body.kind = {kind!r} needs {d.file_param}: {d.file_what or 'the path of its file'}"
+    if d.needs_skeleton and out["skeleton.source"] == "none":
+        return f"body.kind = {kind!r} is built around a skeleton: set skeleton.source"
+    if out["binding.relative_levels"] and not d.flesh_depth:
+        deep = ", ".join(repr(n) for n, b in BODY_DECLARATIONS.items() if b.flesh_depth)
+        return (f"binding.relative_levels is true but body.kind = {kind!r}: relative levels need a surface body, "
+                f"one that knows its flesh depth (body.kind {deep}); give level_radii in metres instead")
+    return None
+
+
+def check_material_choice(out: dict[str, Any]) -> None:
+    """Refuse the warping model a scene runs ('auto' resolved) where its declaration's flags say so
+    (fem/materials/warping_models.MaterialDeclaration), with the refusal the integrators give."""
+    name, method = SceneConfig(out).warping_model, out["method"]
+    d = declared(name)
+    if not out["warping"] or d is None:
+        return
+    if not d.bounded and method != "modal" and not out[ACKNOWLEDGEMENT]:
+        raise ConfigError(unbounded_refusal(name))
+    if d.clustered_only and method != "clustered":
+        raise ConfigError(explicit_only_refusal(name, method))
+    if method in ("clustered", "standard_explicit") and unacknowledged_undamped(
+            name, True, out["material.mass_damping"], out["material.stiffness_damping"], out[ACKNOWLEDGEMENT]):
+        raise ConfigError(undamped_corotation_refusal(method, name))
+    if d.needs_stretch_plan and not out["physics.plan_stretch"]:
+        raise ConfigError(stretch_plan_refusal(name))
 
 
 def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:

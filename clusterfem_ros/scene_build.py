@@ -21,7 +21,8 @@ from .fem.mesh.mesh_io import read_mesh
 from .fem.mesh.tet_mesh import TetMesh
 from .fem.mesh.voxel_mesh import paper_mesh
 from .method_choice import SHIPPED_POINTS, choose_from_file
-from .registries import Registry
+from .body_kinds import BODY_DECLARATIONS, BodyDeclaration
+from .registries import Registry, load_object
 from .skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
 from .skeleton.humanoid import HumanoidSpec, default_humanoid
 from .skeleton.jelly_body import jelly_man_mesh, voxel_bones
@@ -168,32 +169,41 @@ def jelly_radii(skeleton: Skeleton, leaf_shapes: dict, body, progress: Callable[
 
 @dataclass(frozen=True)
 class BodyKind:
-    """A kind of body a scene builds (``body.kind``), registered by name (``register_body_kind``): the scene's
-    parts are built by ``build(config, skeleton, urdf_xml, leaf_shapes, progress)``; ``leaf_shapes``: the
-    skeleton's URDF is prepared with its leaf links' own shapes as flesh (skeleton/link_shapes.prepare_urdf);
-    ``needs_skeleton``: built around a skeleton, refused with skeleton.source 'none'."""
-    name: str
+    """A kind of body a scene builds (``body.kind``): its declaration (body_kinds.py: the flags the configuration
+    checks, where its builder is) and the builder, ``build(config, skeleton, urdf_xml, leaf_shapes, progress)``,
+    which makes the scene's parts."""
+    declaration: BodyDeclaration
     build: Callable[..., SceneParts]
-    leaf_shapes: bool = False
-    needs_skeleton: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.declaration.name
+
+    @property
+    def leaf_shapes(self) -> bool:
+        """The skeleton's URDF is prepared with its leaf links' own shapes as flesh (skeleton/link_shapes.py)."""
+        return self.declaration.leaf_shapes
+
+    @property
+    def needs_skeleton(self) -> bool:
+        return self.declaration.needs_skeleton
 
 
-BODY_KINDS = Registry("body kind")
-
-
-def register_body_kind(kind: BodyKind) -> BodyKind:
-    """Add a body kind under its name (a name already taken is refused); returns it. A scene chooses it by
-    body.kind once its name is among config.BODIES (the configuration checks names without building)."""
-    return BODY_KINDS.register(kind.name, kind)
+BODY_KINDS = Registry("body kind")          # the kinds built so far, each loaded from its declaration once
 
 
 def body_kind(name: str) -> BodyKind:
+    """The declared body kind ``name`` (body_kinds.BODY_DECLARATIONS), its builder's module imported on first use;
+    ValueError naming the choices for an undeclared one."""
     if name not in BODY_KINDS:
-        raise ValueError(f"body.kind = {name!r}: choose one of {', '.join(BODY_KINDS)}")
+        if name not in BODY_DECLARATIONS:
+            raise ValueError(f"body.kind = {name!r}: choose one of {', '.join(BODY_DECLARATIONS)}")
+        declaration = BODY_DECLARATIONS[name]
+        BODY_KINDS.register(name, BodyKind(declaration, load_object(declaration.builder)))
     return BODY_KINDS[name]
 
 
-def _jelly_man(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
+def build_jelly_man(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
     source, body = config.skeleton.source, config.body
     bind_q = None
     bare: list[str] = []
@@ -218,7 +228,7 @@ def _jelly_man(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -
                       bind_all=source != "builtin", bind_q=bind_q, bare_bones=tuple(bare), vertex_bones=allowed)
 
 
-def _robot_cover(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
+def build_robot_cover(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
     body = config.body
     say(progress, f"covering the robot's links (~{body.target_tets} tets)")
     urdf_file = (find_data_file(config.skeleton.urdf_file, URDF_MANIFEST, "skeleton.urdf_file")
@@ -232,18 +242,18 @@ def _robot_cover(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress)
                       cover=cover)
 
 
-def _volume_mesh(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
+def build_volume_mesh(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
     mesh = read_mesh(config.body.mesh_file)
     return SceneParts(config, mesh, np.zeros(mesh.n_vertices, dtype=bool), skeleton, urdf_xml)
 
 
-def _surface(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
+def build_surface(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
     surface = build_surface_body(config, skeleton, progress)
     return SceneParts(config, surface.mesh, np.zeros(surface.mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
                       surface=surface)
 
 
-def _paper_shape(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
+def build_paper_shape(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
     """One of the paper's shapes; without a skeleton its bottom fifth is held when body.fix_bottom asks."""
     mesh = paper_mesh(config.body.kind, config.body.scale)
     fixed = np.zeros(mesh.n_vertices, dtype=bool)
@@ -253,18 +263,12 @@ def _paper_shape(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress)
     return SceneParts(config, mesh, fixed, skeleton, urdf_xml)
 
 
-for _kind in (BodyKind("jelly_man", _jelly_man, leaf_shapes=True, needs_skeleton=True),
-              BodyKind("sphere", _paper_shape), BodyKind("cube", _paper_shape), BodyKind("torus", _paper_shape),
-              BodyKind("mesh", _volume_mesh), BodyKind("surface", _surface, needs_skeleton=True),
-              BodyKind("robot_cover", _robot_cover, needs_skeleton=True)):
-    register_body_kind(_kind)
-BODY_KINDS.seal()
 
 
 def scene_parts(config: SceneConfig, urdf_xml: str | None = None,
                 progress: Callable[[str], None] | None = None) -> SceneParts:
     """Everything the config asks for (and nothing else): the error budget's choice, the skeleton, the body
-    (its kind's ``build``: BODY_KINDS)."""
+    (its kind's ``build``: ``body_kind``)."""
     if config.budget.max_error_mm > 0:
         config = apply_error_budget(config, progress)
     kind = body_kind(config.body.kind)

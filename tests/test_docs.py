@@ -163,6 +163,8 @@ def test_the_foxglove_layout_shows_what_the_node_records():
     hardware = {s.hardware_id for s in msg.status}
     three_d = [c for k, c in layout["configById"].items() if k.startswith("3D!")]
     assert three_d and set(three_d[0]["topics"]) <= topics and "/clusterfem/surface" in three_d[0]["topics"]
+    from clusterfem_ros.topics import layout_topics
+    assert three_d[0]["topics"] == layout_topics(), f"the 3D panel shows the declared streams as declared: {layout_topics()}"
     plotted = []
     for key, config in layout["configById"].items():
         if key.startswith("Plot!"):

@@ -28,7 +28,7 @@ ALLOWED = {
     "numba_config": set(),                        # numba build flags for every part that compiles code
     "data_dirs": set(),                           # where data files given by name are looked for
     "registries": set(),                          # the name tables the registered kinds of things live in
-    "topics": set(),                              # the topics' names, types and QoS, declared once
+    "topics": {"registries"},                     # the topics and output streams, declared once
     "recording": {"errors", "topics"},            # a leaf: it records bytes, knows no physics and no scene
     # the numerical core's own layers, bottom up (clusterfem_ros/fem/__init__.py); 'fem' is its modules model.py
     # and stability.py, which the materials and integrators share

@@ -14,8 +14,10 @@ from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.materials import registry
 from clusterfem_ros.fem.materials.corotational import deformation_gradients
 from clusterfem_ros.fem.materials.material_model import MaterialModel, StandardParts
+from clusterfem_ros.fem.materials.warping_models import DECLARED, MaterialDeclaration, declare_material
 from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
 from clusterfem_ros.fem.model import Control, State, build_model
+from clusterfem_ros.fem.stability import StabilityError
 
 METHODS = ("clustered", "standard_explicit", "implicit_direct")
 H = 1e-7            # a step this short is one sub-step whose velocity is h M^-1 f(u) to O(h^2)
@@ -164,3 +166,57 @@ def test_the_stress_of_a_rigid_motion_is_zero_and_of_a_small_strain_the_linear_o
     assert linear.max() > 0
     assert material.stress(model, rigid).element_von_mises.max() < 1e-9 * model.material.E
     assert np.allclose(material.stress(model, small).element_von_mises, linear, rtol=1e-4, atol=1e-12 * linear.max())
+
+
+TOY_DECLARATION = MaterialDeclaration("toy_declared", f"{__name__}:DeclaredStVenantKirchhoff",
+                                      "a declared toy St. Venant-Kirchhoff model", undamped_explicit_refused=True)
+
+
+class DeclaredStVenantKirchhoff(StVenantKirchhoff):
+    """The toy model made a scene's choice: its declaration is all the configuration reads."""
+    declaration = TOY_DECLARATION
+    suffix = "_toy_declared"
+
+
+def test_a_declared_model_is_a_scene_choice_checked_by_its_flags_and_loaded_when_first_run(model):
+    """One declaration makes a model a scene's choice: the configuration offers it, refuses it where its flags
+    say (undamped on an explicit method), and the integrator loads its module on first use."""
+    from clusterfem_ros.config import PARAMS, ConfigError, SceneConfig
+    declare_material(TOY_DECLARATION)
+    try:
+        assert "toy_declared" in next(p for p in PARAMS if p.name == "warping_model").choices
+        assert "toy_declared" not in registry.MODELS                        # declared, not loaded
+        scene = {"method": "standard_explicit", "warping_model": "toy_declared"}
+        assert SceneConfig().with_values(scene).warping_model == "toy_declared"
+        with pytest.raises(ConfigError, match="warping_model = 'toy_declared' on the explicit method"):
+            SceneConfig().with_values({**scene, "material.mass_damping": 0.0, "material.stiffness_damping": 0.0})
+        with pytest.raises(StabilityError, match="'toy_declared' on the explicit method"):    # undamped model
+            make_integrator("standard_explicit", model, warp=True, warping_model="toy_declared")
+        integ = make_integrator("standard_explicit", model, warp=True, warping_model="toy_declared",
+                                allow_unbounded_warping=True)
+        assert isinstance(registry.MODELS["toy_declared"], StVenantKirchhoff) and integ.name.endswith("_toy_declared")
+        u = 0.01 * np.random.default_rng(2).standard_normal((model.n_vertices, 3))
+        assert np.allclose(_force(integ, model, u), registry.MODELS["toy_stvk"].standard(model).explicit_force(
+            u, np.zeros_like(u), None), rtol=1e-4, atol=1e-9)
+    finally:
+        DECLARED.unregister("toy_declared")
+        registry.MODELS.pop("toy_declared", None)
+    with pytest.raises(ConfigError, match="choose one of"):
+        SceneConfig().with_values(warping_model="toy_declared")
+
+
+def test_a_model_registered_under_a_declared_name_must_carry_its_flags():
+    class Impostor(MaterialModel):
+        name = "neohookean"             # the declared name, without its declaration's flags
+    with pytest.raises(ValueError, match="'neohookean': its description, clustered_only, needs_stretch_plan differ"):
+        registry.register(Impostor())
+
+
+def test_the_scene_configuration_reads_the_declarations_without_numba():
+    """config.py checks a scene against the declarations alone: no kernel is compiled or imported for it."""
+    import subprocess
+    import sys
+    code = ("import sys, clusterfem_ros.config as c; c.SceneConfig().with_values(method='implicit_direct'); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'pinocchio')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", out

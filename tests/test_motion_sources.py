@@ -44,3 +44,42 @@ def test_the_player_offers_every_built_in_source_and_the_node_fits_each_one_skel
     assert all(m.name in source.description for m in motion.MOTION_SOURCES.values())
     assert {name: motion.skeleton_source_for(name) for name in motion.SOURCES} == {
         "builtin_walk": "builtin", "bvh": "robot_description", "keyframes": "builtin", "joint_sweep": "urdf_file"}
+
+
+def test_the_main_job_plays_a_registered_source_by_name_and_lists_every_source(toy_source, tmp_path, capsys):
+    """`scripts/run --source NAME [--file FILE]` reads the registry: a source of one's own is offered by --help and
+    played by name, the scene's skeleton made to fit it; a source needing a file is refused without one."""
+    from clusterfem_ros.config import SceneConfig, load_scene_file, scene_file_text
+    from clusterfem_ros.nodes.demo import _arguments, _player_plan
+    with pytest.raises(SystemExit):
+        _arguments(["--help"])
+    shown = " ".join(capsys.readouterr().out.split())
+    for m in motion.MOTION_SOURCES.values():
+        assert f"{m.name}: {m.description}" in shown
+    scene = tmp_path / "s.yaml"
+    scene.write_text(scene_file_text(SceneConfig().with_values({"skeleton.source": "robot_description"})))
+    player, config = _player_plan(_arguments(["--source", "toy_still", "--scene", str(scene)]), scene,
+                                  load_scene_file(scene))
+    assert player == {"source": "toy_still"} and config.skeleton.source == "builtin"
+    assert "'toy_still' plays on skeleton.source 'builtin'; the scene had 'robot_description'" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="--source bvh needs --file: a .bvh file"):
+        _player_plan(_arguments(["--source", "bvh", "--scene", str(scene)]), scene, load_scene_file(scene))
+    with pytest.raises(SystemExit, match="--source toy_still plays no file"):
+        _player_plan(_arguments(["--source", "toy_still", "--file", str(scene)]), scene, load_scene_file(scene))
+    with pytest.raises(SystemExit):
+        _arguments(["--source", "no_such_source"])
+    assert "invalid choice: 'no_such_source'" in capsys.readouterr().err
+
+
+def test_the_main_job_plays_a_joint_sweep_on_the_urdf_file_it_sweeps(tmp_path):
+    from clusterfem_ros.config import SceneConfig, load_scene_file, scene_file_text
+    from clusterfem_ros.nodes.demo import _arguments, _player_plan
+    from tests.test_robot_cover import ARM
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(ARM)
+    scene = tmp_path / "s.yaml"
+    scene.write_text(scene_file_text(SceneConfig()))
+    player, config = _player_plan(_arguments(["--source", "joint_sweep", "--file", str(urdf), "--scene", str(scene)]),
+                                  scene, load_scene_file(scene))
+    assert player == {"source": "joint_sweep", "file": str(urdf.resolve())}
+    assert (config.skeleton.source, config.skeleton.urdf_file) == ("urdf_file", str(urdf.resolve()))

@@ -146,33 +146,59 @@ def test_the_default_scene_file_starts_the_node_with_its_empty_lists(world, tmp_
     assert node.scene is not None and node.scene.anchors == []
 
 
-def test_an_output_stream_of_ones_own_is_published_recorded_and_served_by_being_registered(world, tmp_path):
-    """A stream registered with nodes.outputs (the volume error as a std_msgs/Float64 at 20 Hz) gets a publisher,
-    a timer and a channel in the bag from that declaration alone; the node's own streams go on beside it."""
-    from rclpy.serialization import deserialize_message, serialize_message
+def _volume_error(node, snap):
+    from rclpy.serialization import serialize_message
+    from std_msgs.msg import Float64
+    return serialize_message(Float64(data=node.scene.volume_error_of(node.scene.model.rest + snap.u)))
+
+
+def decode_float64(data: bytes) -> float:
+    """A std_msgs/Float64's CDR bytes (4-byte header, then the double) -> its value: the toy stream's decoder."""
+    import struct
+    return struct.unpack_from("<d", data, 4)[0]
+
+
+def _toy_encoder():
     from std_msgs.msg import Float64
 
-    from clusterfem_ros.nodes import outputs
-    from rosbags.highlevel import AnyReader
-    from clusterfem_ros.topics import Topic
+    from clusterfem_ros.nodes.outputs import Encoder
+    return Encoder(Float64, _volume_error)
 
-    def volume_error(node, snap):
-        return serialize_message(Float64(data=node.scene.volume_error_of(node.scene.model.rest + snap.u)))
-    stream = outputs.register_output(outputs.OutputStream(Topic("clusterfem/volume_error", "std_msgs/msg/Float64",
-                                                                "reliable"), Float64, lambda c: 20.0, volume_error))
+
+VOLUME_ERROR = None     # the toy stream's Encoder, made by the test (its message class needs ROS)
+
+
+def test_an_output_stream_of_ones_own_is_published_recorded_and_read_back_by_being_declared(world, tmp_path):
+    """A stream declared once (topics.declare_output: the volume error as a std_msgs/Float64 at the diagnostics'
+    20 Hz, its encoder and decoder in this module) gets a publisher, a timer and a channel in the bag from that
+    declaration alone, and the bag's reader decodes it; the node's own streams go on beside it."""
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import Float64
+
+    from clusterfem_ros import topics
+    from clusterfem_ros.bag_frames import read_bag_frames
+    from rosbags.highlevel import AnyReader
+    global VOLUME_ERROR
+    VOLUME_ERROR = _toy_encoder()
+    declaration = topics.declare_output(topics.OutputDeclaration(
+        topics.Topic("clusterfem/volume_error", "std_msgs/msg/Float64", "reliable"), "output.diagnostics_rate_hz",
+        f"{__name__}:VOLUME_ERROR", f"{__name__}:decode_float64"))
     try:
         node = _node(world, **{"recording.enabled": True, "recording.dir": str(tmp_path)})
         got = world.collect(Float64, "clusterfem/volume_error")
-        world.wait_for(lambda: len(got) >= 5, 20, "the registered stream's messages")
+        world.wait_for(lambda: len(got) >= 5, 20, "the declared stream's messages")
         errors = [deserialize_message(m, Float64).data for m in got]
         assert all(np.isfinite(errors)) and max(abs(e) for e in errors) < 0.5
         with pytest.raises(ValueError, match="taken"):
-            outputs.register_output(stream)
+            topics.declare_output(declaration)
         node.close()
         with AnyReader([node.recording_path]) as bag:
             recorded = {c.topic: c for c in bag.connections}
             assert recorded["/clusterfem/volume_error"].msgtype == "std_msgs/msg/Float64"
-            assert sum(1 for _ in bag.messages(connections=[recorded["/clusterfem/volume_error"]])) >= 5
+            kept = [bag.deserialize(raw, c.msgtype).data
+                    for c, _, raw in bag.messages(connections=[recorded["/clusterfem/volume_error"]])]
+            assert len(kept) >= 5
             assert {"/clusterfem/surface", "/clusterfem/stress", "/diagnostics"} <= set(recorded)
+        assert read_bag_frames(node.recording_path).streams["clusterfem/volume_error"] == kept
     finally:
-        outputs.OUTPUTS.unregister(stream.topic.name)
+        topics.OUTPUT_DECLARATIONS.unregister(declaration.topic.name)

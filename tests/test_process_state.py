@@ -51,3 +51,25 @@ def test_the_stress_keeps_its_rest_data_with_the_model_not_in_a_module_table():
     assert tables() == before
     again = stress.compute_stress(model, u, corotated=True)
     assert np.array_equal(first.vertex_von_mises, again.vertex_von_mises) and first.vertex_von_mises.max() > 0
+
+
+@pytest.mark.ros
+def test_a_ros_world_sets_its_dds_transport_while_it_lives_and_gives_the_variable_back(monkeypatch):
+    """Importing the test harness changes nothing; a RosWorld keeps DDS on shared memory while it lives (unless
+    the variable is set), and the variable is as it was once the last world closes."""
+    import os
+    monkeypatch.delenv("FASTDDS_BUILTIN_TRANSPORTS", raising=False)
+    from clusterfem_ros.nodes.testing import RosWorld
+    assert "FASTDDS_BUILTIN_TRANSPORTS" not in os.environ
+    with RosWorld():
+        assert os.environ["FASTDDS_BUILTIN_TRANSPORTS"] == "SHM"
+        with RosWorld():
+            pass
+        assert os.environ["FASTDDS_BUILTIN_TRANSPORTS"] == "SHM"        # the outer world still lives
+    assert "FASTDDS_BUILTIN_TRANSPORTS" not in os.environ
+    monkeypatch.setenv("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
+    world = RosWorld()
+    assert os.environ["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"            # the user's own choice stands
+    world.close()
+    world.close()                                                         # a second close counts nothing
+    assert os.environ["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4"

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from clusterfem_ros.config import SceneConfig
+from clusterfem_ros.config import ConfigError, SceneConfig
 from clusterfem_ros.fem.mesh.tet_mesh import MeshError
 from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
 from clusterfem_ros.scene import Scene
@@ -95,7 +95,7 @@ import sys
 import numba
 import numpy as np
 import clusterfem_ros
-from clusterfem_ros.config import SceneConfig
+from clusterfem_ros.config import ConfigError, SceneConfig
 from clusterfem_ros.scene import Scene
 from clusterfem_ros.skeleton.procedural_walk import procedural_walk
 
@@ -174,29 +174,55 @@ def test_the_step_loop_lets_the_gil_go_only_in_the_integrator_step(step_loop_run
     assert "RELEASE THE GIL: []" in step_loop_run, step_loop_run[-2000:]
 
 
-def test_body_kinds_are_registered_and_a_new_kind_builds_a_scene_by_being_registered(monkeypatch):
-    """Every body.kind a scene may choose has a registered builder (scene_build.BODY_KINDS), and a kind of one's
-    own is built by scene_parts through the registry alone (a paper cube, slid 1 m along x)."""
-    from clusterfem_ros import config as config_module
+def slid_cube(config, skeleton, urdf_xml, leaf_shapes, progress):
+    """The builder of the toy body kind below: the paper's cube, slid 1 m along x."""
     from clusterfem_ros import scene_build
     from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
-    assert tuple(scene_build.BODY_KINDS) == config_module.BODIES
+    mesh = paper_mesh("cube", config.body.scale)
+    mesh = type(mesh)(mesh.vertices + [1.0, 0.0, 0.0], mesh.tets)
+    return scene_build.SceneParts(config, mesh, np.zeros(mesh.n_vertices, dtype=bool), skeleton, urdf_xml)
 
-    def slid(config, skeleton, urdf_xml, leaf_shapes, progress):
-        mesh = paper_mesh("cube", config.body.scale)
-        mesh = type(mesh)(mesh.vertices + [1.0, 0.0, 0.0], mesh.tets)
-        return scene_build.SceneParts(config, mesh, np.zeros(mesh.n_vertices, dtype=bool), skeleton, urdf_xml)
-    kind = scene_build.register_body_kind(scene_build.BodyKind("slid_cube", slid))
+
+def test_body_kinds_are_declared_and_a_new_kind_builds_a_scene_by_being_declared():
+    """Every body.kind a scene may choose is declared (body_kinds.py) and builds through scene_build.body_kind;
+    a kind of one's own (this module's ``slid_cube``) is chosen, checked and built by one declaration alone:
+    the configuration offers it and refuses it without the skeleton it declares it needs."""
+    from clusterfem_ros import body_kinds, config as config_module, scene_build
+    from clusterfem_ros.fem.mesh.voxel_mesh import paper_mesh
+    assert tuple(body_kinds.BODY_DECLARATIONS) == tuple(config_module.BODIES) == tuple(
+        next(p for p in config_module.PARAMS if p.name == "body.kind").choices)
+    assert all(scene_build.body_kind(name).declaration is d for name, d in body_kinds.BODY_DECLARATIONS.items())
+    toy = body_kinds.declare_body_kind(body_kinds.BodyDeclaration("slid_cube", f"{__name__}:slid_cube"))
     try:
-        monkeypatch.setattr(config_module, "BODIES", config_module.BODIES + ("slid_cube",))
-        config = SceneConfig().with_values({"skeleton.source": "none", "body.kind": "cube"})
-        parts = scene_build.scene_parts(SceneConfig({**config.values, "body.kind": "slid_cube"}))
+        config = SceneConfig().with_values({"skeleton.source": "none", "body.kind": "slid_cube"})
+        assert "slid_cube" in config_module.BODIES
+        parts = scene_build.scene_parts(config)
         cube = paper_mesh("cube", config.body.scale).vertices
         assert np.array_equal(parts.mesh.vertices, cube + [1.0, 0.0, 0.0]) and not parts.fixed.any()
         with pytest.raises(ValueError, match="taken"):
-            scene_build.register_body_kind(kind)
+            body_kinds.declare_body_kind(toy)
     finally:
-        scene_build.BODY_KINDS.unregister("slid_cube")
+        body_kinds.BODY_DECLARATIONS.unregister("slid_cube")
+        scene_build.BODY_KINDS.pop("slid_cube", None)
+    with pytest.raises(ConfigError, match="choose one of"):
+        SceneConfig().with_values({"skeleton.source": "none", "body.kind": "slid_cube"})
+    needy = body_kinds.declare_body_kind(body_kinds.BodyDeclaration("needy", f"{__name__}:slid_cube",
+                                                                    needs_skeleton=True))
+    try:
+        with pytest.raises(ConfigError, match="'needy' is built around a skeleton"):
+            SceneConfig().with_values({"skeleton.source": "none", "body.kind": needy.name})
+    finally:
+        body_kinds.BODY_DECLARATIONS.unregister("needy")
+
+
+def test_a_body_kind_whose_builder_does_not_load_is_refused_naming_it():
+    from clusterfem_ros import body_kinds, scene_build
+    body_kinds.declare_body_kind(body_kinds.BodyDeclaration("lost", "no_such_module:build"))
+    try:
+        with pytest.raises(ValueError, match="'no_such_module:build' does not load"):
+            scene_build.body_kind("lost")
+    finally:
+        body_kinds.BODY_DECLARATIONS.unregister("lost")
 
 
 def test_mass_scaling_is_set_up_for_one_sub_step_within_its_share_and_says_what_it_added():

@@ -33,7 +33,7 @@ from msg_adapters.diagnostics import diagnostic_array
 from msg_adapters.joint_state import joint_state_cdr_extent, joint_state_fields, joint_state_name_count
 
 from .. import topics
-from .outputs import OUTPUTS
+from .outputs import output_streams
 from ..scene import Scene
 from ..skeleton.urdf_check import UrdfLimits, UrdfRefused, check_urdf
 from ..sim_loop import SimLoop, Snapshot
@@ -67,7 +67,7 @@ class ClusterFemNode(Node):
         self._stats = {"t_wall": time.perf_counter(), "steps": 0}
         self._rtf = 0.0
         self._window: dict[str, float] = {}   # headroom and stage shares over the real-time factor's window
-        self._pubs = {name: self.create_publisher(s.msg_class, name, s.depth) for name, s in OUTPUTS.items()}
+        self._pubs = {name: self.create_publisher(s.msg_class, name, s.depth) for name, s in output_streams().items()}
         self.live = None                      # the Foxglove live view (nodes/live_view.py), if output.live_port
         if c.recording.enabled:
             self._open_recording()
@@ -142,7 +142,7 @@ class ClusterFemNode(Node):
     def _served_topics(self) -> tuple:
         """What the bag records and the live view serves: the joint states taken in, every output stream
         (nodes/outputs.py) and the skeleton the scene was built on when it came on robot_description."""
-        served = (topics.JOINT_STATES, *(s.topic for s in OUTPUTS.values()))
+        served = (topics.JOINT_STATES, *(s.topic for s in output_streams().values()))
         if self.config.skeleton.source == "robot_description":
             return (*served, topics.ROBOT_DESCRIPTION)
         return served
@@ -182,7 +182,7 @@ class ClusterFemNode(Node):
         for t in self._output_timers.values():
             self.destroy_timer(t)
         self._output_timers = {}
-        for name, stream in OUTPUTS.items():
+        for name, stream in output_streams().items():
             if stream.warm is not None:
                 stream.warm(self.config)
             rate = stream.rate(self.config)
@@ -191,7 +191,8 @@ class ClusterFemNode(Node):
 
     def _on_live_change(self, changes: dict) -> None:
         self.config = self.config.with_values(changes)
-        if any(k.endswith("rate_hz") or k == "output.colormap" for k in changes):
+        rates = {s.declaration.rate_param for s in output_streams().values()}
+        if any(k in rates or k == "output.colormap" for k in changes):
             self._make_output_timers()
 
     def stop_physics(self) -> None:

@@ -4,14 +4,18 @@
                 [--no-video]
     scripts/run --bvh FILE [--scene ...]     # any BVH, on a jelly body built on the BVH's own skeleton, or on the
                                              # scene's character (body.kind surface) fitted to that skeleton
+    scripts/run --source NAME [--file FILE]  # any registered motion source (motion.MOTION_SOURCES; --help lists
+                                             # them), the scene's skeleton made to fit it; --bvh F: --source bvh --file F
     scripts/run --bodies 2 [--process-per-body] [--scene a.yaml --scene b.yaml]
 
 The mocap player runs as its own process, the simulation in this one on a single-threaded executor
 (rclpy's multi-threaded one is slower here; DDS discovery on this host only, nodes.spinning.default_discovery:
 ``ros2 topic echo`` and other ROS tools started with their defaults on this host see the topics). The player plays the built-in walk,
 or what the scene file's ``mocap_player: ros__parameters:`` section says (source, file, ...: see
-nodes/player_node.py; its file a path or a name under $CLUSTERFEM_DATA or ../shared/data), or the ``--bvh`` file. A
-BVH brings its own skeleton: the node takes it from robot_description (``--bvh`` sets that). A scene
+nodes/player_node.py; its file a path or a name under $CLUSTERFEM_DATA or ../shared/data), or ``--source`` (and
+its ``--file``), or the ``--bvh`` file. The scene's skeleton.source is made to fit the source played
+(``MotionSource.skeleton_source``), said in one line: a BVH brings its own skeleton, which the node takes from
+robot_description; a joint sweep's URDF file is the node's skeleton.urdf_file. A scene
 without skeleton (skeleton.source = none) has nothing to play: it runs at once, without a player.
 Progress is printed every second; at the end: a summary, the bag folder, a PNG of the deformed
 body coloured by von Mises stress, the recording rendered to run.mp4 and run.gif in the bag folder, then a table of the timed run (nodes/bodies.py): real-time factor,
@@ -80,33 +84,84 @@ def _dds_setting() -> str:
     return "DDS " + (" ".join(shown) or "defaults")
 
 
-def _player_plan(args, scene_file: Path, config):
-    """(player parameters, scene config) for the run: --bvh, else the scene file's player section, else the
-    built-in walk; a BVH's skeleton comes on robot_description, so the scene is made to take it from there."""
-    from ..body.fit import FitError, find_data_file
-    from ..motion import load_player_section, on_capture_skeleton, skeleton_source_for
+def _say(line: str) -> None:
+    print(f"[demo] {line}", flush=True)
+
+
+def _played_source(args) -> tuple[str | None, str]:
+    """(the motion source the options name, its file): ``--bvh F`` is ``--source bvh --file F``; (None, '') when
+    neither is given (the scene file's player section plays)."""
     if args.bvh:
-        bvh = Path(args.bvh)
-        if not bvh.is_file():
-            raise SystemExit(f"[demo] --bvh {args.bvh}: no such file")
-        player = {"source": "bvh", "file": str(bvh.resolve())}
-        config = on_capture_skeleton(config, bvh.resolve(), lambda line: print(f"[demo] {line}", flush=True))
+        if args.source not in (None, "bvh") or args.file:
+            raise SystemExit(f"[demo] --bvh {args.bvh} plays source 'bvh' from that file: give it alone, or "
+                             "--source NAME --file FILE instead")
+        return "bvh", args.bvh
+    if args.file and not args.source:
+        raise SystemExit(f"[demo] --file {args.file} needs --source NAME: the motion source that reads it")
+    return args.source, args.file or ""
+
+
+def fit_skeleton(config, source, file: str | None, say=_say):
+    """The scene ``config`` with the skeleton the motion ``source`` (a motion.MotionSource) plays on, said in one
+    line: its own skeleton on robot_description (a BVH's, for a jelly body or the scene's character), the URDF file
+    it reads (skeleton.urdf_file), or the built-in humanoid."""
+    from ..motion import on_capture_skeleton
+    fits, now = source.skeleton_source, config.skeleton.source
+    if fits == "robot_description":
+        # a BVH's frame 0 may be the bind pose (motion.capture_bind_pose); another source's skeleton binds at rest
+        config = on_capture_skeleton(config, file if source.file_kind == ".bvh" else None, say)
+    elif fits == "urdf_file":
+        config = config.with_values({"skeleton.source": "urdf_file", "skeleton.urdf_file": file})
+    else:
+        config = config.with_values({"skeleton.source": fits})
+    if config.skeleton.source != now or fits == "urdf_file":
+        say(f"source {source.name!r} plays on skeleton.source {config.skeleton.source!r}"
+            + (f" ({file})" if fits == "urdf_file" else "") + f"; the scene had {now!r}")
+    return config
+
+
+def _player_plan(args, scene_file: Path, config):
+    """(player parameters, scene config) for the run: --source / --bvh, else the scene file's player section, else
+    the built-in walk; the scene's skeleton is made to fit a source given on the command line (``fit_skeleton``)."""
+    from ..body.fit import FitError, find_data_file
+    from ..motion import MOTION_SOURCES, load_player_section, skeleton_source_for
+    name, file = _played_source(args)
+    if name is not None:
+        kind = MOTION_SOURCES[name]
+        player = {"source": name}
+        if kind.file_kind is None and file:
+            raise SystemExit(f"[demo] --source {name} plays no file ({kind.description}): drop --file {file}")
+        if kind.file_kind is not None:
+            if not file:
+                raise SystemExit(f"[demo] --source {name} needs --file: a {kind.file_kind} file")
+            try:
+                player["file"] = file = str(find_data_file(file, what=f"--source {name}: --file").resolve())
+            except FitError as exc:
+                raise SystemExit(f"[demo] {exc}") from None
+        config = fit_skeleton(config, kind, file or None)
     else:
         player = load_player_section(scene_file) or {"source": "builtin_walk"}
     source = player.get("source", "builtin_walk")
     fits = skeleton_source_for(source)
     if fits == "robot_description" and config.skeleton.source in ("builtin", "urdf_file"):
         raise SystemExit(f"[demo] the player plays {source!r} but the scene's skeleton.source is "
-                         f"{config.skeleton.source!r}: set skeleton.source to {fits!r} (or run with --bvh FILE)")
+                         f"{config.skeleton.source!r}: set skeleton.source to {fits!r} (or run with --source "
+                         f"{source} --file FILE)")
     if source == "bvh":                         # the scene's unit and up axis of its capture, unless the player's own
         player.setdefault("unit", config.skeleton.bvh_unit)
         player.setdefault("up", config.skeleton.bvh_up)
-    if not args.bvh and player.get("file"):     # looked up as motion.load_motion does, here so that a missing
+    if name is None and player.get("file"):     # looked up as motion.load_motion does, here so that a missing
         try:                                    # file stops the run before the player starts
             player["file"] = str(find_data_file(str(player["file"]), what="the player's file"))
         except FitError as exc:
             raise SystemExit(f"[demo] {scene_file}: {exc}") from None
     return player, config
+
+
+def _source_help() -> str:
+    from ..motion import MOTION_SOURCES
+    return "; ".join(f"{m.name}: {m.description}" + (f" (--file {m.file_kind})" if m.file_kind else "")
+                     for m in MOTION_SOURCES.values())
 
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
@@ -116,8 +171,14 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--scene", default=None, action="append",
                     help="scene parameter file (default: config/default_scene.yaml); once for every body, or once "
                          "per body with --bodies")
-    ap.add_argument("--bvh", default=None, metavar="FILE", help="play this BVH file (instead of the scene's player "
-                    "section) on a jelly body built on its own skeleton, or on the scene's surface body fitted to it "
+    from ..motion import MOTION_SOURCES
+    ap.add_argument("--source", default=None, metavar="NAME", choices=tuple(MOTION_SOURCES),
+                    help="play this motion source instead of the scene's player section, the scene's skeleton made "
+                         f"to fit it: {_source_help()}")
+    ap.add_argument("--file", default=None, metavar="FILE", help="the file --source plays: a path, "
+                    "package://<package>/<path>, or a name under $CLUSTERFEM_DATA or ../shared/data")
+    ap.add_argument("--bvh", default=None, metavar="FILE", help="--source bvh --file FILE: play this BVH file on a "
+                    "jelly body built on its own skeleton, or on the scene's surface body fitted to it "
                     "(skeleton.source robot_description)")
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP bag")
     ap.add_argument("--bags", default="bags", help="folder for the recording (default bags/)")
@@ -147,6 +208,8 @@ def _child_argv(args: argparse.Namespace, scene: Path) -> list[str]:
     """The demo arguments of a body's own process (--process-per-body)."""
     out = ["--duration", f"{args.duration:g}", "--bags", args.bags, "--no-png", "--scene", str(scene)]
     out += ["--bvh", args.bvh] if args.bvh else []
+    out += ["--source", args.source] if args.source else []
+    out += ["--file", args.file] if args.file else []
     return out + (["--no-record"] if args.no_record else []) + (["--no-video"] if args.no_video else [])
 
 

@@ -1,10 +1,10 @@
-"""The simulation node's output streams, declared once: each an ``OutputStream`` registered by topic
-(``register_output``). A stream names its topic (clusterfem_ros.topics: name, type, the QoS a bag records), its
-ROS message class, its rate (from the scene's parameters) and ``encode(node, snapshot)``: the CDR bytes of
-the state shown, or None for nothing this time. For every registered stream the node makes a publisher, and a
-timer at its rate when that is above 0, publishes what ``encode`` gives, records it and serves it on the live
-view; a bag's reader and the renderer find its topic by the same declaration. A new output is one encoder and
-one registration (tests/test_node_outputs.py adds one of its own).
+"""The simulation node's output streams: each declared once (clusterfem_ros.topics.OutputDeclaration: topic, rate
+parameter, encoder, decoder, what renders it, its layout), its encoder here an ``Encoder``: the ROS message class
+its publisher is made for and ``encode(node, snapshot)``, the CDR bytes of the state shown, or None for nothing
+this time. For every declared stream (``output_streams``) the node makes a publisher, and a timer at its rate
+when that is above 0, publishes what ``encode`` gives, records it and serves it on the live view; a bag's reader,
+the renderer and the layout read the same declaration. A new output is one encoder and one ``declare_output``
+(tests/test_node_outputs.py adds one of its own).
 """
 from __future__ import annotations
 
@@ -21,17 +21,15 @@ from msg_adapters import colormap
 from msg_adapters.marker import surface_marker_cdr
 from msg_adapters.pointcloud import stress_cloud_cdr
 
-from .. import topics
 from ..config import SceneConfig
-from ..registries import Registry
-from ..topics import Topic
+from ..registries import Registry, load_object
+from ..topics import OUTPUT_DECLARATIONS, OutputDeclaration, Topic
 
 
 @dataclass(frozen=True)
-class OutputStream:
-    topic: Topic
+class Encoder:
+    """How the node makes a stream's messages."""
     msg_class: type                             # the ROS message class its publisher is made for
-    rate: Callable[[SceneConfig], float]        # [Hz]; 0: no timer (the topic is still declared and recorded)
     encode: Callable                            # (node, snapshot or None) -> CDR bytes, or None for nothing
     depth: int = 1                              # the publisher's queue
     needs_snapshot: bool = True                 # encode needs a state physics has handed over
@@ -39,12 +37,40 @@ class OutputStream:
     warm: Callable[[SceneConfig], None] | None = None     # made when the timers are (not on the first message)
 
 
-OUTPUTS = Registry("output stream")
+@dataclass(frozen=True)
+class OutputStream:
+    """A declared stream with its encoder loaded."""
+    declaration: OutputDeclaration
+    encoder: Encoder
+
+    @property
+    def topic(self) -> Topic:
+        return self.declaration.topic
+
+    def rate(self, config: SceneConfig) -> float:
+        """[Hz]: its rate parameter's value; 0: no timer (the topic is still declared and recorded)."""
+        return float(config[self.declaration.rate_param])
+
+    def __getattr__(self, name):                # msg_class, encode, depth, ...: the encoder's
+        return getattr(self.encoder, name)
 
 
-def register_output(stream: OutputStream) -> OutputStream:
-    """Add an output stream under its topic's name (a name already taken is refused); returns it."""
-    return OUTPUTS.register(stream.topic.name, stream)
+OUTPUTS = Registry("output stream")             # the declared streams loaded so far, by topic name
+
+
+def output_streams() -> dict[str, OutputStream]:
+    """{topic name: stream} of every declared output (topics.OUTPUT_DECLARATIONS), each encoder loaded once."""
+    for name, declaration in OUTPUT_DECLARATIONS.items():
+        if name not in OUTPUTS or OUTPUTS[name].declaration is not declaration:
+            OUTPUTS.pop(name, None)
+            encoder = load_object(declaration.encoder)
+            if not isinstance(encoder, Encoder):
+                raise ValueError(f"output {name!r}: encoder {declaration.encoder!r} is a {type(encoder).__name__}, "
+                                 "not a nodes.outputs.Encoder")
+            OUTPUTS.register(name, OutputStream(declaration, encoder))
+    for name in [n for n in OUTPUTS if n not in OUTPUT_DECLARATIONS]:
+        del OUTPUTS[name]                       # a declaration taken back (a test's own)
+    return dict(OUTPUTS)
 
 
 def _surface(node, snap) -> bytes:
@@ -87,9 +113,6 @@ def _warm_colour_table(config: SceneConfig) -> None:
         colormap.colormap_lut(config.output.colormap)
 
 
-register_output(OutputStream(topics.SURFACE, Marker, lambda c: c.output.marker_rate_hz, _surface,
-                             published=_surface_published, warm=_warm_colour_table))
-register_output(OutputStream(topics.STRESS, PointCloud2, lambda c: c.output.stress_rate_hz, _stress))
-register_output(OutputStream(topics.DIAGNOSTICS, DiagnosticArray, lambda c: c.output.diagnostics_rate_hz,
-                             _diagnostics, depth=10, needs_snapshot=False))
-OUTPUTS.seal()
+SURFACE = Encoder(Marker, _surface, published=_surface_published, warm=_warm_colour_table)
+STRESS = Encoder(PointCloud2, _stress)
+DIAGNOSTICS = Encoder(DiagnosticArray, _diagnostics, depth=10, needs_snapshot=False)

@@ -8,8 +8,8 @@
         world.wait_for(lambda: len(markers) >= 3, 30, "three surface markers")
 
 Each RosWorld has its own rclpy Context, ROS_DOMAIN_ID and single-threaded executor, so tests do not hear
-each other. DDS stays on this machine: importing this module sets FASTDDS_BUILTIN_TRANSPORTS=SHM unless it
-is set (import it before the first rclpy.init of the process, or set the variable yourself); where
+each other. DDS stays on this machine: while a RosWorld lives it sets FASTDDS_BUILTIN_TRANSPORTS=SHM unless it
+is set (before its context starts; the variable comes back as it was when the last world closes); where
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST is set too (scripts/env.sh), rmw_fastrtps takes that instead: shared
 memory and UDP to 127.0.0.1 only (docs/usage.md, Network). Teardown order
 matters (../shared/notes): shut the executor down, join its thread, close and destroy the nodes (a node's
@@ -23,13 +23,43 @@ import threading
 import time
 from typing import Callable
 
-os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "SHM")
-
-import rclpy  # noqa: E402
-from rclpy.context import Context  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
 
 _domains = itertools.count((os.getpid() % 50) * 4 + 20)
+WORLD_ENVIRONMENT = {"FASTDDS_BUILTIN_TRANSPORTS": "SHM"}     # set while a world lives, unless already set
+
+
+class _Environment:
+    """The worlds' environment variables: set (where unset) when the first world opens, given back as they were
+    when the last one closes."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._open = 0
+        self._before: dict[str, str | None] = {}
+
+    def enter(self) -> None:
+        with self._lock:
+            if self._open == 0:
+                self._before = {k: os.environ.get(k) for k in WORLD_ENVIRONMENT}
+                for k, v in WORLD_ENVIRONMENT.items():
+                    os.environ.setdefault(k, v)
+            self._open += 1
+
+    def leave(self) -> None:
+        with self._lock:
+            self._open -= 1
+            if self._open == 0:
+                for k, v in self._before.items():
+                    if v is None:
+                        os.environ.pop(k, None)
+                    else:
+                        os.environ[k] = v
+
+
+_ENVIRONMENT = _Environment()
 
 
 class RosWorld:
@@ -38,7 +68,13 @@ class RosWorld:
     def __init__(self):
         self.domain_id = next(_domains) % 200 + 1
         self.context = Context()
-        rclpy.init(context=self.context, domain_id=self.domain_id)
+        _ENVIRONMENT.enter()
+        self._entered = True
+        try:
+            rclpy.init(context=self.context, domain_id=self.domain_id)
+        except BaseException:
+            self._leave()
+            raise
         self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes = []
         self._thread = threading.Thread(target=self._spin, daemon=True)
@@ -95,8 +131,16 @@ class RosWorld:
         self.executor.shutdown(timeout_sec=5.0)
         if self._started:
             self._thread.join(timeout=10.0)
-        for n in self.nodes:
-            if hasattr(n, "close"):
-                n.close()
-            n.destroy_node()
-        self.context.try_shutdown()
+        try:
+            for n in self.nodes:
+                if hasattr(n, "close"):
+                    n.close()
+                n.destroy_node()
+            self.context.try_shutdown()
+        finally:
+            self._leave()
+
+    def _leave(self) -> None:
+        if self._entered:                       # once, however often close is called
+            self._entered = False
+            _ENVIRONMENT.leave()

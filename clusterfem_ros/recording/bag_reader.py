@@ -77,8 +77,10 @@ def read_joint_states(folder: str | Path, topic: str = topics.JOINT_STATES.recor
     return out
 
 
-def read_surfaces(folder: str | Path, topic: str = topics.SURFACE.recorded) -> list[tuple[int, np.ndarray]]:
-    """(stamp in ns, triangle-list points (3t, 3)) of every recorded surface Marker (none without the topic)."""
+def read_surfaces(folder: str | Path, topic: str | None = None) -> list[tuple[int, np.ndarray]]:
+    """(stamp in ns, triangle-list points (3t, 3)) of every recorded surface Marker (none without the topic);
+    ``topic``: the output stream declared to render as the surface (topics.rendered) unless given."""
+    topic = topic or topics.rendered("surface").topic.recorded
     out = []
     with _reader(Path(folder)) as r:
         found = topic_in((c.topic for c in r.connections), topic)

@@ -49,7 +49,7 @@ from ..fem.mesh.tet_mesh import TetMesh
 from ..fem.mesh.voxel_mesh import cells_mesh
 from .link_shapes import find_mesh_file, search_folders, urdf_floats
 from .mounting import rpy_matrix
-from .urdf_check import UrdfRefused
+from .urdf_check import MAX_TRIANGLES, UrdfRefused
 
 SOURCES = ("collision", "visual")
 SHELL = 0.5 * np.sqrt(3.0)       # a voxel whose centre is within half its diagonal of a surface touches it
@@ -57,10 +57,6 @@ SAMPLE_DENSITY = 1.5             # surface samples per spacing^2 of area
 # surface samples of one cover (~100 MB with their k-d trees): example-robot-data's robots take at most 2.3 M
 # (romeo_laas_small) at extent / 300; a URDF of 1,000 small shaped links would take 400,000 per link there (17 GB)
 MAX_SAMPLES = 4_000_000
-# triangles of the shapes of one cover (body.cover_max_triangles): ~0.6 kB each held while the cover is built (a
-# 56,264-triangle STL named 17 times, 0.96 M, took 642 MB; 35 times, 1.97 M, 1,142 MB). example-robot-data's
-# URDFs have at most 0.4 M collision triangles (so101) and 1.03 M visual ones (b1-z1, the only one past this)
-MAX_TRIANGLES = 1_000_000
 # voxels one cover looks at, at one spacing tried (the sum of its links' boxes, never the robot's whole box): ~50 B
 # each (one link, a 10 m bar on the space diagonal: 2.35 M voxels, 107 MB). example-robot-data's robots look at
 # most 62,000 at 4,800 tets (simple_humanoid_classical), 392,000 at body.target_tets' ceiling 400,000 (kinova)

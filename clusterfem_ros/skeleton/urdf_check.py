@@ -39,6 +39,11 @@ from dataclasses import dataclass
 
 from ..errors import ClusterFemError
 
+# triangles of the shapes of one cover (body.cover_max_triangles; robot_cover.py reads it, here so that the scene
+# configuration has the default without importing the cover's meshing): ~0.6 kB each held while the cover is built (a
+# 56,264-triangle STL named 17 times, 0.96 M, took 642 MB; 35 times, 1.97 M, 1,142 MB). example-robot-data's
+# URDFs have at most 0.4 M collision triangles (so101) and 1.03 M visual ones (b1-z1, the only one past this)
+MAX_TRIANGLES = 1_000_000
 DEFAULT_MAX_BYTES = 2_000_000
 DEFAULT_MAX_LINKS = 1000
 DEFAULT_MAX_JOINTS = 1000

@@ -14,8 +14,11 @@ model's name: they ask the object
 - ``energy_function``: its elastic energy of a body, which /diagnostics reports;
 - ``stress``: the stress of a state, which the node colours the surface by and publishes.
 
-Adding a model: one module with a ``MaterialModel`` subclass and one ``register`` call; the parametrised
-tests over the registry (tests/test_material_models.py) then test it.
+Adding a model a scene may choose: one module with a ``MaterialModel`` subclass whose ``declaration`` is its
+``MaterialDeclaration`` (fem/materials/warping_models.py: the name and flags the configuration checks without
+loading it), and one ``declare_material`` call; fem/materials/registry.material_model imports the module when a
+body first runs the model. A model no scene names (a test's) is one ``register`` call. The parametrised tests
+over the registry (tests/test_material_models.py) then test it.
 """
 from __future__ import annotations
 
@@ -28,8 +31,8 @@ import numpy as np
 from ..model import FemModel
 from ..stability import StabilityError
 from .stress import StressField, compute_stress
-from .warping_models import (UnboundedWarpingWarning, explicit_only_refusal, undamped_corotation_refusal,
-                             vertex_refusal)
+from .warping_models import (MaterialDeclaration, UnboundedWarpingWarning, explicit_only_refusal,
+                             unbounded_refusal, undamped_corotation_refusal)
 
 
 @dataclass
@@ -60,7 +63,9 @@ class StandardParts:
 
 
 class MaterialModel:
-    """One material model; subclasses set the class attributes and implement what they support."""
+    """One material model; subclasses set the class attributes (a ``declaration`` sets the name, description and
+    flags) and implement what they support."""
+    declaration: MaterialDeclaration | None = None
     name: str = ""                  # the registry's key (a scene's warping_model)
     suffix: str = ""                # an integrator's name with it: 'clustered' + suffix
     description: str = ""
@@ -70,6 +75,16 @@ class MaterialModel:
     stretch_energy: str | None = None           # StretchPlan energy ('corotated', 'neohookean'); None: none
     rotation_invariant: bool = True             # a rigid rotation of the rest shape is force-free
     has_energy: bool = True                     # its force is the gradient of energy_function's energy
+    needs_stretch_plan: bool = False            # a scene refuses it with physics.plan_stretch false
+
+    FLAGS = ("name", "description", "bounded", "undamped_explicit_refused", "clustered_only", "needs_stretch_plan")
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        d = cls.__dict__.get("declaration")
+        if d is not None:                       # the declaration's name and flags are the class's, set once
+            for flag in cls.FLAGS:
+                setattr(cls, flag, getattr(d, flag))
 
     def check(self, allow_unbounded: bool = False, method: str = "clustered", material=None) -> None:
         """Refuse a set-up this model may not run: StabilityError for an unbounded model not acknowledged and
@@ -78,13 +93,13 @@ class MaterialModel:
         filter (one call site, one message per model)."""
         if not self.bounded:
             if not allow_unbounded:
-                raise StabilityError(vertex_refusal())
+                raise StabilityError(unbounded_refusal(self.name))
             warnings.warn(f"warping_model = {self.name!r} runs with allow_unbounded_warping: its energy is not "
                           "bounded by the work put in (fem/materials/warping_models.py)", UnboundedWarpingWarning,
                           stacklevel=1)
         if (material is not None and self.undamped_explicit_refused and not allow_unbounded
                 and float(material.xi) == 0.0 and float(material.zeta) == 0.0):
-            raise StabilityError(undamped_corotation_refusal(method))
+            raise StabilityError(undamped_corotation_refusal(method, self.name))
         if self.clustered_only and method != "clustered":
             raise ValueError(explicit_only_refusal(self.name, method))
 

@@ -1,14 +1,15 @@
 """The material models by name: the linear one, per-element corotation ('element'), the paper's per-vertex
 warping ('vertex') and stable Neo-Hookean elements ('neohookean'), each a ``MaterialModel``
 (fem/materials/material_model.py says what the integrators ask of one). ``register`` adds a model; the names
-a scene may choose are fem/materials/warping_models.WARPING_MODELS (config.py reads those without numba)."""
+a scene may choose are the declared ones (fem/materials/warping_models.DECLARED, which config.py reads without
+numba): a declared model not registered yet is loaded from its declaration's module when first asked for."""
 from __future__ import annotations
 
 import numpy as np
 
 from ..kernels.cluster_force_kernel import cluster_args, scratch
 from ..kernels.cluster_slices import host_slices
-from ...registries import Registry
+from ...registries import Registry, load_object
 from ..model import FemModel
 from .assembled_warp import AssembledWarp
 from .corotational import ElementCorotation
@@ -17,7 +18,7 @@ from .material_model import ClusteredParts, MaterialModel, StandardParts
 from .stress import compute_stress
 from .neohookean import energy as neohookean_energy, largest_bound, neohookean_e_parallel, neohookean_e_serial
 from .warping import VertexFrames, vertex_rotations, warped_e_parallel, warped_e_serial, warped_force
-from .warping_models import WARPING_MODELS
+from .warping_models import DECLARED
 
 # the implicit step with per-vertex rotations held misses the dR/dx coupling through the volumetric stiffness,
 # which grows as 1 / (1 - 2 nu): it diverged at every step size tried above this
@@ -54,10 +55,8 @@ class Linear(MaterialModel):
 
 
 class ElementCorotated(MaterialModel):
-    name = "element"
+    declaration = DECLARED["element"]
     suffix = "_warp"
-    description = "per-element corotation: the gradient of an energy"
-    undamped_explicit_refused = True
     stretch_energy = "corotated"
 
     def clustered(self, model: FemModel) -> ClusteredParts:
@@ -79,10 +78,8 @@ class ElementCorotated(MaterialModel):
 
 
 class VertexWarped(MaterialModel):
-    name = "vertex"
+    declaration = DECLARED["vertex"]
     suffix = "_warp_vertex"
-    description = "the paper's per-vertex stiffness warping (eq. 10, symmetrised): no energy of its own"
-    bounded = False
     stretch_energy = "corotated"
     has_energy = False
 
@@ -109,10 +106,8 @@ class VertexWarped(MaterialModel):
 
 
 class NeoHookean(MaterialModel):
-    name = "neohookean"
+    declaration = DECLARED["neohookean"]
     suffix = "_neohookean"
-    description = "stable Neo-Hookean elements: no rotation, an energy smooth through inversion"
-    clustered_only = True
     stretch_energy = "neohookean"
 
     def clustered(self, model: FemModel) -> ClusteredParts:
@@ -128,7 +123,14 @@ MODELS = Registry("material model")
 
 
 def register(model: MaterialModel) -> MaterialModel:
-    """Add ``model`` under its name (a name already taken is refused); returns it."""
+    """Add ``model`` under its name (a name already taken is refused); returns it. A declared name's model must
+    carry that declaration's flags (ValueError naming the flag that differs)."""
+    d = DECLARED.get(model.name)
+    if d is not None:
+        differ = [f for f in MaterialModel.FLAGS if getattr(model, f) != getattr(d, f)]
+        if differ:
+            raise ValueError(f"material model {model.name!r}: its {', '.join(differ)} differ from its declaration "
+                             "(fem/materials/warping_models.py): set declaration = DECLARED[name] on its class")
     return MODELS.register(model.name, model)
 
 
@@ -137,15 +139,28 @@ LINEAR = register(Linear())
 for _model in (ElementCorotated(), VertexWarped(), NeoHookean()):
     register(_model)
 MODELS.seal()
-assert MODELS.built_in == ("linear",) + WARPING_MODELS, "every name a scene may choose has its model"
+assert set(DECLARED.built_in) <= set(MODELS), "every built-in name a scene may choose has its model"
+
+
+def _load(name: str) -> MaterialModel:
+    """The declared model ``name``, its module imported and the model registered on first use."""
+    if name not in MODELS:
+        found = load_object(DECLARED[name].implementation)
+        model = found() if isinstance(found, type) else found
+        if model.name != name:
+            raise ValueError(f"material model declared as {name!r} loads {DECLARED[name].implementation!r}, named "
+                             f"{model.name!r}: give its class declaration = DECLARED[{name!r}]")
+        register(model)
+    return MODELS[name]
 
 
 def material_model(warp: bool, name: str) -> MaterialModel:
-    """The model an integrator runs: the linear one without ``warp``, else the one registered as ``name``
-    (ValueError naming the choices for any other)."""
-    if name not in MODELS or name == "linear":
-        raise ValueError(f"warping_model = {name!r}: choose one of {', '.join(m for m in MODELS if m != 'linear')}"
+    """The model an integrator runs: the linear one without ``warp``, else the one registered (or declared) as
+    ``name`` (ValueError naming the choices for any other)."""
+    if (name not in MODELS and name not in DECLARED) or name == "linear":
+        choices = [m for m in dict.fromkeys((*MODELS, *DECLARED)) if m != "linear"]
+        raise ValueError(f"warping_model = {name!r}: choose one of {', '.join(choices)}"
                          " ('element': per-element corotation, conservative; 'vertex': the paper's per-vertex "
                          "warping, for comparison; 'neohookean': stable Neo-Hookean elements, smooth through "
                          "inversion, method 'clustered' only)")
-    return MODELS[name] if warp else LINEAR
+    return _load(name) if warp else LINEAR
