@@ -66,7 +66,7 @@ from ..kernels.cluster_force_kernel import finish_parallel, finish_serial, kerne
 from .corotational import deformation_gradients
 from .element_rotation import LANES
 from .element_warping import (INLINED, ElementFrames, element_differences, element_e_source, element_force_source,
-                              element_pass_source, gather_parallel, gather_serial, lane_gradient, run_element_kernel,
+                              element_pass_source, gather_parallel, lane_gradient, run_element_kernel,
                               store_corner_forces)
 from .kernel_args import checked_rows, pick_build
 from ..model import FemModel
@@ -225,12 +225,37 @@ def _neohookean_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w
         _chunk_bounds(D, grad[c], lam, mu, kept[c])
 
 
-# the element warping's sources around this chunk: the pass over blocks of chunks, the pass and gather, and
-# the whole force (w, the pass and gather, the finish)
+@numba.njit(**SERIAL)
+def _add_corner_forces(corner, fe, lanes, e):
+    """e[i_c] += corner c's force in fe (c = 0..3, i_c = corner[c, l]) for the first ``lanes`` lanes in order."""
+    for l in range(lanes):
+        for c in range(4):
+            i = corner[c, l]
+            e[i, 0] += fe[3 * c * LANES + l]
+            e[i, 1] += fe[(3 * c + 1) * LANES + l]
+            e[i, 2] += fe[(3 * c + 2) * LANES + l]
+
+
+def _fused_e(elems, gather, u, w, work):
+    """The serial pass and gather in one sweep: e <- 0, then each chunk's corner forces added to their vertices'
+    rows while they are in L1. Chunk by chunk and lane by lane is ascending element order, the gather's order
+    for every vertex (ElementFrames.gather), so e has the gather's bits; the padding lanes are left out, as the
+    gather leaves them. Same arguments as element_e_source."""
+    corner, grad, vol, lame = elems
+    rot, buf, how, tmp, fe, e = work
+    vptr = gather[0]
+    m = vptr[vptr.shape[0] - 1] // 4                # 4 corners an element
+    e[:, :] = 0.0
+    for c in range(rot.shape[0]):
+        _neohookean_chunk(c, buf[0], how[0], tmp[0], True, corner, grad, vol, lame[0], lame[1], u, w, rot, fe)
+        _add_corner_forces(corner[c], fe[c], min(LANES, m - c * LANES), e)
+
+
+# the element warping's sources around this chunk: the pass over blocks of chunks, the pass and gather (the
+# serial build fused, _fused_e), and the whole force (w, the pass and gather, the finish)
 neohookean_pass_serial, neohookean_pass_parallel = serial_and_parallel(
     element_pass_source, "_neohookean", serial={"chunk": _neohookean_chunk}, parallel={"chunk": _neohookean_chunk})
-neohookean_e_serial = compiled(element_e_source, "_neohookean", element_pass=neohookean_pass_serial,
-                               gather_rows=gather_serial)
+neohookean_e_serial = compiled(_fused_e, "_neohookean")
 neohookean_e_parallel = compiled(element_e_source, "_neohookean_parallel", element_pass=neohookean_pass_parallel,
                                  gather_rows=gather_parallel)
 neohookean_kernel_serial = compiled(element_force_source, "_neohookean", kernel_input=kernel_input_serial,
