@@ -49,11 +49,14 @@ shorter step for (fem/materials/stretch.py, ``largest_bound``).
 
 The compiled pass has the element warping's layout (fem/materials/element_warping.py: ``ElementFrames``, chunks of
 LANES elements by lane, element corner forces gathered per vertex in element order, so serial and threaded
-builds give the same bits) without the rotations. ``neohookean_force`` is the checked public entry;
-``reference_force`` and ``energy`` (numpy) are the twins the tests and the stability table use.
+builds give the same bits) without the rotations. The serial build makes no separate gather: it adds each
+chunk's corner forces to their vertices' rows as it makes them (``_fused_e``), in the gather's order.
+``neohookean_force`` is the checked public entry; ``reference_force`` and ``energy`` (numpy) are the twins the
+tests and the stability table use.
 
-Builds: the element warping's pass, pass-and-gather and force sources (``element_pass_source``, ``element_e_source``,
-``element_force_source``) with this module's ``_neohookean_chunk`` bound as their ``chunk`` (numba_config.compiled).
+Builds: the element warping's pass and force sources (``element_pass_source``, ``element_force_source``) with this
+module's ``_neohookean_chunk`` bound as their ``chunk`` (numba_config.compiled); the threaded pass and gather is the
+element warping's ``element_e_source``, the serial one ``_fused_e``.
 """
 from __future__ import annotations
 
