@@ -12,15 +12,16 @@ square root or a min/max one), for one element of one sub-step:
     E' = sym(F^T Z), its trace, S_d                     72
     P = F (mu I + S_d) + k cof F, times V               74
     corner forces P g_c and the fourth corner           54
-    gather of the 12 corner forces into vertex rows     12
+    the 12 corner forces added to their vertex rows     12
                                                        ---
                                                        443
 
 of which the elastic force alone (no damping, no bound: differences of u, F, cof F and J, mu F + k cof F
-times V, the corner forces and the gather) is about 190. Bytes per tet streamed from memory or
+times V, the corner forces and their sums by vertex) is about 190. Bytes per tet streamed from memory or
 L2 each sub-step: the corner indices (4 x 8), the rest gradients (9 x 8) and volume (8), the corner forces
-written and read back by the gather (2 x 12 x 8), the gather's indices (4 x 8): 336; the vertex rows of u and
-w it gathers (4 corners x 2 x 3 x 8 = 192) come from L1/L2 (a vertex is shared by about 20 tets).
+written to their element slots (12 x 8; the serial pass adds them to the vertex rows while they are in L1,
+fem/materials/neohookean.py ``_fused_e``): 208; the vertex rows of u and w it reads and of e it adds to
+(4 corners x 3 x 3 x 8 = 288) come from L1/L2 (a vertex is shared by about 20 tets).
 
 The host's peak is counted, not measured: vector lanes (4 with AVX2, 8 with AVX-512) x 2 flops per FMA x 2 FMA
 pipes x the clock /proc/cpuinfo gives; its bandwidth is measured, a numpy copy of 1 MB (L2) and of 64 MB
@@ -36,9 +37,9 @@ from pathlib import Path
 import numpy as np
 
 FLOPS = {"differences of u and w": 18, "F and G": 96, "Z = G - F": 9, "cof F and J": 32, "tangent bound": 76,
-         "damping stress": 72, "stress P times V": 74, "corner forces": 54, "gather": 12}
+         "damping stress": 72, "stress P times V": 74, "corner forces": 54, "sums by vertex": 12}
 FLOPS_PER_TET = sum(FLOPS.values())
-BYTES_PER_TET = 4 * 8 + 9 * 8 + 8 + 2 * 12 * 8 + 4 * 8
+BYTES_PER_TET = 4 * 8 + 9 * 8 + 8 + 12 * 8
 
 
 def host_peak() -> tuple[float, int, float]:

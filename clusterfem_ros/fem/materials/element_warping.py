@@ -90,16 +90,39 @@ def _corner_differences(corner, l, p, out):
     out[6 * LANES + l], out[7 * LANES + l], out[8 * LANES + l] = x3 - x0, y3 - y0, z3 - z0
 
 
+@numba.njit(**INLINED)
+def _corner_differences_of_two(corner, l, p, q, out, out_q):
+    """_corner_differences of p into out and of q into out_q with one load of the four corner indices (a store
+    to ``out`` may alias ``corner`` for all LLVM knows, so two calls load them twice); inlined (numba IR), which
+    LLVM does not do for a call this size."""
+    i0, i1, i2, i3 = corner[0, l], corner[1, l], corner[2, l], corner[3, l]
+    x0, y0, z0 = p[i0, 0], p[i0, 1], p[i0, 2]
+    x1, y1, z1 = p[i1, 0], p[i1, 1], p[i1, 2]
+    x2, y2, z2 = p[i2, 0], p[i2, 1], p[i2, 2]
+    x3, y3, z3 = p[i3, 0], p[i3, 1], p[i3, 2]
+    a0, b0, c0 = q[i0, 0], q[i0, 1], q[i0, 2]
+    a1, b1, c1 = q[i1, 0], q[i1, 1], q[i1, 2]
+    a2, b2, c2 = q[i2, 0], q[i2, 1], q[i2, 2]
+    a3, b3, c3 = q[i3, 0], q[i3, 1], q[i3, 2]
+    out[l], out[LANES + l], out[2 * LANES + l] = x1 - x0, y1 - y0, z1 - z0
+    out[3 * LANES + l], out[4 * LANES + l], out[5 * LANES + l] = x2 - x0, y2 - y0, z2 - z0
+    out[6 * LANES + l], out[7 * LANES + l], out[8 * LANES + l] = x3 - x0, y3 - y0, z3 - z0
+    out_q[l], out_q[LANES + l], out_q[2 * LANES + l] = a1 - a0, b1 - b0, c1 - c0
+    out_q[3 * LANES + l], out_q[4 * LANES + l], out_q[5 * LANES + l] = a2 - a0, b2 - b0, c2 - c0
+    out_q[6 * LANES + l], out_q[7 * LANES + l], out_q[8 * LANES + l] = a3 - a0, b3 - b0, c3 - c0
+
+
 @numba.njit(**SERIAL)
 def element_differences(corner, u, w, D, DW, forces):
     """D[3 (c - 1) + a, l] <- u[i_c, a] - u[i_0, a] (c = 1, 2, 3; i_c = corner[c, l]); with ``forces`` DW the
     same of w: differences, so the round-off is relative to the element's size, not to its distance from the
     origin."""
-    for l in range(LANES):
-        _corner_differences(corner, l, u, D)
     if forces:
         for l in range(LANES):
-            _corner_differences(corner, l, w, DW)
+            _corner_differences_of_two(corner, l, u, w, D, DW)
+    else:
+        for l in range(LANES):
+            _corner_differences(corner, l, u, D)
 
 
 @numba.njit(**INLINED)

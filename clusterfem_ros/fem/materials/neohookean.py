@@ -49,11 +49,14 @@ shorter step for (fem/materials/stretch.py, ``largest_bound``).
 
 The compiled pass has the element warping's layout (fem/materials/element_warping.py: ``ElementFrames``, chunks of
 LANES elements by lane, element corner forces gathered per vertex in element order, so serial and threaded
-builds give the same bits) without the rotations. ``neohookean_force`` is the checked public entry;
-``reference_force`` and ``energy`` (numpy) are the twins the tests and the stability table use.
+builds give the same bits) without the rotations. The serial build makes no separate gather: it adds each
+chunk's corner forces to their vertices' rows as it makes them (``_fused_e``), in the gather's order.
+``neohookean_force`` is the checked public entry; ``reference_force`` and ``energy`` (numpy) are the twins the
+tests and the stability table use.
 
-Builds: the element warping's pass, pass-and-gather and force sources (``element_pass_source``, ``element_e_source``,
-``element_force_source``) with this module's ``_neohookean_chunk`` bound as their ``chunk`` (numba_config.compiled).
+Builds: the element warping's pass and force sources (``element_pass_source``, ``element_force_source``) with this
+module's ``_neohookean_chunk`` bound as their ``chunk`` (numba_config.compiled); the threaded pass and gather is the
+element warping's ``element_e_source``, the serial one ``_fused_e``.
 """
 from __future__ import annotations
 
@@ -66,7 +69,7 @@ from ..kernels.cluster_force_kernel import finish_parallel, finish_serial, kerne
 from .corotational import deformation_gradients
 from .element_rotation import LANES
 from .element_warping import (INLINED, ElementFrames, element_differences, element_e_source, element_force_source,
-                              element_pass_source, gather_parallel, gather_serial, lane_gradient, run_element_kernel,
+                              element_pass_source, gather_parallel, lane_gradient, run_element_kernel,
                               store_corner_forces)
 from .kernel_args import checked_rows, pick_build
 from ..model import FemModel
@@ -225,12 +228,51 @@ def _neohookean_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w
         _chunk_bounds(D, grad[c], lam, mu, kept[c])
 
 
-# the element warping's sources around this chunk: the pass over blocks of chunks, the pass and gather, and
-# the whole force (w, the pass and gather, the finish)
+@numba.njit(**SERIAL)
+def _add_corner_forces(corner, fe, lanes, e):
+    """e[i_c] += corner c's force in fe (c = 0..3, i_c = corner[c, l]) for the first ``lanes`` lanes in order.
+    A lane's twelve loads come first: a store to e may alias fe for all LLVM knows (a fifth faster than corner
+    by corner). An element's four vertices differ, so the order within a lane changes no sum."""
+    for l in range(lanes):
+        i0, i1, i2, i3 = corner[0, l], corner[1, l], corner[2, l], corner[3, l]
+        x0, y0, z0 = fe[l], fe[LANES + l], fe[2 * LANES + l]
+        x1, y1, z1 = fe[3 * LANES + l], fe[4 * LANES + l], fe[5 * LANES + l]
+        x2, y2, z2 = fe[6 * LANES + l], fe[7 * LANES + l], fe[8 * LANES + l]
+        x3, y3, z3 = fe[9 * LANES + l], fe[10 * LANES + l], fe[11 * LANES + l]
+        e[i0, 0] += x0
+        e[i0, 1] += y0
+        e[i0, 2] += z0
+        e[i1, 0] += x1
+        e[i1, 1] += y1
+        e[i1, 2] += z1
+        e[i2, 0] += x2
+        e[i2, 1] += y2
+        e[i2, 2] += z2
+        e[i3, 0] += x3
+        e[i3, 1] += y3
+        e[i3, 2] += z3
+
+
+def _fused_e(elems, gather, u, w, work):
+    """The serial pass and gather in one sweep: e <- 0, then each chunk's corner forces added to their vertices'
+    rows while they are in L1. Chunk by chunk and lane by lane is ascending element order, the gather's order
+    for every vertex (ElementFrames.gather), so e has the gather's bits; the padding lanes are left out, as the
+    gather leaves them. Same arguments as element_e_source."""
+    corner, grad, vol, lame = elems
+    rot, buf, how, tmp, fe, e = work
+    vptr = gather[0]
+    m = vptr[vptr.shape[0] - 1] // 4                # 4 corners an element
+    e[:, :] = 0.0
+    for c in range(rot.shape[0]):
+        _neohookean_chunk(c, buf[0], how[0], tmp[0], True, corner, grad, vol, lame[0], lame[1], u, w, rot, fe)
+        _add_corner_forces(corner[c], fe[c], min(LANES, m - c * LANES), e)
+
+
+# the element warping's sources around this chunk: the pass over blocks of chunks, the pass and gather (the
+# serial build fused, _fused_e), and the whole force (w, the pass and gather, the finish)
 neohookean_pass_serial, neohookean_pass_parallel = serial_and_parallel(
     element_pass_source, "_neohookean", serial={"chunk": _neohookean_chunk}, parallel={"chunk": _neohookean_chunk})
-neohookean_e_serial = compiled(element_e_source, "_neohookean", element_pass=neohookean_pass_serial,
-                               gather_rows=gather_serial)
+neohookean_e_serial = compiled(_fused_e, "_neohookean")
 neohookean_e_parallel = compiled(element_e_source, "_neohookean_parallel", element_pass=neohookean_pass_parallel,
                                  gather_rows=gather_parallel)
 neohookean_kernel_serial = compiled(element_force_source, "_neohookean", kernel_input=kernel_input_serial,
