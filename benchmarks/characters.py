@@ -72,7 +72,8 @@ def load_manifest(path: Path = MANIFEST) -> list[CharacterMesh]:
 
 def mesh_dirs() -> list[Path]:
     """Where the meshes are looked for, in order."""
-    dirs = [REPO / "tests" / "data" / "meshes", REPO.parent / "character_meshes", REPO.parent / "shared" / "data" / "meshes"]
+    dirs = [REPO / "tests" / "data" / "meshes", REPO.parent / "character_meshes",
+            REPO.parent / "shared" / "data" / "meshes"]
     if os.environ.get("CLUSTERFEM_DATA"):
         dirs.append(Path(os.environ["CLUSTERFEM_DATA"]) / "meshes")
     return dirs
@@ -110,8 +111,9 @@ class BodyShape:
     watertight: bool
 
     def describe(self) -> str:
+        pose = "arms down" if self.pose == "arms-down" else f"{self.pose}-pose"
         return (f"up {self.up}, forward {self.forward}, height {self.height:.4g} {self.unit or '(no unit fits)'}, "
-                f"arms {self.arm_angle_deg:.1f} deg from the body axis: {self.pose}-pose")
+                f"arms {self.arm_angle_deg:.1f} deg from the body axis: {pose}")
 
 
 def _signed(axis: int, sign: float) -> str:
@@ -202,7 +204,7 @@ def main(argv: list[str] | None = None) -> None:
         shape = measure_body(v, f)
         print(f"{entry.name} ({entry.format}, {len(v)} vertices, {len(f)} triangles, "
               f"{'closed' if shape.watertight else 'open'}): measured {shape.describe()}; manifest up {entry.up}, "
-              f"forward {entry.forward}, {entry.unit}, {entry.pose}-pose", flush=True)
+              f"forward {entry.forward}, {entry.unit}, {entry.pose}", flush=True)
         with tempfile.TemporaryDirectory(prefix="clusterfem_character_meshes_") as cache:
             t0 = time.perf_counter()
             try:
