@@ -1,12 +1,16 @@
 """The fetched humanoid meshes of tests/data/character_meshes.yaml: where each file is (checked by sha256), what its
 geometry says it is, and whether the project's mesher makes tets of it.
 
-    python -m benchmarks.characters [--tets 5000] [--only NAME ...]
+    python -m benchmarks.characters [--tets 5000] [--only NAME ...] [--walk BVH ...] [--duration 3]
 
 prints, per manifest entry, the body measured from the surface (up axis, forward axis, height, unit, arms'
 angle to the body axis, pose) beside what the manifest states, then meshes it as ``body.kind: surface`` does
 (fem/mesh/tetrahedralize.surface_to_tets, ``body.target_tets`` = --tets) into an empty cache folder: tets,
-seconds, the smallest dihedral angle and radius ratio, or the error. Times depend on the machine and its load.
+seconds, the smallest dihedral angle and radius ratio, or the error. With ``--walk``, each mesh then takes the
+place of MakeHuman's in config/character_walk.yaml (its file, group, unit and axes, which skeleton.fit_up and
+fit_forward take without their sign; bound in frame 0 of each capture as that frame stands, no bind angles) and is driven by each capture's trajectory for --duration simulated
+seconds (benchmarks/character_report.drive): resets, worst volume error, worst distance of a surface vertex to
+its bone, steps/s, or the error that stopped the build. Times depend on the machine and its load.
 
 ``find_mesh(entry)`` looks for the entry's ``file`` in tests/data/meshes/, ``../character_meshes/`` and
 ``../shared/data/meshes/`` beside the checkout and ``$CLUSTERFEM_DATA/meshes/``; ``missing_message`` names the
@@ -192,6 +196,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--tets", type=int, default=5000, help="body.target_tets (default 5000)")
     parser.add_argument("--only", nargs="*", default=None, help="manifest names to run (default: all)")
+    parser.add_argument("--walk", nargs="*", type=Path, default=[], help="BVH captures to drive each character by")
+    parser.add_argument("--duration", type=float, default=3.0, help="simulated seconds of each walk (default 3)")
     args = parser.parse_args(argv)
     for entry in load_manifest():
         if args.only and entry.name not in args.only:
@@ -213,9 +219,44 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"  tetrahedralize ({args.tets} tets asked): FAILED after {time.perf_counter() - t0:.1f} s: "
                       f"{exc}", flush=True)
                 continue
-        print(f"  tetrahedralize ({args.tets} tets asked): {r.mesh.n_tets} tets, {r.mesh.n_vertices} vertices in "
-              f"{r.seconds:.1f} s ({r.attempts} fTetWild runs), min dihedral {r.min_dihedral_deg:.2f} deg, min "
-              f"radius ratio {r.min_radius_ratio:.4f}, volume {r.mesh.volumes().sum():.4g} file units^3", flush=True)
+            print(f"  tetrahedralize ({args.tets} tets asked): {r.mesh.n_tets} tets, {r.mesh.n_vertices} vertices in "
+                  f"{r.seconds:.1f} s ({r.attempts} fTetWild runs), min dihedral {r.min_dihedral_deg:.2f} deg, min "
+                  f"radius ratio {r.min_radius_ratio:.4f}, volume {r.mesh.volumes().sum():.4g} file units^3",
+                  flush=True)
+            old = os.environ.get("CLUSTERFEM_CACHE")
+            os.environ["CLUSTERFEM_CACHE"] = cache              # the scenes below read these tets from the cache
+            try:
+                for bvh in args.walk:
+                    print(f"  {bvh.name}: {walk(path, entry, bvh, args.tets, args.duration)}", flush=True)
+            finally:
+                if old is None:
+                    del os.environ["CLUSTERFEM_CACHE"]
+                else:
+                    os.environ["CLUSTERFEM_CACHE"] = old
+
+
+def walk(path: Path, entry: CharacterMesh, bvh: Path, tets: int, duration: float) -> str:
+    """One line: the character scene on ``path`` bound in frame 0 of ``bvh`` and driven by it (the module
+    docstring says how), or the error that stopped it."""
+    from clusterfem_ros.config import load_scene_file
+    from clusterfem_ros.errors import ClusterFemError
+    from clusterfem_ros.scene import Scene
+    from .character_report import DEFAULT_SCENE, bvh_skeleton, drive
+    urdf, trajectory = bvh_skeleton(bvh)
+    config = load_scene_file(DEFAULT_SCENE).with_values({
+        "body.surface_file": str(path), "body.surface_group": entry.group, "body.surface_unit": entry.metres_per_unit,
+        "body.target_tets": tets, "skeleton.bind_bvh": str(bvh), "skeleton.bind_joints": [],
+        "skeleton.bind_angles": [], "skeleton.fit_up": entry.up[1], "skeleton.fit_forward": entry.forward[1]})
+    t0 = time.perf_counter()
+    try:
+        scene = Scene.build(config, urdf_xml=urdf)
+    except (ClusterFemError, ValueError) as exc:           # the scene refuses bad input with these, naming it
+        return f"not built ({time.perf_counter() - t0:.0f} s): {type(exc).__name__}: {exc}"
+    built = time.perf_counter() - t0
+    r = drive(scene, trajectory, duration)
+    return (f"built in {built:.0f} s ({scene.model.mesh.n_tets} tets); {duration:g} s driven: {r['resets']} resets, "
+            f"worst volume error {r['volume_error']:.2%}, worst vertex-to-bone {r['bone_distance_m']:.3f} m, "
+            f"{r['steps_per_s']:.0f} steps/s, {r['withheld']} states withheld, finite {r['finite']}")
 
 
 if __name__ == "__main__":
