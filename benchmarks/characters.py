@@ -1,0 +1,263 @@
+"""The fetched humanoid meshes of tests/data/character_meshes.yaml: where each file is (checked by sha256), what its
+geometry says it is, and whether the project's mesher makes tets of it.
+
+    python -m benchmarks.characters [--tets 5000] [--only NAME ...] [--walk BVH ...] [--duration 3]
+
+prints, per manifest entry, the body measured from the surface (up axis, forward axis, height, unit, arms'
+angle to the body axis, pose) beside what the manifest states, then meshes it as ``body.kind: surface`` does
+(fem/mesh/tetrahedralize.surface_to_tets, ``body.target_tets`` = --tets) into an empty cache folder: tets,
+seconds, the smallest dihedral angle and radius ratio, or the error. With ``--walk``, each mesh then takes the
+place of MakeHuman's in config/character_walk.yaml (its file, group, unit and axes, which skeleton.fit_up and
+fit_forward take without their sign; bound in frame 0 of each capture as that frame stands, no bind angles) and is driven by each capture's trajectory for --duration simulated
+seconds (benchmarks/character_report.drive): resets, worst volume error, worst distance of a surface vertex to
+its bone, steps/s, or the error that stopped the build. Times depend on the machine and its load.
+
+``find_mesh(entry)`` looks for the entry's ``file`` in tests/data/meshes/, ``../character_meshes/`` and
+``../shared/data/meshes/`` beside the checkout and ``$CLUSTERFEM_DATA/meshes/``; ``missing_message`` names the
+file and the manifest entry to fetch it from. ``measure_body`` reads the body's axes from its shape alone: the
+left-right axis is the one the surface is mirror-symmetric about, the front-back axis the thinner of the other
+two, the head the end of the up axis the surface's area lies nearer to (head, trunk and arms above the hips),
+the face the side the feet reach further out to (toes in front of the ankles, heels barely behind).
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+MANIFEST = REPO / "tests" / "data" / "character_meshes.yaml"
+AXES = "XYZ"
+# metres per file unit, for the unit a human's height names (the first whose height in metres is humanly possible)
+UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+HUMAN_HEIGHT_M = (0.9, 2.5)
+T_POSE_MIN_DEG, A_POSE_MIN_DEG = 70.0, 30.0     # the arms' angle to the body axis: T above, arms down below A
+SURFACE_SAMPLES = 20000                         # points spread over the surface (by area) to find the arms in
+
+
+@dataclass(frozen=True)
+class CharacterMesh:
+    name: str
+    file: str
+    group: str
+    repository: str
+    commit: str
+    path: str
+    sha256: str
+    bytes: int
+    licence: str
+    attribution: str
+    source: str
+    format: str
+    pose: str
+    arm_angle_deg: float
+    unit: str
+    metres_per_unit: float
+    up: str
+    forward: str
+    lateral: str
+    height: float
+    vertices: int
+    faces: int
+    watertight: bool
+
+
+def load_manifest(path: Path = MANIFEST) -> list[CharacterMesh]:
+    import yaml
+    doc = yaml.safe_load(Path(path).read_text())
+    return [CharacterMesh(**entry) for entry in doc["meshes"]]
+
+
+def mesh_dirs() -> list[Path]:
+    """Where the meshes are looked for, in order."""
+    dirs = [REPO / "tests" / "data" / "meshes", REPO.parent / "character_meshes",
+            REPO.parent / "shared" / "data" / "meshes"]
+    if os.environ.get("CLUSTERFEM_DATA"):
+        dirs.append(Path(os.environ["CLUSTERFEM_DATA"]) / "meshes")
+    return dirs
+
+
+def find_mesh(entry: CharacterMesh) -> Path | None:
+    """The entry's file if present with the manifest's sha256 (a file with another hash raises ValueError)."""
+    for d in mesh_dirs():
+        f = d / entry.file
+        if f.is_file():
+            digest = hashlib.sha256(f.read_bytes()).hexdigest()
+            if digest != entry.sha256:
+                raise ValueError(f"{f} has sha256 {digest}, the manifest ({MANIFEST.name}) says {entry.sha256}: copy "
+                                 f"{entry.path} at commit {entry.commit} of {entry.repository} again")
+            return f
+    return None
+
+
+def missing_message(entry: CharacterMesh) -> str:
+    where = " or ".join(str(d) for d in mesh_dirs()) + ("" if os.environ.get("CLUSTERFEM_DATA") else
+                                                         " (or $CLUSTERFEM_DATA/meshes)")
+    return (f"character mesh {entry.file} not found in {where}: it is {entry.path} at commit {entry.commit} of "
+            f"{entry.repository} (entry '{entry.name}' of {MANIFEST.relative_to(REPO)})")
+
+
+@dataclass(frozen=True)
+class BodyShape:
+    lateral: str            # 'X', 'Y' or 'Z'
+    up: str                 # '+Y', '-Z', ...: feet to head
+    forward: str            # the way the face looks
+    height: float           # along up, file units
+    unit: str               # a key of UNITS, '' when no unit gives a human height
+    arm_angle_deg: float    # the arms' mean angle to the body axis (nan: no arm stands out from the trunk)
+    pose: str               # 'T', 'A' or 'arms-down'
+    watertight: bool
+
+    def describe(self) -> str:
+        pose = "arms down" if self.pose == "arms-down" else f"{self.pose}-pose"
+        return (f"up {self.up}, forward {self.forward}, height {self.height:.4g} {self.unit or '(no unit fits)'}, "
+                f"arms {self.arm_angle_deg:.1f} deg from the body axis: {pose}")
+
+
+def _signed(axis: int, sign: float) -> str:
+    return ("+" if sign > 0 else "-") + AXES[axis]
+
+
+def unit_of_height(height: float) -> str:
+    """The first unit of UNITS in which ``height`` file units is a human's height, '' if none."""
+    return next((u for u, m in UNITS.items() if HUMAN_HEIGHT_M[0] <= height * m <= HUMAN_HEIGHT_M[1]), "")
+
+
+def arm_angle(points: np.ndarray, lateral: int, up: int, up_sign: float) -> float:
+    """The arms' mean angle [deg] to the body axis: the main direction of the surface points (evenly spread over
+    the surface, not vertices: a long triangle has them at its ends only) beyond the trunk (farther than 0.2 of
+    the height from the mid-plane) above the hips (higher than 0.45 of the height), each side apart; nan when a
+    side has no such points."""
+    v = np.asarray(points, dtype=np.float64)
+    h = (v[:, up] - v[:, up].min()) if up_sign > 0 else (v[:, up].max() - v[:, up])
+    height = float(h.max())
+    x = v[:, lateral] - 0.5 * (v[:, lateral].min() + v[:, lateral].max())
+    angles = []
+    for side in (1.0, -1.0):
+        sel = (side * x > 0.2 * height) & (h > 0.45 * height)
+        if sel.sum() < 10:
+            return float("nan")
+        p = np.stack([x[sel], h[sel]], axis=1)
+        p -= p.mean(axis=0)
+        direction = np.linalg.eigh(p.T @ p)[1][:, -1]
+        angles.append(np.degrees(np.arccos(min(1.0, abs(direction[1]) / np.linalg.norm(direction)))))
+    return float(np.mean(angles))
+
+
+def measure_body(vertices: np.ndarray, faces: np.ndarray) -> BodyShape:
+    """The body's axes, height, unit and pose from its surface alone (the module docstring says how)."""
+    import trimesh
+    from scipy.spatial import cKDTree
+    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    tri = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    centroids = tri.mean(axis=1)
+    centre = (centroids * area[:, None]).sum(axis=0) / area.sum()
+    extent = np.ptp(v, axis=0)
+    tree = cKDTree(centroids)
+    asymmetry = []
+    for a in range(3):
+        mirrored = centroids.copy()
+        mirrored[:, a] = 2.0 * centre[a] - mirrored[:, a]
+        asymmetry.append(float(np.average(tree.query(mirrored)[0], weights=area)))
+    lateral = int(np.argmin(asymmetry))
+    depth = min((a for a in range(3) if a != lateral), key=lambda a: extent[a])
+    up = 3 - lateral - depth
+    lo, hi = v[:, up].min(), v[:, up].max()
+    height = float(hi - lo)
+    up_sign = 1.0 if centre[up] - lo > 0.5 * height else -1.0
+    feet_level = lo + 0.04 * height if up_sign > 0 else hi - 0.04 * height
+    feet = v[(v[:, up] <= feet_level) if up_sign > 0 else (v[:, up] >= feet_level), depth]
+    forward_sign = 1.0 if feet.max() - centre[depth] > centre[depth] - feet.min() else -1.0
+    mesh = trimesh.Trimesh(v, f, process=False)
+    points = np.asarray(trimesh.sample.sample_surface(mesh, SURFACE_SAMPLES, seed=0)[0])
+    angle = arm_angle(points, lateral, up, up_sign)
+    pose = ("T" if angle >= T_POSE_MIN_DEG else "A" if angle >= A_POSE_MIN_DEG else "arms-down") \
+        if np.isfinite(angle) else "arms-down"
+    watertight = bool(mesh.is_watertight)
+    return BodyShape(AXES[lateral], _signed(up, up_sign), _signed(depth, forward_sign), height,
+                     unit_of_height(height), angle, pose, watertight)
+
+
+def read_entry(path: Path, entry: CharacterMesh) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, triangles) of the entry's file as ``body.kind: surface`` reads it."""
+    from clusterfem_ros.fem.mesh.tetrahedralize import read_surface
+    return read_surface(path, entry.group)
+
+
+def main(argv: list[str] | None = None) -> None:
+    from clusterfem_ros.fem.mesh.tetrahedralize import MeshError, surface_to_tets
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--tets", type=int, default=5000, help="body.target_tets (default 5000)")
+    parser.add_argument("--only", nargs="*", default=None, help="manifest names to run (default: all)")
+    parser.add_argument("--walk", nargs="*", type=Path, default=[], help="BVH captures to drive each character by")
+    parser.add_argument("--duration", type=float, default=3.0, help="simulated seconds of each walk (default 3)")
+    args = parser.parse_args(argv)
+    for entry in load_manifest():
+        if args.only and entry.name not in args.only:
+            continue
+        path = find_mesh(entry)
+        if path is None:
+            print(f"{entry.name}: absent ({missing_message(entry)})", flush=True)
+            continue
+        v, f = read_entry(path, entry)
+        shape = measure_body(v, f)
+        print(f"{entry.name} ({entry.format}, {len(v)} vertices, {len(f)} triangles, "
+              f"{'closed' if shape.watertight else 'open'}): measured {shape.describe()}; manifest up {entry.up}, "
+              f"forward {entry.forward}, {entry.unit}, {entry.pose}", flush=True)
+        with tempfile.TemporaryDirectory(prefix="clusterfem_character_meshes_") as cache:
+            t0 = time.perf_counter()
+            try:
+                r = surface_to_tets(path, args.tets, group=entry.group, cache=Path(cache))
+            except MeshError as exc:
+                print(f"  tetrahedralize ({args.tets} tets asked): FAILED after {time.perf_counter() - t0:.1f} s: "
+                      f"{exc}", flush=True)
+                continue
+            print(f"  tetrahedralize ({args.tets} tets asked): {r.mesh.n_tets} tets, {r.mesh.n_vertices} vertices in "
+                  f"{r.seconds:.1f} s ({r.attempts} fTetWild runs), min dihedral {r.min_dihedral_deg:.2f} deg, min "
+                  f"radius ratio {r.min_radius_ratio:.4f}, volume {r.mesh.volumes().sum():.4g} file units^3",
+                  flush=True)
+            old = os.environ.get("CLUSTERFEM_CACHE")
+            os.environ["CLUSTERFEM_CACHE"] = cache              # the scenes below read these tets from the cache
+            try:
+                for bvh in args.walk:
+                    print(f"  {bvh.name}: {walk(path, entry, bvh, args.tets, args.duration)}", flush=True)
+            finally:
+                if old is None:
+                    del os.environ["CLUSTERFEM_CACHE"]
+                else:
+                    os.environ["CLUSTERFEM_CACHE"] = old
+
+
+def walk(path: Path, entry: CharacterMesh, bvh: Path, tets: int, duration: float) -> str:
+    """One line: the character scene on ``path`` bound in frame 0 of ``bvh`` and driven by it (the module
+    docstring says how), or the error that stopped it."""
+    from clusterfem_ros.config import load_scene_file
+    from clusterfem_ros.errors import ClusterFemError
+    from clusterfem_ros.scene import Scene
+    from .character_report import DEFAULT_SCENE, bvh_skeleton, drive
+    urdf, trajectory = bvh_skeleton(bvh)
+    config = load_scene_file(DEFAULT_SCENE).with_values({
+        "body.surface_file": str(path), "body.surface_group": entry.group, "body.surface_unit": entry.metres_per_unit,
+        "body.target_tets": tets, "skeleton.bind_bvh": str(bvh), "skeleton.bind_joints": [],
+        "skeleton.bind_angles": [], "skeleton.fit_up": entry.up[1], "skeleton.fit_forward": entry.forward[1]})
+    t0 = time.perf_counter()
+    try:
+        scene = Scene.build(config, urdf_xml=urdf)
+    except (ClusterFemError, ValueError) as exc:           # the scene refuses bad input with these, naming it
+        return f"not built ({time.perf_counter() - t0:.0f} s): {type(exc).__name__}: {exc}"
+    built = time.perf_counter() - t0
+    r = drive(scene, trajectory, duration)
+    return (f"built in {built:.0f} s ({scene.model.mesh.n_tets} tets); {duration:g} s driven: {r['resets']} resets, "
+            f"worst volume error {r['volume_error']:.2%}, worst vertex-to-bone {r['bone_distance_m']:.3f} m, "
+            f"{r['steps_per_s']:.0f} steps/s, {r['withheld']} states withheld, finite {r['finite']}")
+
+
+if __name__ == "__main__":
+    main()
