@@ -12,8 +12,8 @@ fit_forward take without their sign; bound in frame 0 of each capture as that fr
 seconds (benchmarks/character_report.drive): resets, worst volume error, worst distance of a surface vertex to
 its bone, steps/s, or the error that stopped the build. Times depend on the machine and its load.
 
-``find_mesh(entry)`` looks for the entry's ``file`` in tests/data/meshes/, ``../character_meshes/`` and
-``../shared/data/meshes/`` beside the checkout and ``$CLUSTERFEM_DATA/meshes/``; ``missing_message`` names the
+``find_mesh(entry)`` looks for the entry's ``file`` in ``meshes/`` of each data folder
+(clusterfem_ros/data_dirs.py: ``$CLUSTERFEM_DATA``, ``../shared/data`` beside the checkout, the user data folder); ``missing_message`` names the
 file and the manifest entry to fetch it from. ``measure_body`` reads the body's axes from its shape alone: the
 left-right axis is the one the surface is mirror-symmetric about, the front-back axis the thinner of the other
 two, the head the end of the up axis the surface's area lies nearer to (head, trunk and arms above the hips),
@@ -76,11 +76,8 @@ def load_manifest(path: Path = MANIFEST) -> list[CharacterMesh]:
 
 def mesh_dirs() -> list[Path]:
     """Where the meshes are looked for, in order."""
-    dirs = [REPO / "tests" / "data" / "meshes", REPO.parent / "character_meshes",
-            REPO.parent / "shared" / "data" / "meshes"]
-    if os.environ.get("CLUSTERFEM_DATA"):
-        dirs.append(Path(os.environ["CLUSTERFEM_DATA"]) / "meshes")
-    return dirs
+    from clusterfem_ros.data_dirs import data_roots
+    return [root / "meshes" for root in data_roots()]
 
 
 def find_mesh(entry: CharacterMesh) -> Path | None:
