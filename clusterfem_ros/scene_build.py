@@ -240,7 +240,7 @@ def _volume_mesh(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress)
 def _surface(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
     surface = build_surface_body(config, skeleton, progress)
     return SceneParts(config, surface.mesh, np.zeros(surface.mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
-                      surface=surface)
+                      surface=surface, bare_bones=surface.unbound)
 
 
 def _paper_shape(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:

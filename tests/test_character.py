@@ -261,7 +261,8 @@ def test_an_open_surface_the_mesher_cannot_close_is_refused(tmp_path, cache):
 
 
 def test_a_mesh_100_times_too_big_for_its_skeleton_is_refused(surface, cache, monkeypatch):
-    with pytest.raises(FitError, match=r"1\d\d times the size of its skeleton.*body\.surface_unit near 0\.00\d"):
+    with pytest.raises(FitError, match=r"1\d\d times the size of its skeleton.*the mesh's unit is wrong; "
+                                       r"set body\.surface_unit 0\.01 \(cm"):
         _build(surface, cache, monkeypatch, **{"body.surface_unit": 1.0})
 
 
