@@ -32,11 +32,11 @@ LIMB_NAMES = {("l", "arm"): "left arm", ("r", "arm"): "right arm", ("l", "leg"):
 EDGE_FRACTION = 0.012       # the surface is subdivided to edges below this fraction of its height
 BAND_FRACTION = 0.012       # half-width of a ring of equal geodesic distance, as a fraction of the height
 RINGS = 6                   # ring centroids fitted per bone
-UPPER_SPAN = (0.15, 0.6)    # the part of an upper limb whose rings are used (the top meets the trunk)
-LOWER_SPAN = (0.15, 0.85)
-REGULARIZE = 0.05           # weight of the joints' change in the least squares (keeps the twist)
+UPPER_SPAN = (0.25, 0.6)    # the part of an upper limb whose rings are used (the top meets the trunk)
+LOWER_SPAN = (0.2, 0.8)
+REGULARIZE = 0.01           # weight of the joints' change in the least squares (keeps the twist)
 UNBIND_MARGIN = 0.005       # [m] a finger or toe bone this far outside the skin binds no flesh
-UNBINDABLE_ROLES = ("finger", "toe")
+UNBINDABLE_ROLES = ("finger", "toe", "root")   # a 'root' helper: a bone from the floor up to the pelvis
 
 
 @dataclass
@@ -136,9 +136,29 @@ def _graph(mesh):
     return coo_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)).tocsr()
 
 
-def _ring_centroid(x: np.ndarray, g: np.ndarray, d: float, band: float) -> np.ndarray | None:
-    sel = np.abs(g - d) < band
-    return x[sel].mean(axis=0) if sel.sum() >= 3 else None
+def _ring_centroid(x: np.ndarray, g: np.ndarray, d: float, band: float, graph=None, near=None) -> np.ndarray | None:
+    """Centroid of the vertices ``band`` either side of geodesic distance ``d``; with ``graph``, of the connected
+    piece of them whose centroid is nearest ``near`` (where the limbs touch, a ring of one thigh goes on across to
+    the other: the piece on this limb is the one by the ring before)."""
+    sel = np.flatnonzero(np.abs(g - d) < band)
+    if sel.size < 3:
+        return None
+    if graph is None or near is None:
+        return _trimmed_centre(x[sel])
+    from scipy.sparse.csgraph import connected_components
+    n, label = connected_components(graph[sel][:, sel], directed=False)
+    pieces = [x[sel[label == k]] for k in range(n) if (label == k).sum() >= 3]
+    if not pieces:
+        return None
+    return min((_trimmed_centre(p) for p in pieces), key=lambda c: float(np.linalg.norm(c - near)))
+
+
+def _trimmed_centre(points: np.ndarray) -> np.ndarray:
+    """The centre of a ring's points without the few that run on across a contact onto the next limb: the mean of
+    the points within 1.6 times the median distance of the coordinate-wise median."""
+    c = np.median(points, axis=0)
+    r = np.linalg.norm(points - c, axis=1)
+    return points[r <= 1.6 * np.median(r)].mean(axis=0)
 
 
 def _line_direction(points: list[np.ndarray]) -> np.ndarray | None:
@@ -151,18 +171,35 @@ def _line_direction(points: list[np.ndarray]) -> np.ndarray | None:
     return d if d @ (p[-1] - p[0]) >= 0 else -d
 
 
-def _limb_from_tip(x, g, tip, limb: SkeletonLimb, band: float) -> MeshLimb:
-    """The mesh's limb traced from its extremity (geodesic distances ``g`` from it), at the skeleton's lengths."""
+def _limb_from_tip(x, g, tip, limb: SkeletonLimb, band: float, graph=None) -> MeshLimb:
+    """The mesh's limb traced from its extremity (geodesic distances ``g`` from it, over ``graph``), at the
+    skeleton's lengths."""
     L_low = float(np.linalg.norm(limb.end - limb.middle))
     L_up = float(np.linalg.norm(limb.middle - limb.root))
+    near = np.asarray(tip, dtype=np.float64)
+
+    def ring(d: float):
+        nonlocal near
+        c = _ring_centroid(x, g, d, band, graph, near)
+        if c is not None:
+            near = c
+        return c
+
+    # the wrist / ankle ring: the first whose centroid lies the skeleton's hand / foot length from the tip (a path
+    # along the surface runs round the fingertip's or toe's cap first: past it, it runs along the limb's middle)
     d_end = limb.tip_length
+    for d in np.arange(0.5 * band, 3.0 * limb.tip_length + 10 * band, 0.5 * band):
+        c = ring(d)
+        if c is not None and np.linalg.norm(c - tip) >= limb.tip_length:
+            d_end = float(d)
+            break
     d_mid = d_end + L_low
-    low = [_ring_centroid(x, g, d, band) for d in d_end + L_low * np.linspace(*LOWER_SPAN, RINGS)]
-    up = [_ring_centroid(x, g, d, band) for d in d_mid + L_up * np.linspace(*UPPER_SPAN, RINGS)]
+    end = ring(d_end)
+    low = [ring(d) for d in d_end + L_low * np.linspace(*LOWER_SPAN, RINGS)]
+    mid = ring(d_mid)
+    up = [ring(d) for d in d_mid + L_up * np.linspace(*UPPER_SPAN, RINGS)]
     lower_dir = _line_direction(low[::-1])          # middle joint -> end
     upper_dir = _line_direction(up[::-1])           # root -> middle joint
-    end = _ring_centroid(x, g, d_end, band)
-    mid = _ring_centroid(x, g, d_mid, band)
     if lower_dir is None or upper_dir is None or end is None or mid is None:
         raise FitError(f"the mesh's limb from the extremity at {np.round(tip, 3).tolist()} is shorter than the "
                        f"skeleton's ({d_end + L_low + L_up:.2f} m from its tip): the mesh's unit "
@@ -203,7 +240,13 @@ def mesh_pose(vertices: np.ndarray, triangles: np.ndarray, limbs: dict, declared
         raise FitError(f"the mesh's extremities ({np.round(x[picked], 2).tolist()}) are not two feet at its bottom "
                        "and a head at its top: it does not stand along the declared up axis; check skeleton.fit_up")
     band = BAND_FRACTION * h
-    leg_of = {f: _limb_from_tip(x, geo[f], x[f], limbs[("l", "leg")], band) for f in feet}
+    # each limb: the vertices nearer to its extremity along the surface than to the other three limbs' (where two
+    # limbs touch, the rings of one would otherwise go on across onto the other; the head is no limb's rival: the
+    # top of an arm is nearer to it than to the hand)
+    tips = feet + hands
+    owner = np.argmin(np.array([geo[t] for t in tips]), axis=0)
+    geo = {**geo, **{t: np.where(owner == k, geo[t], np.inf) for k, t in enumerate(tips)}}
+    leg_of = {f: _limb_from_tip(x, geo[f], x[f], limbs[("l", "leg")], band, graph) for f in feet}
     ankles = np.mean([leg_of[f].end for f in feet], axis=0)
     up = _unit(x[head] - ankles)
     toes = np.mean([x[f] - leg_of[f].end for f in feet], axis=0)
@@ -221,46 +264,64 @@ def mesh_pose(vertices: np.ndarray, triangles: np.ndarray, limbs: dict, declared
         a, b = sorted(tips, key=lambda t: -(x[t] @ left))     # left first
         for side, t in (("l", a), ("r", b)):
             ls[(side, kind)] = leg_of[t] if kind == "leg" else _limb_from_tip(x, geo[t], x[t], limbs[(side, kind)],
-                                                                             band)
+                                                                             band, graph)
     if n_parts > 1:
         notes.append(f"the surface has {n_parts} pieces: the limbs are traced on the largest")
     return MeshPose(ls, x[head], up, forward, left, forward_by, notes)
 
 
 def facing_rotation(pose: MeshPose, roles) -> np.ndarray:
-    """(3, 3): turns the mesh's frame (forward, left, up) onto the skeleton's (bone_roles' up and left)."""
-    up_s = _unit(np.asarray(roles.up, dtype=np.float64))
-    left_s = _unit(roles.left - up_s * (roles.left @ up_s))
-    fwd_s = np.cross(left_s, up_s)
-    up_m = pose.up
-    fwd_m = _unit(pose.forward - up_m * (pose.forward @ up_m))
-    left_m = np.cross(up_m, fwd_m)
-    return np.column_stack([fwd_s, left_s, up_s]) @ np.column_stack([fwd_m, left_m, up_m]).T
+    """(3, 3): the turn about the vertical (world Z: the mesh's declared up, the standing skeleton's) that makes the
+    mesh face the skeleton's way (bone_roles' left, level). The tilts of the two are left alone: a point at the top
+    of the head, where the mesh's up is measured to, lies off its axis by some degrees."""
+    z = np.array([0.0, 0.0, 1.0])
+    left_s = _unit(roles.left - z * (roles.left @ z))
+    fwd_s = np.cross(left_s, z)
+    fwd_m = _unit(pose.forward - z * (pose.forward @ z))
+    left_m = np.cross(z, fwd_m)
+    return np.column_stack([fwd_s, left_s, z]) @ np.column_stack([fwd_m, left_m, z]).T
 
 
-def turn_limbs(skeleton, q0: np.ndarray, limbs: dict, targets: dict) -> np.ndarray:
+def turn_limbs(skeleton, q0: np.ndarray, limbs: dict, targets: dict, elbows: dict | None = None,
+               girdles: dict | None = None) -> np.ndarray:
     """``q0`` with the joints of each limb's upper and lower bone set (least squares) so that the bones point along
-    ``targets`` ((side, kind) -> (upper direction, lower direction), skeleton world frame)."""
+    ``targets`` ((side, kind) -> (upper direction, lower direction), skeleton world frame); with ``elbows``
+    ((side, kind) -> point), also so that the elbow / knee lies there, the joints of the limb's ``girdles``
+    ((side, kind) -> bone indices: clavicle, hip bone) free as well (a skeleton whose shoulders are wider than the
+    mesh's brings its arms in)."""
     from scipy.optimize import least_squares
     owned = skeleton.bone_joints()
     revolute = skeleton.revolute_mask()
     q = np.asarray(q0, dtype=np.float64).copy()
     for key, limb in limbs.items():
-        joints = [j for j in owned[limb.upper] + owned[limb.lower] if revolute[j]]
+        bones = list((girdles or {}).get(key, ())) + [limb.upper, limb.lower]
+        joints = [j for b in bones for j in owned[b] if revolute[j]]
         if not joints:
             continue
         t_up, t_low = (_unit(np.asarray(t, dtype=np.float64)) for t in targets[key])
         x0 = q[joints].copy()
+        goal = None if elbows is None else np.asarray(elbows[key], dtype=np.float64)
+        length = float(np.linalg.norm(limb.middle - limb.root))
 
         def residual(xs: np.ndarray) -> np.ndarray:
             qq = q.copy()
             qq[joints] = xs
             s, e = skeleton.bone_segments(qq)
             du, dl = _unit(e[limb.upper] - s[limb.upper]), _unit(e[limb.lower] - s[limb.lower])
-            return np.concatenate([du - t_up, dl - t_low, REGULARIZE * (xs - x0)])
+            parts = [du - t_up, dl - t_low, REGULARIZE * (xs - x0)]
+            if goal is not None:
+                parts.append((e[limb.upper] - goal) / length)
+            return np.concatenate(parts)
 
         q[joints] = least_squares(residual, x0, diff_step=1e-6, max_nfev=200 * len(joints)).x
     return q
+
+
+def girdle_bones(roles, limbs: dict) -> dict:
+    """(side, kind) -> the bones between the trunk and the limb's upper bone (clavicle, hip bone), by role."""
+    part = {"arm": "clavicle", "leg": "hip"}
+    return {k: [b for b, (r, sd) in enumerate(zip(roles.roles, roles.sides)) if sd == k[0] and r == part[k[1]]
+                and roles.lengths[b] > 1e-9 * roles.height] for k in limbs}
 
 
 def _segment_points_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
@@ -290,8 +351,8 @@ def limb_report(pose: MeshPose, fit_apply, limbs: dict, starts: np.ndarray, ends
 
 
 def bones_to_unbind(roles, outside: dict[str, float], margin: float = UNBIND_MARGIN) -> list[str]:
-    """The finger and toe bones (by their role in the tree) with a point more than ``margin`` outside the skin
-    (``outside``: bone -> how far its farthest point lies outside [m], <= 0 inside), and the bones below them."""
+    """The finger, toe and root-helper bones (by their role in the tree, UNBINDABLE_ROLES) with a point more than
+    ``margin`` outside the skin (``outside``: bone -> how far its farthest point lies outside [m], <= 0 inside)."""
     names = roles.names
     chosen = {n for n in names if roles.roles[names.index(n)] in UNBINDABLE_ROLES and outside.get(n, 0.0) > margin}
     return [n for n in names if n in chosen]
@@ -310,14 +371,14 @@ class AutoBind:
 
 
 def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles: np.ndarray, unit: float,
-                   up: str, forward: str, passes: int = 2, say=None) -> AutoBind:
+                   up: str, forward: str, say=None) -> AutoBind:
     """The bind pose of ``skeleton`` in the mesh (``vertices`` in file units, ``triangles`` its closed surface) and
-    the mesh's fit on it: the skeleton in ``q_rest`` with each limb turned onto the mesh's (module docstring). The
-    first pass turns the bones along the mesh's limb directions; each further one aims the upper bone from the
-    skeleton's shoulder / hip at the mesh's elbow / knee and the lower bone along the mesh's lower limb, after the
-    fit has placed the mesh."""
+    the mesh's fit on it: the skeleton in ``q_rest`` with each limb turned onto the mesh's (module docstring), the
+    mesh then placed (scale and offset, least squares) with its elbows, wrists, knees and ankles on the skeleton's,
+    and moved (fit.refine_fit) so that the bones that bind (not the fingers, toes, root helpers) lie under its
+    skin."""
     from ..skeleton.bone_roles import NotHumanoid, label_bones
-    from .fit import fit_mesh
+    from .fit import fit_mesh, refine_fit
     say = say or (lambda _: None)
     starts, ends = skeleton.bone_segments(q_rest)
     try:
@@ -334,23 +395,36 @@ def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles
     A = facing_rotation(pose, roles)
     targets = {k: (A @ pose.limbs[k].upper_dir, A @ pose.limbs[k].lower_dir) for k in LIMBS}
     q = turn_limbs(skeleton, q_rest, limbs, targets)
-    fit = None
-    for p in range(max(1, passes)):
+    R = A @ first.rotation
+    marks = np.vstack([first.inverse(np.array([pose.limbs[k].middle_joint, pose.limbs[k].end])) for k in LIMBS])
+    # placed, then the girdles and limbs brought onto the placed mesh's elbows and knees, then placed again
+    for last in (False, True):
         starts, ends = skeleton.bone_segments(q)
-        fit = fit_mesh(vertices, starts, ends, "auto", unit, up, forward, triangles=triangles,
-                       rotation=A @ first.rotation)
-        if p == passes - 1:
+        limbs = skeleton_limbs(roles, starts, ends)      # the roles of the rest pose, the joints where q puts them
+        fit = _landmark_fit(R, first.scale, marks, np.vstack([[limbs[k].middle, limbs[k].end] for k in LIMBS]))
+        if last:
             break
-        carry = lambda pts: fit.apply(first.inverse(pts))     # noqa: E731: pose coordinates -> world
-        targets = {}
-        for k in LIMBS:
-            ml, sl = pose.limbs[k], limbs[k]
-            targets[k] = (carry(ml.middle_joint[None])[0] - starts[sl.upper], A @ ml.lower_dir)
-        q = turn_limbs(skeleton, q, limbs, targets)
-    starts, ends = skeleton.bone_segments(q)
-    limbs = skeleton_limbs(roles, starts, ends)          # the roles of the rest pose, the joints where q puts them
+        elbows = {k: fit.apply(first.inverse(pose.limbs[k].middle_joint[None]))[0] for k in LIMBS}
+        q = turn_limbs(skeleton, q, limbs, targets, elbows, girdle_bones(roles, limbs))
+    # then moved (not scaled: a larger mesh swallows every bone) until the bones that bind lie under the skin
+    binds = np.array([r not in UNBINDABLE_ROLES for r in roles.roles])
+    fit = refine_fit(fit, vertices, triangles, starts[binds], ends[binds], scale=False)
     report, distances = limb_report(pose, lambda pts: fit.apply(first.inverse(pts)), limbs, starts, ends)
     return AutoBind(q, fit, pose, first, roles, limbs, report, distances)
+
+
+def _landmark_fit(R: np.ndarray, scale0: float, marks: np.ndarray, joints: np.ndarray):
+    """fit.Fit with rotation ``R`` whose scale and offset put the mesh's landmarks ``marks`` (file units) nearest
+    the skeleton's ``joints`` (least squares); FitError when the scale is far from ``scale0`` (the height's)."""
+    from .fit import Fit
+    y = marks @ R.T
+    yc, jc = y - y.mean(axis=0), joints - joints.mean(axis=0)
+    scale = float(np.sum(yc * jc) / np.sum(yc * yc))
+    if not 0.5 * scale0 <= scale <= 2.0 * scale0:
+        raise FitError(f"the mesh's elbows, wrists, knees and ankles fit the skeleton's at {scale / scale0:.2f} "
+                       "times the size its height gives: the mesh's limbs are not where a human's are; check "
+                       "skeleton.fit_up and body.surface_unit")
+    return Fit(R, scale, joints.mean(axis=0) - scale * y.mean(axis=0))
 
 
 def rest_configuration(skeleton, bvh_file: str = "", bvh_unit="auto", bvh_up: str = "auto") -> tuple[np.ndarray, str]:

@@ -163,21 +163,24 @@ def _bone_points(starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
     return (starts[:, None, :] * (1 - w)[None, :, None] + ends[:, None, :] * w[None, :, None]).reshape(-1, 3)
 
 
-def refine_fit(fit: Fit, vertices: np.ndarray, triangles: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> Fit:
-    """``fit`` with its offset and scale moved (least squares) so that the bone points lie INSIDE_MARGIN inside."""
+def refine_fit(fit: Fit, vertices: np.ndarray, triangles: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+               scale: bool = True) -> Fit:
+    """``fit`` with its offset and (``scale``) its scale moved (least squares) so that the bone points lie
+    INSIDE_MARGIN inside."""
     import trimesh
     from scipy.optimize import least_squares
     mesh = trimesh.Trimesh(vertices, triangles, process=False)
     pts = _bone_points(starts, ends)
+    free = 4 if scale else 3
 
     def outside(p: np.ndarray) -> np.ndarray:
-        scale, offset = fit.scale * np.exp(p[3]), fit.offset + p[:3]
+        scale, offset = fit.scale * np.exp(p[3] if free == 4 else 0.0), fit.offset + p[:3]
         local = (pts - offset) @ fit.rotation / scale                  # bone points in the file's frame
         depth = trimesh.proximity.signed_distance(mesh, local) * scale  # > 0 inside [m]
         return np.maximum(INSIDE_MARGIN - depth, 0.0)
 
-    r = least_squares(outside, np.zeros(4), diff_step=1e-3, max_nfev=60)
-    return Fit(fit.rotation, float(fit.scale * np.exp(r.x[3])), fit.offset + r.x[:3])
+    r = least_squares(outside, np.zeros(free), diff_step=1e-3, max_nfev=60)
+    return Fit(fit.rotation, float(fit.scale * np.exp(r.x[3] if free == 4 else 0.0)), fit.offset + r.x[:3])
 
 
 def bone_outside_distances(surface_vertices: np.ndarray, triangles: np.ndarray, starts: np.ndarray,

@@ -28,7 +28,7 @@ class SurfaceBody:
     depth: np.ndarray       # (n,) [m] every vertex's distance to the body's surface
     fit: Fit
     tets: TetResult         # the tets in file units, with their quality and cache facts
-    unbound: tuple[str, ...] = ()   # bones left without flesh: fingers and toes outside the mesh (bind_pose 'auto')
+    unbound: tuple[str, ...] = ()   # bones without flesh: fingers, toes, root helpers outside it (bind_pose 'auto')
 
 
 def build_surface_body(config, skeleton, progress: Callable[[str], None] | None = None) -> SurfaceBody:
@@ -70,9 +70,10 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     out = bone_outside_distances(mesh.vertices, triangles, starts, ends)
     if auto:
         unbound = bones_to_unbind(found.roles, dict(zip(skeleton.bone_names, out)))
-        say(f"bones left without flesh (finger and toe bones outside the mesh: their flesh follows the hand or "
-            f"foot): {', '.join(f'{n} ({100 * out[skeleton.bone_names.index(n)]:.1f} cm out)' for n in unbound)}"
-            if unbound else "every bone binds flesh (no finger or toe bone outside the mesh)")
+        say(f"bones left without flesh (finger, toe and root-helper bones outside the mesh: their flesh follows the "
+            f"hand, foot or pelvis): "
+            f"{', '.join(f'{n} ({100 * out[skeleton.bone_names.index(n)]:.1f} cm out)' for n in unbound)}"
+            if unbound else "every bone binds flesh (no finger, toe or root-helper bone outside the mesh)")
     outside = sorted(((n, float(d)) for n, d in zip(skeleton.bone_names, out)
                       if d > s.fit_tolerance and n not in unbound), key=lambda p: -p[1])
     if outside:
