@@ -65,7 +65,8 @@ def test_the_limbs_of_a_t_and_an_a_pose_mesh_are_found_and_the_skeleton_turned_o
     roles = label_skeleton(skeleton, rest)
     limbs = ab.skeleton_limbs(roles, *skeleton.bone_segments(rest))
     pose = ab.mesh_pose(vertices, triangles, limbs, declared_forward=np.array([1.0, 0.0, 0.0]))
-    assert pose.describe().startswith(f"the mesh stands in an {name}"), pose.describe()
+    assert pose.describe().startswith(f"the mesh stands in {'a' if name == 'T-pose' else 'an'} {name}: arms"), \
+        pose.describe()
     assert pose.forward_by == "the feet" and pose.forward @ [1.0, 0.0, 0.0] > np.cos(np.radians(10))
     A = ab.facing_rotation(pose, roles)
     q = ab.turn_limbs(skeleton, rest, limbs, {k: (A @ pose.limbs[k].upper_dir, A @ pose.limbs[k].lower_dir)

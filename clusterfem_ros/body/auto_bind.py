@@ -74,7 +74,8 @@ class MeshPose:
         a = self.angles()
         down = 0.5 * (a["l_arm_down"] + a["r_arm_down"])
         name = "T-pose" if down < 20 else "A-pose" if down < 65 else "arms down"
-        return (f"the mesh stands in an {name}" if name != "arms down" else "the mesh stands with its arms down") + (
+        return (f"the mesh stands in {'a' if name == 'T-pose' else 'an'} {name}" if name != "arms down"
+                else "the mesh stands with its arms down") + (
             f": arms {a['l_arm_down']:.0f} / {a['r_arm_down']:.0f} deg below the horizontal (left / right), elbows "
             f"bent {a['l_elbow']:.0f} / {a['r_elbow']:.0f} deg, legs {a['l_leg_out']:.0f} / {a['r_leg_out']:.0f} deg "
             f"from the vertical, knees bent {a['l_knee']:.0f} / {a['r_knee']:.0f} deg; facing from {self.forward_by}")
