@@ -117,9 +117,9 @@ PARAMS: tuple[Param, ...] = (
           "the URDF has no prismatic joint", choices=ROOT_JOINTS),
     Param("skeleton.bind_pose", "neutral", "pose a surface body was modelled in, or a jelly body on a skeleton other "
           "than the built-in one is built in: the URDF's zero pose, frame 0 of skeleton.bind_bvh (the capture "
-          "the player plays), or (surface bodies) 'auto': found from the mesh and the skeleton, each limb of the "
+          "the player plays), or 'auto': a surface body's found from the mesh and the skeleton, each limb of the "
           "skeleton's rest turned onto the mesh's, finger and toe bones outside the mesh left without flesh "
-          "(body/auto_bind.py)", choices=("neutral", "first_frame", "auto")),
+          "(body/auto_bind.py); any other body's as 'neutral'", choices=("neutral", "first_frame", "auto")),
     Param("skeleton.bind_bvh", "", "BVH file whose frame 0 is the bind pose when skeleton.bind_pose is 'first_frame': "
           "a path, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder"),
     Param("skeleton.bvh_unit", "auto", "length unit of the BVH file played (the player's 'unit' unless its own section "
@@ -595,10 +595,6 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
         if radii[-1] > 1.0:
             raise ConfigError(f"binding.level_radii = {radii} with binding.relative_levels: give fractions of the "
                               "flesh thickness in (0, 1], e.g. [0.35, 0.6]")
-    if out["skeleton.bind_pose"] == "auto" and out["body.kind"] != "surface":
-        raise ConfigError(f"skeleton.bind_pose 'auto' finds the pose a surface mesh was modelled in, and body.kind is "
-                          f"{out['body.kind']!r}: choose 'neutral' or 'first_frame' (a jelly body on a capture's "
-                          "skeleton is built in the pose motion.capture_bind_pose chooses)")
     if len(out["skeleton.bind_joints"]) != len(out["skeleton.bind_angles"]):
         raise ConfigError(f"skeleton.bind_joints has {len(out['skeleton.bind_joints'])} names and "
                           f"skeleton.bind_angles {len(out['skeleton.bind_angles'])} values: give one angle per joint")

@@ -131,7 +131,7 @@ def jelly_bind_pose(config: SceneConfig, skeleton: Skeleton, progress: Callable[
     skeleton.bind_pose / bind_joints say otherwise (body/fit.bind_configuration), e.g. frame 0 of the capture for
     a rig whose zero pose is no standing human."""
     s = config.skeleton
-    if s.bind_pose == "neutral" and not s.bind_joints:
+    if s.bind_pose in ("neutral", "auto") and not s.bind_joints:     # 'auto' finds a surface mesh's pose
         return None
     q = bind_configuration(skeleton, s.bind_pose, s.bind_joints, s.bind_angles, s.bind_bvh)
     say(progress, f"jelly body built in the bind pose (skeleton.bind_pose {s.bind_pose!r}"

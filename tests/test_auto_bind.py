@@ -142,7 +142,8 @@ def test_each_bone_knows_the_joints_that_turn_it(skeleton):
     assert by_bone["l_upper_arm"] == ["l_shoulder_pitch", "l_shoulder_roll", "l_shoulder_yaw"]
 
 
-def test_bind_pose_auto_is_for_surface_bodies():
-    from clusterfem_ros.config import ConfigError, SceneConfig
-    with pytest.raises(ConfigError, match="skeleton.bind_pose 'auto' finds the pose a surface mesh"):
-        SceneConfig().with_values({"skeleton.bind_pose": "auto"})
+def test_bind_pose_auto_builds_any_other_body_in_the_zero_pose(skeleton):
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.scene_build import jelly_bind_pose
+    config = SceneConfig().with_values({"skeleton.bind_pose": "auto", "skeleton.source": "robot_description"})
+    assert jelly_bind_pose(config, skeleton) is None

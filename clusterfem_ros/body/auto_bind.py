@@ -283,46 +283,30 @@ def facing_rotation(pose: MeshPose, roles) -> np.ndarray:
     return np.column_stack([fwd_s, left_s, z]) @ np.column_stack([fwd_m, left_m, z]).T
 
 
-def turn_limbs(skeleton, q0: np.ndarray, limbs: dict, targets: dict, elbows: dict | None = None,
-               girdles: dict | None = None) -> np.ndarray:
+def turn_limbs(skeleton, q0: np.ndarray, limbs: dict, targets: dict) -> np.ndarray:
     """``q0`` with the joints of each limb's upper and lower bone set (least squares) so that the bones point along
-    ``targets`` ((side, kind) -> (upper direction, lower direction), skeleton world frame); with ``elbows``
-    ((side, kind) -> point), also so that the elbow / knee lies there, the joints of the limb's ``girdles``
-    ((side, kind) -> bone indices: clavicle, hip bone) free as well (a skeleton whose shoulders are wider than the
-    mesh's brings its arms in)."""
+    ``targets`` ((side, kind) -> (upper direction, lower direction), skeleton world frame); the joints' change is
+    weighted lightly (REGULARIZE), which keeps each bone's twist."""
     from scipy.optimize import least_squares
     owned = skeleton.bone_joints()
     revolute = skeleton.revolute_mask()
     q = np.asarray(q0, dtype=np.float64).copy()
     for key, limb in limbs.items():
-        bones = list((girdles or {}).get(key, ())) + [limb.upper, limb.lower]
-        joints = [j for b in bones for j in owned[b] if revolute[j]]
+        joints = [j for b in (limb.upper, limb.lower) for j in owned[b] if revolute[j]]
         if not joints:
             continue
         t_up, t_low = (_unit(np.asarray(t, dtype=np.float64)) for t in targets[key])
         x0 = q[joints].copy()
-        goal = None if elbows is None else np.asarray(elbows[key], dtype=np.float64)
-        length = float(np.linalg.norm(limb.middle - limb.root))
 
         def residual(xs: np.ndarray) -> np.ndarray:
             qq = q.copy()
             qq[joints] = xs
             s, e = skeleton.bone_segments(qq)
             du, dl = _unit(e[limb.upper] - s[limb.upper]), _unit(e[limb.lower] - s[limb.lower])
-            parts = [du - t_up, dl - t_low, REGULARIZE * (xs - x0)]
-            if goal is not None:
-                parts.append((e[limb.upper] - goal) / length)
-            return np.concatenate(parts)
+            return np.concatenate([du - t_up, dl - t_low, REGULARIZE * (xs - x0)])
 
         q[joints] = least_squares(residual, x0, diff_step=1e-6, max_nfev=200 * len(joints)).x
     return q
-
-
-def girdle_bones(roles, limbs: dict) -> dict:
-    """(side, kind) -> the bones between the trunk and the limb's upper bone (clavicle, hip bone), by role."""
-    part = {"arm": "clavicle", "leg": "hip"}
-    return {k: [b for b, (r, sd) in enumerate(zip(roles.roles, roles.sides)) if sd == k[0] and r == part[k[1]]
-                and roles.lengths[b] > 1e-9 * roles.height] for k in limbs}
 
 
 def _segment_points_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
@@ -375,8 +359,8 @@ def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles
                    up: str, forward: str, say=None) -> AutoBind:
     """The bind pose of ``skeleton`` in the mesh (``vertices`` in file units, ``triangles`` its closed surface) and
     the mesh's fit on it: the skeleton in ``q_rest`` with each limb turned onto the mesh's (module docstring), the
-    mesh then placed (scale and offset, least squares) with its elbows, wrists, knees and ankles on the skeleton's,
-    and moved (fit.refine_fit) so that the bones that bind (not the fingers, toes, root helpers) lie under its
+    mesh then placed (scale and offset, least squares) with its elbows, wrists, knees and ankles nearest the
+    skeleton's, and moved (fit.refine_fit) so that the bones that bind (not the fingers, toes, root helpers) lie under its
     skin."""
     from ..skeleton.bone_roles import NotHumanoid, label_bones
     from .fit import fit_mesh, refine_fit
@@ -398,15 +382,11 @@ def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles
     q = turn_limbs(skeleton, q_rest, limbs, targets)
     R = A @ first.rotation
     marks = np.vstack([first.inverse(np.array([pose.limbs[k].middle_joint, pose.limbs[k].end])) for k in LIMBS])
-    # placed, then the girdles and limbs brought onto the placed mesh's elbows and knees, then placed again
-    for last in (False, True):
-        starts, ends = skeleton.bone_segments(q)
-        limbs = skeleton_limbs(roles, starts, ends)      # the roles of the rest pose, the joints where q puts them
-        fit = _landmark_fit(R, first.scale, marks, np.vstack([[limbs[k].middle, limbs[k].end] for k in LIMBS]))
-        if last:
-            break
-        elbows = {k: fit.apply(first.inverse(pose.limbs[k].middle_joint[None]))[0] for k in LIMBS}
-        q = turn_limbs(skeleton, q, limbs, targets, elbows, girdle_bones(roles, limbs))
+    # the clavicles and hip bones keep the rest's angles: the capture plays its own on them, and a girdle turned
+    # at bind time would move the shoulder or hip joint under the flesh by as much on every frame
+    starts, ends = skeleton.bone_segments(q)
+    limbs = skeleton_limbs(roles, starts, ends)          # the roles of the rest pose, the joints where q puts them
+    fit = _landmark_fit(R, first.scale, marks, np.vstack([[limbs[k].middle, limbs[k].end] for k in LIMBS]))
     # then moved (not scaled: a larger mesh swallows every bone) until the bones that bind lie under the skin
     binds = np.array([r not in UNBINDABLE_ROLES for r in roles.roles])
     fit = refine_fit(fit, vertices, triangles, starts[binds], ends[binds], scale=False)
