@@ -97,6 +97,7 @@ class SkeletonLimb:
     middle: np.ndarray          # (3,) elbow / knee
     end: np.ndarray             # (3,) wrist / ankle
     tip_length: float           # wrist / ankle to the farthest end of the hand / foot bones [m]
+    distal: int = -1            # the hand / foot bone (-1: none with length)
 
 
 def skeleton_limbs(roles, starts: np.ndarray, ends: np.ndarray) -> dict:
@@ -117,7 +118,9 @@ def skeleton_limbs(roles, starts: np.ndarray, ends: np.ndarray) -> dict:
         tips = [ends[b] for b, (r, s) in enumerate(zip(roles.roles, roles.sides)) if s == side and r in distal]
         wrist = ends[lo]
         reach = max([float(np.linalg.norm(t - wrist)) for t in tips], default=0.0)
-        out[(side, kind)] = SkeletonLimb(u, lo, starts[u].copy(), ends[u].copy(), wrist.copy(), reach)
+        hands = [b for b in solid if roles.roles[b] == distal[0]]
+        out[(side, kind)] = SkeletonLimb(u, lo, starts[u].copy(), ends[u].copy(), wrist.copy(), reach,
+                                         hands[0] if hands else -1)
     return out
 
 
@@ -285,8 +288,9 @@ def facing_rotation(pose: MeshPose, roles) -> np.ndarray:
 
 def turn_limbs(skeleton, q0: np.ndarray, limbs: dict, targets: dict) -> np.ndarray:
     """``q0`` with the joints of each limb's upper and lower bone set (least squares) so that the bones point along
-    ``targets`` ((side, kind) -> (upper direction, lower direction), skeleton world frame); the joints' change is
-    weighted lightly (REGULARIZE), which keeps each bone's twist."""
+    ``targets`` ((side, kind) -> (upper direction, lower direction[, hand / foot direction]), skeleton world frame),
+    then the hand's or foot's own joints so that it points along the third; the joints' change is weighted lightly
+    (REGULARIZE), which keeps each bone's twist."""
     from scipy.optimize import least_squares
     owned = skeleton.bone_joints()
     revolute = skeleton.revolute_mask()
@@ -295,8 +299,11 @@ def turn_limbs(skeleton, q0: np.ndarray, limbs: dict, targets: dict) -> np.ndarr
         joints = [j for b in (limb.upper, limb.lower) for j in owned[b] if revolute[j]]
         if not joints:
             continue
-        t_up, t_low = (_unit(np.asarray(t, dtype=np.float64)) for t in targets[key])
+        t_up, t_low = (_unit(np.asarray(t, dtype=np.float64)) for t in targets[key][:2])
         x0 = q[joints].copy()
+        # the hand / foot (its own joints, solved after the limb): from the wrist / ankle towards the mesh's tip
+        hand = limb.distal if len(targets[key]) > 2 and limb.distal >= 0 else -1
+        t_hand = _unit(np.asarray(targets[key][2], dtype=np.float64)) if hand >= 0 else None
 
         def residual(xs: np.ndarray) -> np.ndarray:
             qq = q.copy()
@@ -306,6 +313,17 @@ def turn_limbs(skeleton, q0: np.ndarray, limbs: dict, targets: dict) -> np.ndarr
             return np.concatenate([du - t_up, dl - t_low, REGULARIZE * (xs - x0)])
 
         q[joints] = least_squares(residual, x0, diff_step=1e-6, max_nfev=200 * len(joints)).x
+        own = [j for j in owned[hand] if revolute[j]] if hand >= 0 else []
+        if own:
+            h0 = q[own].copy()
+
+            def hand_residual(xs: np.ndarray) -> np.ndarray:
+                qq = q.copy()
+                qq[own] = xs
+                s, e = skeleton.bone_segments(qq)
+                return np.concatenate([_unit(e[hand] - s[hand]) - t_hand, REGULARIZE * (xs - h0)])
+
+            q[own] = least_squares(hand_residual, h0, diff_step=1e-6, max_nfev=200 * len(own)).x
     return q
 
 
@@ -378,7 +396,8 @@ def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles
     for note in pose.notes:
         say(note)
     A = facing_rotation(pose, roles)
-    targets = {k: (A @ pose.limbs[k].upper_dir, A @ pose.limbs[k].lower_dir) for k in LIMBS}
+    targets = {k: (A @ pose.limbs[k].upper_dir, A @ pose.limbs[k].lower_dir,
+                   A @ (pose.limbs[k].tip - pose.limbs[k].end)) for k in LIMBS}
     q = turn_limbs(skeleton, q_rest, limbs, targets)
     R = A @ first.rotation
     marks = np.vstack([first.inverse(np.array([pose.limbs[k].middle_joint, pose.limbs[k].end])) for k in LIMBS])
