@@ -1,21 +1,27 @@
 """The bind pose of a humanoid skeleton in a humanoid mesh, found from the two alone (``skeleton.bind_pose 'auto'``).
 
 A character mesh is modelled in some pose (T-pose, A-pose, arms down) and a capture's skeleton stands in its own
-(its rest, or its first frame). The steps:
+(its rest: the zero pose, or frame 0 when no human stands in that). The steps:
 
 1. **The mesh's limbs** (``mesh_pose``): on the closed surface (subdivided so that its edges are short), the five
    extremities are the farthest points along the surface from each other (farthest-point sampling of geodesic
    distance from the body's centre): the highest is the head, the two lowest the feet, the others the hands.
-   From each limb's extremity, the rings of equal geodesic distance go round the limb; their centroids trace the
-   limb's middle (a level-set skeleton). The skeleton's own lengths say at which distance from the extremity the
-   wrist / ankle, the elbow / knee and the shoulder / hip lie; the line through the ring centroids between two
-   joints is that bone's direction in the mesh. The toes point forward (the mesh's facing, from geometry; the
-   declared ``skeleton.fit_forward`` only when the feet do not tell), up is from the ankles to the head.
-2. **The skeleton's limbs**: roles from the tree and the rest geometry (skeleton/bone_roles.py); the mesh is
-   turned to face the skeleton's way, then each limb's upper and lower bone is turned onto the mesh's directions
-   by least squares on the joints of those two bones (the rest of the skeleton keeps its pose).
-3. **What binds**: after the fit (body/fit.py), finger and toe bones (by role) with a point outside the mesh are
-   left unbound: their flesh follows the hand or foot.
+   Each limb is the part of the surface nearer its extremity than the other three limbs' (where two touch).
+   From the extremity, the rings of equal geodesic distance go round the limb; their centroids trace the limb's
+   middle (a level-set skeleton). The skeleton's own lengths say which ring is the wrist / ankle (the first whose
+   centroid lies the hand's / foot's length from the tip), the elbow / knee and the upper limb; the line through
+   a bone's ring centroids is its direction in the mesh. The toes point the way the mesh faces (the declared
+   ``skeleton.fit_forward`` only when the feet do not tell).
+2. **The skeleton's limbs** (``turn_limbs``): roles from the tree and the rest geometry (skeleton/bone_roles.py);
+   the mesh is turned about the vertical to face the skeleton's way, each limb's upper and lower bone is turned
+   onto the mesh's directions by least squares on the joints of those two bones, then the hand / foot towards
+   the mesh's tip. The trunk, the clavicles and the hip bones keep the rest's angles (the capture plays its own
+   on them: a girdle turned at bind time would move the shoulder or hip under the flesh on every frame).
+3. **The placement**: scale and offset put the mesh's elbows, wrists, knees and ankles nearest the skeleton's
+   (least squares), then the mesh is moved (fit.refine_fit, not scaled) until the bones that bind lie under its
+   skin.
+4. **What binds** (``bones_to_unbind``): after the fit (body/fit.py), finger, toe and root-helper bones (by role)
+   with a point outside the mesh are left unbound: their flesh follows the hand, foot or pelvis.
 
 ``limb_report`` gives, per limb, how far the bones lie from the limb's middle (one log line).
 """
@@ -378,8 +384,8 @@ def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles
     """The bind pose of ``skeleton`` in the mesh (``vertices`` in file units, ``triangles`` its closed surface) and
     the mesh's fit on it: the skeleton in ``q_rest`` with each limb turned onto the mesh's (module docstring), the
     mesh then placed (scale and offset, least squares) with its elbows, wrists, knees and ankles nearest the
-    skeleton's, and moved (fit.refine_fit) so that the bones that bind (not the fingers, toes, root helpers) lie under its
-    skin."""
+    skeleton's, and moved (fit.refine_fit) so that the bones that bind (not the fingers, toes, root helpers) lie
+    under its skin."""
     from ..skeleton.bone_roles import NotHumanoid, label_bones
     from .fit import fit_mesh, refine_fit
     say = say or (lambda _: None)
