@@ -104,6 +104,7 @@ class SkeletonLimb:
     end: np.ndarray             # (3,) wrist / ankle
     tip_length: float           # wrist / ankle to the farthest end of the hand / foot bones [m]
     distal: int = -1            # the hand / foot bone (-1: none with length)
+    tip_rise: float = 0.0       # how far the wrist / ankle lies above that farthest end along world Z [m]
 
 
 def skeleton_limbs(roles, starts: np.ndarray, ends: np.ndarray) -> dict:
@@ -123,10 +124,11 @@ def skeleton_limbs(roles, starts: np.ndarray, ends: np.ndarray) -> dict:
         u, lo = ups[0], lows[0]
         tips = [ends[b] for b, (r, s) in enumerate(zip(roles.roles, roles.sides)) if s == side and r in distal]
         wrist = ends[lo]
-        reach = max([float(np.linalg.norm(t - wrist)) for t in tips], default=0.0)
+        far = max(tips, key=lambda t: float(np.linalg.norm(t - wrist)), default=wrist)
+        reach = float(np.linalg.norm(far - wrist))
         hands = [b for b in solid if roles.roles[b] == distal[0]]
         out[(side, kind)] = SkeletonLimb(u, lo, starts[u].copy(), ends[u].copy(), wrist.copy(), reach,
-                                         hands[0] if hands else -1)
+                                         hands[0] if hands else -1, float(wrist[2] - far[2]))
     return out
 
 
@@ -181,9 +183,9 @@ def _line_direction(points: list[np.ndarray]) -> np.ndarray | None:
     return d if d @ (p[-1] - p[0]) >= 0 else -d
 
 
-def _limb_from_tip(x, g, tip, limb: SkeletonLimb, band: float, graph=None) -> MeshLimb:
-    """The mesh's limb traced from its extremity (geodesic distances ``g`` from it, over ``graph``), at the
-    skeleton's lengths."""
+def _limb_from_tip(x, g, tip, limb: SkeletonLimb, band: float, graph=None, by_height: bool = False) -> MeshLimb:
+    """The mesh's limb traced from its extremity (geodesic distances ``g`` from it, over ``graph``; Z up), at the
+    skeleton's lengths; ``by_height``: a leg (its ankle found by height above the toe tip)."""
     L_low = float(np.linalg.norm(limb.end - limb.middle))
     L_up = float(np.linalg.norm(limb.middle - limb.root))
     near = np.asarray(tip, dtype=np.float64)
@@ -195,12 +197,15 @@ def _limb_from_tip(x, g, tip, limb: SkeletonLimb, band: float, graph=None) -> Me
             near = c
         return c
 
-    # the wrist / ankle ring: the first whose centroid lies the skeleton's hand / foot length from the tip (a path
-    # along the surface runs round the fingertip's or toe's cap first: past it, it runs along the limb's middle)
+    # the wrist ring: the first whose centroid lies the skeleton's hand length from the fingertip (a path along the
+    # surface runs round the fingertip's cap first: past it, it runs along the limb's middle); the ankle ring: the
+    # first whose centroid lies as high above the toe tip as the skeleton's ankle above its toes' end (feet differ
+    # in length from subject to subject more than ankles in height: a capture's toe end site is no toe tip)
     d_end = limb.tip_length
     for d in np.arange(0.5 * band, 3.0 * limb.tip_length + 10 * band, 0.5 * band):
         c = ring(d)
-        if c is not None and np.linalg.norm(c - tip) >= limb.tip_length:
+        if c is not None and (c[2] - tip[2] >= limb.tip_rise if by_height else
+                              np.linalg.norm(c - tip) >= limb.tip_length):
             d_end = float(d)
             break
     d_mid = d_end + L_low
@@ -256,7 +261,7 @@ def mesh_pose(vertices: np.ndarray, triangles: np.ndarray, limbs: dict, declared
     tips = feet + hands
     owner = np.argmin(np.array([geo[t] for t in tips]), axis=0)
     geo = {**geo, **{t: np.where(owner == k, geo[t], np.inf) for k, t in enumerate(tips)}}
-    leg_of = {f: _limb_from_tip(x, geo[f], x[f], limbs[("l", "leg")], band, graph) for f in feet}
+    leg_of = {f: _limb_from_tip(x, geo[f], x[f], limbs[("l", "leg")], band, graph, by_height=True) for f in feet}
     ankles = np.mean([leg_of[f].end for f in feet], axis=0)
     up = _unit(x[head] - ankles)
     toes = np.mean([x[f] - leg_of[f].end for f in feet], axis=0)
