@@ -108,7 +108,7 @@ def flesh_check(scene) -> tuple[float, str]:
     from clusterfem_ros.scene_build import jelly_bind_pose
     from clusterfem_ros.skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
     sk = scene.skeleton
-    q = jelly_bind_pose(scene.config, sk)
+    q = scene.surface_body.bind_q if scene.surface_body is not None else jelly_bind_pose(scene.config, sk)
     q = sk.neutral() if q is None else q
     try:
         roles = label_skeleton(sk, q)

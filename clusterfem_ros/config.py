@@ -117,8 +117,10 @@ PARAMS: tuple[Param, ...] = (
           "root (the players' root pose moves it); 'fixed': use the URDF's joints as they are; 'auto': free when "
           "the URDF has no prismatic joint", choices=ROOT_JOINTS),
     Param("skeleton.bind_pose", "neutral", "pose a surface body was modelled in, or a jelly body on a skeleton other "
-          "than the built-in one is built in: the URDF's zero pose, or frame 0 of skeleton.bind_bvh (the capture "
-          "the player plays)", choices=("neutral", "first_frame")),
+          "than the built-in one is built in: the URDF's zero pose, frame 0 of skeleton.bind_bvh (the capture "
+          "the player plays), or 'auto': a surface body's found from the mesh and the skeleton, each limb of the "
+          "skeleton's rest turned onto the mesh's, finger and toe bones outside the mesh left without flesh "
+          "(body/auto_bind.py); any other body's as 'neutral'", choices=("neutral", "first_frame", "auto")),
     Param("skeleton.bind_bvh", "", "BVH file whose frame 0 is the bind pose when skeleton.bind_pose is 'first_frame': "
           "a path, or a name under $CLUSTERFEM_DATA, ../shared/data or the user data folder"),
     Param("skeleton.bvh_unit", "auto", "length unit of the BVH file played (the player's 'unit' unless its own section "
@@ -371,7 +373,7 @@ class SkeletonSection:
     urdf_file: str
     up_axis: str
     root_joint: str
-    bind_pose: str                  # 'neutral' or 'first_frame'
+    bind_pose: str                  # 'neutral', 'first_frame' or 'auto'
     bind_bvh: str
     bvh_unit: str                   # 'auto', a unit name or metres per unit (skeleton/bvh_placement.py)
     bvh_up: str                     # 'auto' or a signed file axis

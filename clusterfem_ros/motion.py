@@ -200,12 +200,15 @@ def load_player_section(path: str | Path) -> dict | None:
 
 def on_capture_skeleton(config, bvh_file: str | Path | None = None, progress=None):
     """The scene ``config`` made to play a BVH on the capture's own skeleton (skeleton.source robot_description): a
-    character's surface (body.kind surface) is fitted to that skeleton in the scene's bind pose; any other body
+    character's surface (body.kind surface) is fitted to that skeleton in the scene's bind pose (with bind_pose
+    'auto', found from the mesh and the skeleton in its rest: the zero pose, or frame 0 of ``bvh_file``); any other body
     becomes the jelly man built around it, in the pose ``capture_bind_pose`` chooses when ``bvh_file`` is given
-    and skeleton.bind_pose is left 'neutral' (``progress`` gets the line saying which)."""
+    and skeleton.bind_pose is left 'neutral' or 'auto' (``progress`` gets the line saying which)."""
     kind = "surface" if config.body.kind == "surface" else "jelly_man"
     values = {"skeleton.source": "robot_description", "body.kind": kind}
-    if bvh_file is not None and kind == "jelly_man" and config.skeleton.bind_pose == "neutral":
+    if bvh_file is not None and kind == "surface" and config.skeleton.bind_pose == "auto":
+        values["skeleton.bind_bvh"] = str(bvh_file)     # its frame 0, should no human stand in the zero pose
+    if bvh_file is not None and kind == "jelly_man" and config.skeleton.bind_pose in ("neutral", "auto"):
         pose, why = capture_bind_pose(bvh_file)
         if progress is not None:
             progress(why)

@@ -132,7 +132,7 @@ def jelly_bind_pose(config: SceneConfig, skeleton: Skeleton, progress: Callable[
     skeleton.bind_pose / bind_joints say otherwise (body/fit.bind_configuration), e.g. frame 0 of the capture for
     a rig whose zero pose is no standing human."""
     s = config.skeleton
-    if s.bind_pose == "neutral" and not s.bind_joints:
+    if s.bind_pose in ("neutral", "auto") and not s.bind_joints:     # 'auto' finds a surface mesh's pose
         return None
     q = bind_configuration(skeleton, s.bind_pose, s.bind_joints, s.bind_angles, s.bind_bvh)
     say(progress, f"jelly body built in the bind pose (skeleton.bind_pose {s.bind_pose!r}"
@@ -250,7 +250,7 @@ def build_volume_mesh(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, prog
 def build_surface(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:
     surface = build_surface_body(config, skeleton, progress)
     return SceneParts(config, surface.mesh, np.zeros(surface.mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
-                      surface=surface)
+                      surface=surface, bare_bones=surface.unbound)
 
 
 def build_paper_shape(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:

@@ -261,7 +261,8 @@ def test_an_open_surface_the_mesher_cannot_close_is_refused(tmp_path, cache):
 
 
 def test_a_mesh_100_times_too_big_for_its_skeleton_is_refused(surface, cache, monkeypatch):
-    with pytest.raises(FitError, match=r"1\d\d times the size of its skeleton.*body\.surface_unit near 0\.00\d"):
+    with pytest.raises(FitError, match=r"1\d\d times the size of its skeleton.*the mesh's unit is wrong; "
+                                       r"set body\.surface_unit 0\.0\d+ \((cm|inch)"):
         _build(surface, cache, monkeypatch, **{"body.surface_unit": 1.0})
 
 
@@ -301,13 +302,22 @@ def test_the_character_scene_file_loads_and_names_its_data(monkeypatch, tmp_path
     root = Path(__file__).resolve().parents[1]
     c = load_scene_file(root / "config" / "character_walk.yaml")
     assert c["body.kind"] == "surface" and c["skeleton.source"] == "robot_description"
-    assert len(c["skeleton.bind_joints"]) == len(c["skeleton.bind_angles"]) == 6
+    # the bind pose is found from the mesh and the played skeleton: the scene names no capture, no angle, no bone
+    assert c["skeleton.bind_pose"] == "auto"
+    assert not (c["skeleton.bind_bvh"] or c["skeleton.bind_joints"] or c["skeleton.bind_angles"]
+                or c["binding.skip_bones"])
     monkeypatch.setenv("CLUSTERFEM_DATA", str(tmp_path))
     (tmp_path / "meshes").mkdir()
     (tmp_path / "meshes" / "makehuman_base.obj").write_text("v 0 0 0\n")
     assert find_data_file(c["body.surface_file"]) == tmp_path / "meshes" / "makehuman_base.obj"
     with pytest.raises(FitError, match=r"'meshes/absent.obj' is neither a path nor found under .*character_data.md"):
         find_data_file("meshes/absent.obj", "config/character_data.md")
+
+
+def test_bind_pose_auto_refuses_joint_angles_and_a_manual_fit(surface, cache, monkeypatch):
+    with pytest.raises(FitError, match=r"skeleton.bind_joints \['bend'\] set joints on top of .*'auto' finds"):
+        _build(surface, cache, monkeypatch, **{"skeleton.bind_pose": "auto", "skeleton.bind_joints": ["bend"],
+                                               "skeleton.bind_angles": [0.3]})
 
 
 def test_a_bind_capture_of_another_skeleton_is_refused(tmp_path):

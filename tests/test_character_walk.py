@@ -58,11 +58,16 @@ def test_a_capture_of_another_subject_with_the_same_joint_names_fits_the_charact
     assert abs(body.mesh.n_tets / TARGET_TETS - 1) <= 0.2 and len(skeleton.bone_names) == 31
 
 
-def test_a_capture_with_other_joint_names_is_refused_naming_them(walk):
-    from clusterfem_ros.body.fit import FitError
-    hop = _clip("cmu_131_03_hop_3dsmax")                 # the 3ds-Max conversion: LeftHip, LeftKnee, ...
-    with pytest.raises(FitError, match=r"capture of another skeleton: it has no joint LeftHip_\wrot.*bind_pose"):
-        _surface_body(hop)
+@pytest.mark.parametrize("name", ["cmu_131_03_hop_3dsmax", "mixamo_rig_freebvh"])
+def test_a_capture_with_other_joint_names_and_rest_pose_fits_the_character(walk, name):
+    """The 3ds-Max conversion (LeftHip, LeftKnee, ...; arms down at rest) and the Mixamo rig (prefixed names,
+    fingers): the bind pose is found from the mesh, every bone that binds lies inside, and only finger, toe and
+    root-helper bones (by role) are left without flesh."""
+    from clusterfem_ros.skeleton.bone_roles import label_skeleton
+    body, skeleton, config = _surface_body(_clip(name))
+    roles = label_skeleton(skeleton)
+    assert all(roles.role_of(n).split("_")[-1] in ("finger", "toe", "root") for n in body.unbound), body.unbound
+    assert 0.5 * config["body.surface_unit"] < body.fit.scale < 2.0 * config["body.surface_unit"]
 
 
 def test_the_character_walks_a_second_bounded_with_nothing_withheld(walk):

@@ -32,6 +32,7 @@ HEIGHT_RATIO = 0.93     # a human skeleton (toe tips to head end) spans about th
 MAX_UNIT_ERROR = 2.0    # auto scale may differ from the declared unit by at most this factor
 BONE_SAMPLES = 5        # points checked along each bone segment, ends included
 INSIDE_MARGIN = 0.01    # [m] how deep under the skin auto fit wants the bones
+MESH_UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "inch": 0.0254}   # the units modelling tools write
 
 
 class FitError(ClusterFemError, ValueError):
@@ -46,6 +47,10 @@ class Fit:
 
     def apply(self, points: np.ndarray) -> np.ndarray:
         return self.scale * np.asarray(points, dtype=np.float64) @ self.rotation.T + self.offset
+
+    def inverse(self, points: np.ndarray) -> np.ndarray:
+        """File coordinates of world points: the inverse of ``apply``."""
+        return (np.asarray(points, dtype=np.float64) - self.offset) @ self.rotation / self.scale
 
     def describe(self) -> str:
         return (f"scale {self.scale:.5g} m per file unit, offset ({', '.join(f'{x:.3f}' for x in self.offset)}) m, "
@@ -100,12 +105,13 @@ def bind_configuration(skeleton, pose: str = "neutral", joints: Sequence[str] = 
 
 def fit_mesh(vertices: np.ndarray, starts: np.ndarray, ends: np.ndarray, mode: str = "auto", unit: float = 1.0,
              up: str = "Z", forward: str = "X", offset: Sequence[float] = (0.0, 0.0, 0.0),
-             triangles: np.ndarray | None = None) -> Fit:
+             triangles: np.ndarray | None = None, rotation: np.ndarray | None = None) -> Fit:
     """The placement of a mesh (file units and axes) on a skeleton's bone segments (world, bind pose);
-    ``triangles`` (the closed surface over ``vertices``) lets ``auto`` refine it (``refine_fit``)."""
+    ``triangles`` (the closed surface over ``vertices``) lets ``auto`` refine it (``refine_fit``); ``rotation``
+    (3, 3), when given, takes the file's axes to the world instead of ``up`` / ``forward``."""
     from ..skeleton.bvh import axes_to_ros
     try:
-        R = axes_to_ros(up, forward)
+        R = axes_to_ros(up, forward) if rotation is None else np.asarray(rotation, dtype=np.float64)
     except ValueError as exc:
         raise FitError(f"skeleton.fit_up / skeleton.fit_forward: {exc}") from None
     if not (np.isfinite(unit) and unit > 0):
@@ -119,10 +125,7 @@ def fit_mesh(vertices: np.ndarray, starts: np.ndarray, ends: np.ndarray, mode: s
                        "check skeleton.fit_up (the file's up axis)")
     auto = bone_height / (HEIGHT_RATIO * height)
     if not 1.0 / MAX_UNIT_ERROR <= auto <= MAX_UNIT_ERROR:
-        raise FitError(f"the mesh is {1.0 / auto:.3g} times the size of its skeleton at body.surface_unit = "
-                       f"{unit:g} m per file unit (mesh {height:.4g} m tall, skeleton {bone_height:.4g} m): the "
-                       f"file's units are wrong; set body.surface_unit near {unit * auto:.3g} (0.01 for cm, 0.001 "
-                       "for mm, 0.1 for dm)")
+        raise FitError(unit_mismatch(height, bone_height / HEIGHT_RATIO, unit))
     if mode == "manual":
         return Fit(R, float(unit), np.asarray(offset, dtype=np.float64))
     if mode != "auto":
@@ -133,37 +136,69 @@ def fit_mesh(vertices: np.ndarray, starts: np.ndarray, ends: np.ndarray, mode: s
     return fit if triangles is None else refine_fit(fit, vertices, triangles, starts, ends)
 
 
+def unit_mismatch(mesh_height: float, skeleton_height: float, unit: float) -> str:
+    """The message for a mesh (``mesh_height`` [m] at body.surface_unit ``unit``) and a skeleton (its stature [m] in
+    the capture's unit) of different sizes, naming the input whose height is no human's: the mesh's unit when the
+    mesh is not a standing human's height, else the capture's when the skeleton is not, else both."""
+    from ..skeleton.bvh_placement import HEIGHT_RANGE, STANDING_HEIGHT
+    lo, hi = HEIGHT_RANGE
+    sizes = (f"the mesh is {mesh_height / skeleton_height:.3g} times the size of its skeleton (the mesh "
+             f"{mesh_height:.4g} m tall at body.surface_unit = {unit:g} m per file unit, the skeleton "
+             f"{skeleton_height:.4g} m)")
+    if not lo <= mesh_height <= hi:
+        file_height = mesh_height / unit
+        name = min(MESH_UNITS, key=lambda n: abs(np.log(file_height * MESH_UNITS[n] / STANDING_HEIGHT)))
+        metres = MESH_UNITS[name]
+        return (f"{sizes}: a standing human is {lo:g} to {hi:g} m tall, so the mesh's unit is wrong; set "
+                f"body.surface_unit {metres:g} ({name}: the mesh {mesh_height / unit * metres:.2f} m tall)")
+    if not lo <= skeleton_height <= hi:
+        return (f"{sizes}: a standing human is {lo:g} to {hi:g} m tall, so the capture's unit is wrong; set the "
+                "player's 'unit' (skeleton.bvh_unit) to the unit of the BVH file, or 'auto'")
+    return (f"{sizes}: check body.surface_unit (the mesh's unit) and the player's 'unit' (skeleton.bvh_unit, the "
+            "capture's): one of them is wrong")
+
+
 def _bone_points(starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
     w = np.linspace(0.0, 1.0, BONE_SAMPLES)
     return (starts[:, None, :] * (1 - w)[None, :, None] + ends[:, None, :] * w[None, :, None]).reshape(-1, 3)
 
 
-def refine_fit(fit: Fit, vertices: np.ndarray, triangles: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> Fit:
-    """``fit`` with its offset and scale moved (least squares) so that the bone points lie INSIDE_MARGIN inside."""
+def refine_fit(fit: Fit, vertices: np.ndarray, triangles: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+               scale: bool = True) -> Fit:
+    """``fit`` with its offset and (``scale``) its scale moved (least squares) so that the bone points lie
+    INSIDE_MARGIN inside."""
     import trimesh
     from scipy.optimize import least_squares
     mesh = trimesh.Trimesh(vertices, triangles, process=False)
     pts = _bone_points(starts, ends)
+    free = 4 if scale else 3
 
     def outside(p: np.ndarray) -> np.ndarray:
-        scale, offset = fit.scale * np.exp(p[3]), fit.offset + p[:3]
+        scale, offset = fit.scale * np.exp(p[3] if free == 4 else 0.0), fit.offset + p[:3]
         local = (pts - offset) @ fit.rotation / scale                  # bone points in the file's frame
         depth = trimesh.proximity.signed_distance(mesh, local) * scale  # > 0 inside [m]
         return np.maximum(INSIDE_MARGIN - depth, 0.0)
 
-    r = least_squares(outside, np.zeros(4), diff_step=1e-3, max_nfev=60)
-    return Fit(fit.rotation, float(fit.scale * np.exp(r.x[3])), fit.offset + r.x[:3])
+    r = least_squares(outside, np.zeros(free), diff_step=1e-3, max_nfev=60)
+    return Fit(fit.rotation, float(fit.scale * np.exp(r.x[3] if free == 4 else 0.0)), fit.offset + r.x[:3])
+
+
+def bone_outside_distances(surface_vertices: np.ndarray, triangles: np.ndarray, starts: np.ndarray,
+                           ends: np.ndarray) -> np.ndarray:
+    """(nb,) [m] how far the farthest of BONE_SAMPLES points along each bone lies outside the closed surface
+    (negative: every point inside, by that depth)."""
+    import trimesh
+    mesh = trimesh.Trimesh(surface_vertices, triangles, process=False)
+    pts = _bone_points(starts, ends)
+    signed = trimesh.proximity.signed_distance(mesh, pts).reshape(len(starts), BONE_SAMPLES)   # > 0 inside
+    return -signed.min(axis=1)
 
 
 def bones_outside(surface_vertices: np.ndarray, triangles: np.ndarray, starts: np.ndarray, ends: np.ndarray,
                   names: Sequence[str], tolerance: float) -> list[tuple[str, float]]:
     """(bone name, how far outside [m]) of every bone a point of whose segment lies more than ``tolerance``
     outside the closed surface (signed distance, trimesh), worst first."""
-    import trimesh
-    mesh = trimesh.Trimesh(surface_vertices, triangles, process=False)
-    pts = _bone_points(starts, ends)
-    signed = trimesh.proximity.signed_distance(mesh, pts).reshape(len(starts), BONE_SAMPLES)   # > 0 inside
-    out = -signed.min(axis=1)
+    out = bone_outside_distances(surface_vertices, triangles, starts, ends)
     bad = [(names[b], float(out[b])) for b in np.flatnonzero(out > tolerance)]
     return sorted(bad, key=lambda p: -p[1])
 

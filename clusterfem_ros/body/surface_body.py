@@ -15,7 +15,8 @@ import numpy as np
 
 from ..fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from ..fem.mesh.tetrahedralize import TetResult, surface_to_tets
-from .fit import Fit, FitError, bind_configuration, bones_outside, find_data_file, fit_mesh, surface_depth
+from .auto_bind import auto_bind_pose, bones_to_unbind, rest_configuration
+from .fit import Fit, FitError, bind_configuration, bone_outside_distances, find_data_file, fit_mesh, surface_depth
 
 MANIFEST = "config/character_data.md"
 
@@ -27,24 +28,54 @@ class SurfaceBody:
     depth: np.ndarray       # (n,) [m] every vertex's distance to the body's surface
     fit: Fit
     tets: TetResult         # the tets in file units, with their quality and cache facts
+    unbound: tuple[str, ...] = ()   # bones without flesh: fingers, toes, root helpers outside it (bind_pose 'auto')
 
 
 def build_surface_body(config, skeleton, progress: Callable[[str], None] | None = None) -> SurfaceBody:
     """The surface body the scene's body.* and skeleton.* parameters describe (``config``: a config.SceneConfig,
-    read through its typed sections), on ``skeleton``."""
+    read through its typed sections), on ``skeleton``. With skeleton.bind_pose 'auto' the bind pose is found from
+    the mesh and the skeleton (body/auto_bind.py) and the finger and toe bones outside the mesh bind no flesh."""
     say = progress or (lambda _: None)
     b, s = config.body, config.skeleton
     path = find_data_file(b.surface_file, MANIFEST)
-    q = bind_configuration(skeleton, s.bind_pose, s.bind_joints, s.bind_angles, s.bind_bvh, s.bvh_unit, s.bvh_up)
-    starts, ends = skeleton.bone_segments(q)
+    auto = s.bind_pose == "auto"
+    if auto:
+        if s.bind_joints:
+            raise FitError(f"skeleton.bind_joints {list(s.bind_joints)} set joints on top of skeleton.bind_pose "
+                           "'neutral' or 'first_frame'; 'auto' finds every limb's angle from the mesh: leave "
+                           "bind_joints / bind_angles empty or choose 'neutral' / 'first_frame'")
+        q_rest, why = rest_configuration(skeleton, s.bind_bvh, s.bvh_unit, s.bvh_up)
+        say(why)
+    else:
+        q = bind_configuration(skeleton, s.bind_pose, s.bind_joints, s.bind_angles, s.bind_bvh, s.bvh_unit,
+                               s.bvh_up)
     tets = surface_to_tets(path, b.target_tets, group=b.surface_group, progress=progress)
     triangles = boundary_triangles(tets.mesh)
-    say(f"fitting {path.name} on the skeleton ({s.fit})")
-    fit = fit_mesh(tets.mesh.vertices, starts, ends, s.fit, b.surface_unit, s.fit_up, s.fit_forward, s.fit_offset,
-                   triangles=triangles)
+    say(f"fitting {path.name} on the skeleton ({'bind pose from the mesh, ' if auto else ''}{s.fit})")
+    unbound: list[str] = []
+    if auto:
+        if s.fit != "auto":
+            raise FitError("skeleton.bind_pose 'auto' places the mesh itself: set skeleton.fit 'auto' (or choose "
+                           "skeleton.bind_pose 'neutral' / 'first_frame' for skeleton.fit 'manual')")
+        found = auto_bind_pose(skeleton, q_rest, tets.mesh.vertices, triangles, b.surface_unit, s.fit_up,
+                               s.fit_forward, say=say)
+        q, fit = found.q, found.fit
+        say(found.report)
+    else:
+        fit = fit_mesh(tets.mesh.vertices, *skeleton.bone_segments(q), s.fit, b.surface_unit, s.fit_up,
+                       s.fit_forward, s.fit_offset, triangles=triangles)
+    starts, ends = skeleton.bone_segments(q)
     say(f"fitted {path.name} on the skeleton: {fit.describe()}")
     mesh = TetMesh(fit.apply(tets.mesh.vertices), tets.mesh.tets).validate()    # R proper, scale > 0: tets keep sign
-    outside = bones_outside(mesh.vertices, triangles, starts, ends, skeleton.bone_names, s.fit_tolerance)
+    out = bone_outside_distances(mesh.vertices, triangles, starts, ends)
+    if auto:
+        unbound = bones_to_unbind(found.roles, dict(zip(skeleton.bone_names, out)))
+        say(f"bones left without flesh (finger, toe and root-helper bones outside the mesh: their flesh follows the "
+            f"hand, foot or pelvis): "
+            f"{', '.join(f'{n} ({100 * out[skeleton.bone_names.index(n)]:.1f} cm out)' for n in unbound)}"
+            if unbound else "every bone binds flesh (no finger, toe or root-helper bone outside the mesh)")
+    outside = sorted(((n, float(d)) for n, d in zip(skeleton.bone_names, out)
+                      if d > s.fit_tolerance and n not in unbound), key=lambda p: -p[1])
     if outside:
         listed = ", ".join(f"{name} ({d * 100:.1f} cm outside)" for name, d in outside)
         raise FitError(f"{len(outside)} of {len(starts)} bones leave the body of {path.name} by more than "
@@ -54,7 +85,7 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     depth = surface_depth(mesh.vertices, mesh.vertices, triangles)
     say(f"surface body: {mesh.n_tets} tets / {mesh.n_vertices} vertices, min dihedral "
         f"{tets.min_dihedral_deg:.1f} deg, min radius ratio {tets.min_radius_ratio:.3f}")
-    return SurfaceBody(mesh, q, depth, fit, tets)
+    return SurfaceBody(mesh, q, depth, fit, tets, tuple(unbound))
 
 
 def unbound_islands(tets: np.ndarray, n_vertices: int, driven: np.ndarray) -> list[tuple[int, np.ndarray]]:

@@ -403,6 +403,20 @@ class Skeleton:
             self._to_pin(qs, vs)        # a value is not finite: raises naming the joint
         return R, p
 
+    def bone_joints(self) -> list[list[int]]:
+        """Per bone, the joints (indices into joint_names, root-side first) between its parent bone's frame and its
+        own: the joints that turn this bone relative to its parent (a BVH joint's rotation channels)."""
+        out = []
+        for b in range(self.n_bones):
+            p = int(self.bone_parent[b])
+            stop = int(self._k_fjoint[p]) if p >= 0 else -1
+            chain, j = [], int(self._k_fjoint[b])
+            while j >= 0 and j != stop:
+                chain.append(j)
+                j = int(self._k_parent[j])
+            out.append(chain[::-1])
+        return out
+
     def joint_index(self, name: str) -> int:
         try:
             return self.joint_names.index(name)

@@ -1,0 +1,149 @@
+"""skeleton.bind_pose 'auto' (body/auto_bind.py): the pose of a mesh found from its limbs, the skeleton's limbs turned
+onto them, the bones outside left unbound by geometry, and the errors that name the wrong input.
+
+The meshes are the default humanoid's smooth jelly body built in a known pose (T-pose, A-pose with bent elbows and
+spread legs); the skeleton is the same humanoid in its zero pose (arms 30 deg out), so the angles to recover are
+the mesh's own."""
+import numpy as np
+import pytest
+
+from clusterfem_ros.body import auto_bind as ab
+from clusterfem_ros.body.fit import FitError, bone_outside_distances, unit_mismatch
+from clusterfem_ros.fem.mesh.tet_mesh import boundary_triangles
+from clusterfem_ros.skeleton.bone_roles import label_skeleton
+from clusterfem_ros.skeleton.humanoid import default_humanoid
+from clusterfem_ros.skeleton.kinematics import Skeleton
+from clusterfem_ros.skeleton.smooth_body import smooth_jelly_man_mesh
+
+pytest.importorskip("trimesh")
+
+POSES = {"T-pose": {"l_shoulder_roll": 1.07, "r_shoulder_roll": -1.07},
+         "A-pose": {"l_shoulder_roll": 0.35, "r_shoulder_roll": -0.35, "l_elbow_pitch": -0.5, "r_elbow_pitch": -0.5,
+                    "l_hip_roll": 0.15, "r_hip_roll": -0.15}}
+LIMB_BONES = ("upper_arm", "forearm", "thigh", "shin")
+TOLERANCE_DEG = 10.0
+
+
+@pytest.fixture(scope="module")
+def skeleton():
+    return Skeleton.from_urdf_string(default_humanoid().urdf)
+
+
+def _q(skeleton, angles: dict) -> np.ndarray:
+    q = skeleton.neutral()
+    for name, a in angles.items():
+        q[skeleton.joint_index(name)] = a
+    return q
+
+
+@pytest.fixture(scope="module")
+def meshes(skeleton):
+    """pose name -> (vertices [m], triangles, q the mesh was built in)."""
+    out = {}
+    for name, angles in POSES.items():
+        q = _q(skeleton, angles)
+        mesh = smooth_jelly_man_mesh(default_humanoid(), target_tets=3000, q=q)
+        out[name] = (mesh.vertices, boundary_triangles(mesh), q)
+    return out
+
+
+def _bone_angles(skeleton, qa, qb) -> dict[str, float]:
+    sa, ea = skeleton.bone_segments(qa)
+    sb, eb = skeleton.bone_segments(qb)
+    out = {}
+    for b, n in enumerate(skeleton.bone_names):
+        if n.split("_", 1)[-1] in LIMB_BONES:
+            da, db = ea[b] - sa[b], eb[b] - sb[b]
+            out[n] = float(np.degrees(np.arccos(np.clip(da @ db / np.linalg.norm(da) / np.linalg.norm(db), -1, 1))))
+    return out
+
+
+@pytest.mark.parametrize("name", list(POSES))
+def test_the_limbs_of_a_t_and_an_a_pose_mesh_are_found_and_the_skeleton_turned_onto_them(skeleton, meshes, name):
+    vertices, triangles, q_mesh = meshes[name]
+    rest = skeleton.neutral()
+    roles = label_skeleton(skeleton, rest)
+    limbs = ab.skeleton_limbs(roles, *skeleton.bone_segments(rest))
+    pose = ab.mesh_pose(vertices, triangles, limbs, declared_forward=np.array([1.0, 0.0, 0.0]))
+    assert pose.describe().startswith(f"the mesh stands in {'a' if name == 'T-pose' else 'an'} {name}: arms"), \
+        pose.describe()
+    assert pose.forward_by == "the feet" and pose.forward @ [1.0, 0.0, 0.0] > np.cos(np.radians(10))
+    A = ab.facing_rotation(pose, roles)
+    q = ab.turn_limbs(skeleton, rest, limbs, {k: (A @ pose.limbs[k].upper_dir, A @ pose.limbs[k].lower_dir)
+                                              for k in ab.LIMBS})
+    before, after = _bone_angles(skeleton, rest, q_mesh), _bone_angles(skeleton, q, q_mesh)
+    assert max(after.values()) < TOLERANCE_DEG, after
+    if name == "T-pose":                            # the rest's arms hang 60 deg below the T-pose's
+        assert min(before[n] for n in ("l_upper_arm", "r_upper_arm")) > 50, before
+
+
+def test_the_whole_fit_places_the_bones_in_the_middle_of_the_limbs_and_reports_it(skeleton, meshes):
+    vertices, triangles, q_mesh = meshes["A-pose"]
+    lines = []
+    found = ab.auto_bind_pose(skeleton, skeleton.neutral(), vertices, triangles, 1.0, "Z", "X", say=lines.append)
+    assert max(_bone_angles(skeleton, found.q, q_mesh).values()) < TOLERANCE_DEG
+    assert found.report.startswith("bones from the middle of the mesh's limbs (mean / max): left arm ")
+    assert all(mean < 0.06 for mean, _ in found.distances.values()), found.report
+    assert abs(found.fit.scale - 1.0) < 0.05 and np.abs(found.fit.offset).max() < 0.05, found.fit.describe()
+    assert any("A-pose" in line for line in lines), lines
+
+
+def test_toes_out_of_the_foot_are_left_unbound_and_a_leg_swung_out_is_not(skeleton, meshes):
+    vertices, triangles, q_mesh = meshes["T-pose"]
+    q = q_mesh.copy()
+    q[skeleton.joint_index("l_toe_pitch")] = -1.4            # the left toes bent up, out of the foot's flesh
+    q[skeleton.joint_index("r_hip_roll")] = -0.6             # the right leg swung out of its flesh
+    starts, ends = skeleton.bone_segments(q)
+    outside = dict(zip(skeleton.bone_names, bone_outside_distances(vertices, triangles, starts, ends)))
+    assert outside["l_toes"] > ab.UNBIND_MARGIN and outside["r_thigh"] > 0.05, outside
+    # the swung leg's toes are out with it; its thigh, shin and foot are out too but carry the leg's flesh
+    assert ab.bones_to_unbind(label_skeleton(skeleton, q), outside) == ["l_toes", "r_toes"]
+    assert min(outside[n] for n in ("r_thigh", "r_shin", "r_foot")) > ab.UNBIND_MARGIN, outside
+    at_rest = dict(zip(skeleton.bone_names, bone_outside_distances(vertices, triangles,
+                                                                    *skeleton.bone_segments(q_mesh))))
+    assert ab.bones_to_unbind(label_skeleton(skeleton, q_mesh), at_rest) == [], at_rest
+
+
+def test_a_mesh_lying_along_another_axis_is_refused_naming_its_up_axis(skeleton, meshes):
+    vertices, triangles, _ = meshes["T-pose"]
+    lying = vertices @ np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]).T       # head along -y
+    rest = skeleton.neutral()
+    limbs = ab.skeleton_limbs(label_skeleton(skeleton, rest), *skeleton.bone_segments(rest))
+    with pytest.raises(FitError, match="does not stand along the declared up axis; check skeleton.fit_up"):
+        ab.mesh_pose(lying, triangles, limbs, declared_forward=np.array([1.0, 0.0, 0.0]))
+
+
+def test_a_size_mismatch_names_the_input_whose_height_is_no_humans():
+    mesh_wrong = unit_mismatch(mesh_height=17.5, skeleton_height=1.7, unit=0.1)
+    assert "the mesh's unit is wrong; set body.surface_unit 0.01 (cm: the mesh 1.75 m tall)" in mesh_wrong
+    capture_wrong = unit_mismatch(mesh_height=1.75, skeleton_height=0.068, unit=0.01)
+    assert "the capture's unit is wrong; set the player's 'unit' (skeleton.bvh_unit)" in capture_wrong
+    both = unit_mismatch(mesh_height=1.75, skeleton_height=0.7, unit=0.01)
+    assert "body.surface_unit" in both and "skeleton.bvh_unit" in both
+
+
+def test_a_skeleton_no_human_stands_in_needs_a_capture_for_its_rest():
+    from clusterfem_ros.skeleton.urdf_builder import UrdfBuilder
+    b = UrdfBuilder("stick")
+    b.link("world", helper=True)
+    b.link("lower")
+    b.chain("world", "lower", [("lift", "prismatic", (0, 0, 1))])
+    b.tip("lower", (0, 0, 0.25))
+    with pytest.raises(FitError, match="no human stands in the skeleton's zero pose .* play the capture with --bvh"):
+        ab.rest_configuration(Skeleton.from_urdf_string(b.to_string()))
+
+
+def test_each_bone_knows_the_joints_that_turn_it(skeleton):
+    joints = skeleton.bone_joints()
+    names = [[skeleton.joint_names[j] for j in js] for js in joints]
+    by_bone = dict(zip(skeleton.bone_names, names))
+    assert by_bone["l_forearm"] == ["l_elbow_pitch", "l_elbow_yaw"]
+    assert by_bone["r_shin"] == ["r_knee_pitch"]
+    assert by_bone["l_upper_arm"] == ["l_shoulder_pitch", "l_shoulder_roll", "l_shoulder_yaw"]
+
+
+def test_bind_pose_auto_builds_any_other_body_in_the_zero_pose(skeleton):
+    from clusterfem_ros.config import SceneConfig
+    from clusterfem_ros.scene_build import jelly_bind_pose
+    config = SceneConfig().with_values({"skeleton.bind_pose": "auto", "skeleton.source": "robot_description"})
+    assert jelly_bind_pose(config, skeleton) is None
