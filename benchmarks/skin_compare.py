@@ -12,6 +12,11 @@ own plan; with the same tets, their mean is the cost ratio that load does not bl
 the best of ``--repeats``, and its ratio to the voxel body's); the largest volume error and level-0 tracking
 error of the walk. ``--min-altitude`` adds smooth bodies with other floors on the tets' altitude
 (smooth_body.MIN_ALTITUDE).
+
+Each smooth body runs twice: with its own lumped masses, and with the masses the scene gives it (raised at the
+vertices stiffer for their mass than the voxel body's stiffest: fem/mass_scaling.py). For the scaled one the
+table adds the mass added (share of the body's, vertices raised) and its error: the largest distance between
+its vertices and the unscaled body's at the end of the same walk [mm], beside the largest displacement there.
 """
 from __future__ import annotations
 
@@ -51,17 +56,34 @@ def main(argv: list[str] | None = None) -> int:
     alt0 = min_altitudes(voxels.vertices, voxels.tets)
     from clusterfem_ros.skeleton.smooth_body import MIN_ALTITUDE
     floors = [None, MIN_ALTITUDE] + [a for a in args.min_altitude if a != MIN_ALTITUDE]
-    scenes = []
+    from clusterfem_ros.fem.mass_scaling import cap_rates, reference_rate
+    scenes, scaled = [], {}
     for floor in floors:
         mesh = voxels if floor is None else snap_to_shape(voxels, shape, floor)[0]
+        name = "voxel" if floor is None else f"smooth (altitude >= {floor:g})"
         skeleton, traj, model, binding, gains = build_scene(args.tets, args.duration, step, mesh=mesh)
-        scenes.append(("voxel" if floor is None else f"smooth (altitude >= {floor:g})", model, binding, mesh))
+        scenes.append((name, model, binding, mesh))
+        if floor is not None:
+            own = model
+            skeleton, traj, model, binding, gains = build_scene(args.tets, args.duration, step, mesh=mesh,
+                                                                mass_reference=voxels)
+            scenes.append((name + ", mass scaled", model, binding, mesh))
+            scaled[name + ", mass scaled"] = (name, cap_rates(own.K, own.mass, reference_rate(voxels, own.material)))
     rows, best = [], {}
     for _ in range(args.repeats):
         for name, model, binding, mesh in scenes:
             r = run(skeleton, traj, model, binding, gains, "neohookean", args.duration, step)
             if name not in best or r["steps/s"] > best[name]["steps/s"]:
                 best[name] = r
+
+    def scaling_error(name: str, r: dict) -> str:
+        if name not in scaled:
+            return ""
+        own, scaling = scaled[name]
+        diff = np.linalg.norm(r["u_end"] - best[own]["u_end"], axis=1).max()
+        return (f"+{100 * scaling.added_share:.2f} % at {scaling.raised.size} v; {diff * 1e3:.2f} mm of "
+                f"{np.linalg.norm(r['u_end'], axis=1).max() * 1e3:.0f}")
+
     for name, model, binding, mesh in scenes:
         depth = surface_depth(mesh, shape)
         share = float(np.min(min_altitudes(mesh.vertices, mesh.tets) / alt0))
@@ -75,12 +97,13 @@ def main(argv: list[str] | None = None) -> int:
                      f"{plan_substeps(step, free).substeps}",
                      f"{s0}" if s0 == s1 else f"{s0}-{s1}, mean {r['substeps_mean']:.3f}",
                      f"{r['steps/s']:.0f}", f"{r['steps/s'] / best['voxel']['steps/s']:.2f}",
-                     f"{r['volume'] * 100:.2f} %", f"{r['track'] * 1e3:.2f}"])
+                     f"{r['volume'] * 100:.2f} %", f"{r['track'] * 1e3:.2f}", scaling_error(name, r)])
     print(f"jelly man skins, {args.tets} target tets, voxel edge h = {h * 1e3:.1f} mm, {args.duration:g} s of walking "
           f"per run, best of {args.repeats} interleaved runs")
     print(table(["skin", "tets", "surface |depth| / h (p50 / p95 / max)", "min altitude share",
                  "h_crit free [ms]", "planned sub-steps", "sub-steps in the walk",
-                 "steps/s", "vs voxel", "max volume error", "level-0 tracking mm"], rows))
+                 "steps/s", "vs voxel", "max volume error", "level-0 tracking mm",
+                 "mass added; end vs unscaled / max displacement"], rows))
     return 0
 
 
