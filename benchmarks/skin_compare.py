@@ -7,7 +7,8 @@ binding and material, the procedural walk, the clustered method with the default
 at the same tet count (the smooth body keeps the voxel body's tets and moves its vertices). Printed per skin:
 tets; the surface vertices' distance to the blended capsule surface (median / 95th percentile / max, in voxel
 edges h); the smallest tet altitude as a share of its voxel altitude; the critical step of the free body
-(fem/stability.py) and the sub-steps it plans per 1 ms step, and the sub-steps the walk took (the bound body's
+(fem/stability.py) and the sub-steps it plans per 1 ms step, the largest stretch factor (fem/materials/stretch.py)
+at which the bound body still plans one sub-step, and the sub-steps the walk took (the bound body's
 own plan; with the same tets, their mean is the cost ratio that load does not blur); steps/s (runs interleaved,
 the best of ``--repeats``, and its ratio to the voxel body's); the largest volume error and level-0 tracking
 error of the walk. ``--min-altitude`` adds smooth bodies with other floors on the tets' altitude
@@ -35,6 +36,18 @@ def surface_depth(mesh, shape) -> np.ndarray:
     from clusterfem_ros.skeleton.smooth_body import vertex_bones
     surface = np.unique(boundary_triangles(mesh))
     return np.abs(shape.depth(mesh.vertices[surface], vertex_bones(mesh, shape)[surface]))
+
+
+def one_substep_stretch(lam: float, material, gains, step: float, safety: float = 0.8) -> float:
+    """The largest stretch factor (fem/materials/stretch.py: quarter octaves) whose plan, with the binding's
+    stiffest gains, still takes one sub-step per ``step``."""
+    from clusterfem_ros.fem.stability import critical_step, plan_substeps
+    k, factor = 0, 1.0
+    while plan_substeps(step, critical_step(lam * 2 ** ((k + 1) / 4), material.xi, material.zeta, max(gains.kp),
+                                            max(gains.kd)), safety).substeps == 1 and k < 64:
+        k += 1
+        factor = 2 ** (k / 4)
+    return factor
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,18 +103,19 @@ def main(argv: list[str] | None = None) -> int:
         lam = max_eigenvalue(model)
         m = model.material
         free = critical_step(lam, m.xi, m.zeta)
+        one = one_substep_stretch(lam, m, gains, step)
         r = best[name]
         s0, s1 = r["substeps"]
         rows.append([name, f"{mesh.n_tets}", f"{np.median(depth) / h:.3f} / {np.percentile(depth, 95) / h:.3f} / "
                      f"{depth.max() / h:.3f}", f"{share:.2f}", f"{free * 1e3:.3f}",
-                     f"{plan_substeps(step, free).substeps}",
+                     f"{plan_substeps(step, free).substeps}", f"{one:.2f}",
                      f"{s0}" if s0 == s1 else f"{s0}-{s1}, mean {r['substeps_mean']:.3f}",
                      f"{r['steps/s']:.0f}", f"{r['steps/s'] / best['voxel']['steps/s']:.2f}",
                      f"{r['volume'] * 100:.2f} %", f"{r['track'] * 1e3:.2f}", scaling_error(name, r)])
     print(f"jelly man skins, {args.tets} target tets, voxel edge h = {h * 1e3:.1f} mm, {args.duration:g} s of walking "
           f"per run, best of {args.repeats} interleaved runs")
     print(table(["skin", "tets", "surface |depth| / h (p50 / p95 / max)", "min altitude share",
-                 "h_crit free [ms]", "planned sub-steps", "sub-steps in the walk",
+                 "h_crit free [ms]", "planned sub-steps", "stretch at 1 sub-step", "sub-steps in the walk",
                  "steps/s", "vs voxel", "max volume error", "level-0 tracking mm",
                  "mass added; end vs unscaled / max displacement"], rows))
     return 0
