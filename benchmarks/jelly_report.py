@@ -2,8 +2,9 @@
 
     python -m benchmarks.jelly_report [--duration 3] [--step 1e-3] [--tets 4800]
 
-The default scene: ``smooth_jelly_man_mesh`` (``jelly_man_mesh``'s ~4800 tets, skin on the blended capsules)
-around the built-in ~48-DOF humanoid, bound with the
+The default scene: ``smooth_jelly_man_mesh`` (``jelly_man_mesh``'s ~4800 tets, skin on the blended capsules,
+masses scaled to the voxel body's critical step: fem/mass_scaling.py) around the built-in ~48-DOF humanoid, bound
+with the
 scene defaults (``config.PARAMS``: binding.level_radii / kp / kd, the material), driven by
 ``procedural_walk`` through ``SkeletonDriver`` and stepped by the clustered method at a 1 ms physics
 step. Printed per run: simulation steps per second (skeleton, constraints and physics, JIT excluded),
@@ -51,23 +52,30 @@ def rest_configuration(skeleton) -> np.ndarray:
     raise AttributeError("the skeleton exposes no neutral configuration (neutral(), q0 or a pinocchio model)")
 
 
-def build_scene(target_tets: int, duration: float, step: float, skin: str | None = None, mesh=None):
+def build_scene(target_tets: int, duration: float, step: float, skin: str | None = None, mesh=None,
+                mass_reference=None):
     """(skeleton, trajectory, model, binding, gains) of the default jelly man scene; ``skin`` 'smooth' or 'voxel'
-    (default: the scene's body.skin), or the body ``mesh`` given."""
+    (default: the scene's body.skin), or the body ``mesh`` given (its masses scaled to ``mass_reference``'s
+    stiffest vertex when given, as the scene scales the smooth body's: fem/mass_scaling.py)."""
     from clusterfem_ros.skeleton.humanoid import default_humanoid
     from clusterfem_ros.skeleton.jelly_body import jelly_man_mesh
     from clusterfem_ros.skeleton.kinematics import Skeleton
     from clusterfem_ros.skeleton.procedural_walk import procedural_walk
-    from clusterfem_ros.skeleton.smooth_body import smooth_jelly_man_mesh
+    from clusterfem_ros.fem.mass_scaling import scale_to_reference
+    from clusterfem_ros.skeleton.smooth_body import smooth_jelly_man_meshes
     spec = default_humanoid()
     skeleton = Skeleton.from_urdf_string(spec.urdf)
     traj = procedural_walk(duration + step, 1.0 / step)
-    mesher = smooth_jelly_man_mesh if (skin or scene_default("body.skin")) == "smooth" else jelly_man_mesh
-    mesh = mesher(spec, target_tets=target_tets) if mesh is None else mesh
+    if mesh is None and (skin or scene_default("body.skin")) == "smooth":
+        mesh, mass_reference = smooth_jelly_man_meshes(spec, target_tets=target_tets)
+    elif mesh is None:
+        mesh = jelly_man_mesh(spec, target_tets=target_tets)
     material = Material(E=scene_default("material.young_modulus"), nu=scene_default("material.poisson_ratio"),
                         rho=scene_default("material.density"), xi=scene_default("material.mass_damping"),
                         zeta=scene_default("material.stiffness_damping"))
     model = build_model(mesh, material, gravity=(0.0, 0.0, scene_default("physics.gravity")))
+    if mass_reference is not None:
+        model, _ = scale_to_reference(model, mass_reference)
     q0 = rest_configuration(skeleton)
     starts, ends = skeleton.bone_segments(q0)
     rest = skeleton.forward(q0, np.zeros(getattr(skeleton, "nv", None) or traj.sample(0.0)[1].size))
@@ -103,16 +111,16 @@ def run(skeleton, traj, model, binding, gains, warp: bool | str, duration: float
             if timed and k % 10 == 0:
                 vol = float(signed_volumes(model.rest + state.u, tets).sum())
                 vol_err = max(vol_err, abs(vol / v0 - 1.0))
-        return time.perf_counter() - t0, vol_err, track, subs
+        return time.perf_counter() - t0, vol_err, track, subs, state.u.copy()
 
     simulate(20, False)
     steps = int(round(duration / step))
     # the volume/tracking probes cost time: time a clean run, measure on a second one
-    wall, _, _, subs = simulate(steps, False)
-    _, vol_err, track, _ = simulate(steps, True)
+    wall, _, _, subs, _ = simulate(steps, False)
+    _, vol_err, track, _, u_end = simulate(steps, True)
     return {"steps/s": steps / wall, "rtf": steps * step / wall, "substeps": (min(subs), max(subs)),
             "substeps_mean": float(np.mean(subs)),
-            "volume": vol_err, "track": track}
+            "volume": vol_err, "track": track, "u_end": u_end}
 
 
 def main(argv: list[str] | None = None) -> int:

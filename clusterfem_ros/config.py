@@ -74,9 +74,9 @@ PARAMS: tuple[Param, ...] = (
     Param("body.min_tet_quality", 1e-8, "refuse a mesh with a tet of lower shape quality (6 sqrt2 V / l_rms^3, 1 = "
           "regular; fem/mesh/tet_quality.py): a nearly flat tet makes the explicit step take thousands of sub-steps; 0 "
           "accepts any shape", 0.0, 0.99),
-    Param("body.skin", "voxel", "skin of the jelly man: 'voxel' (the voxel steps) or 'smooth' (its surface vertices on "
-          "the bone capsules blended at the joints, skeleton/smooth_body.py; its thinner tets take 2 sub-steps a step "
-          "in the node where the voxel skin takes 1)", choices=("smooth", "voxel")),
+    Param("body.skin", "smooth", "skin of the jelly man: 'smooth' (its surface vertices on the bone capsules blended "
+          "at the joints, skeleton/smooth_body.py, its masses raised where its thinner tets would shorten the step: "
+          "fem/mass_scaling.py) or 'voxel' (the voxel steps)", choices=("smooth", "voxel")),
     # the material defaults are Material()'s (fem/linear/material.py says why these values; tests/test_scene.py)
     Param("material.young_modulus", DEFAULT_YOUNG_MODULUS, "Young's modulus E [Pa]", 1.0, 1.0e10),
     Param("material.poisson_ratio", DEFAULT_POISSON_RATIO, "Poisson ratio nu [-]", 0.0, 0.499),

@@ -93,6 +93,7 @@ class Scene:
         self.start_time: float | None = None
         self.first_stamp: float | None = None     # stamp of the first joint state accepted
         self.steps_done = 0
+        self.substeps_done = 0          # explicit sub-steps over steps_done steps (1 a step for the other methods)
         self.step_wall_s = 0.0          # wall time inside step() over steps_done steps
         self.skeleton_wall_s = 0.0      # the part of it spent on the constraints (skeleton pose, targets)
         self.dropped_s = 0.0             # simulated time skipped because physics could not keep up
@@ -247,6 +248,7 @@ class Scene:
         wall = time.perf_counter() - t0
         self._k += 1
         self.steps_done += 1
+        self.substeps_done += info.substeps
         self.step_wall_s += wall
         self.skeleton_wall_s += t1 - t0
         return StepReport(1, info.substeps, info.margin, wall)

@@ -27,7 +27,7 @@ from .skeleton.bone_roles import NotHumanoid, flesh_radii, label_skeleton
 from .skeleton.humanoid import HumanoidSpec, default_humanoid
 from .skeleton.jelly_body import jelly_man_mesh, voxel_bones
 from .skeleton.kinematics import Skeleton, UrdfError
-from .skeleton.smooth_body import smooth_jelly_man_mesh
+from .skeleton.smooth_body import smooth_jelly_man_meshes
 from .skeleton.link_shapes import prepare_urdf
 from .skeleton.robot_cover import RobotCover, robot_cover
 from .skeleton.urdf_check import UrdfLimits, UrdfRefused, check_urdf, read_urdf_file
@@ -56,6 +56,8 @@ class SceneParts:
     bind_q: np.ndarray | None = None    # (nq,) the skeleton's configuration the jelly body was built in (None: q = 0)
     bare_bones: tuple[str, ...] = ()    # bones of a jelly body without flesh: they bind none (bone_roles.flesh_radii)
     vertex_bones: np.ndarray | None = None  # (n, nb) bool: the bones a vertex may bind to (a jelly body on a URDF)
+    mass_reference: TetMesh | None = None   # the mesh of the same tets whose stiffest vertex (for its mass) no vertex
+                                            # may exceed: the smooth jelly man's voxels (fem/mass_scaling.py)
 
 
 def material_of(c: SceneConfig) -> Material:
@@ -217,15 +219,18 @@ def build_jelly_man(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progre
     axis_consistent = source != "builtin" and body.flesh == "auto"
     if body.skin == "smooth":
         say(progress, f"meshing the jelly man (~{body.target_tets} tets): voxels, skin on the blended capsules")
-        mesh = smooth_jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
+        mesh, reference = smooth_jelly_man_meshes(spec, target_tets=body.target_tets, q=bind_q,
+                                                  axis_consistent=axis_consistent)
     else:
         say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
         mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
+        reference = None
     allowed = voxel_bones(spec, mesh, bind_q) if source != "builtin" else None
     # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
     # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
     return SceneParts(config, mesh, np.zeros(mesh.n_vertices, dtype=bool), skeleton, urdf_xml,
-                      bind_all=source != "builtin", bind_q=bind_q, bare_bones=tuple(bare), vertex_bones=allowed)
+                      bind_all=source != "builtin", bind_q=bind_q, bare_bones=tuple(bare), vertex_bones=allowed,
+                      mass_reference=reference)
 
 
 def build_robot_cover(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -> SceneParts:

@@ -21,7 +21,7 @@ from .body.surface_body import SurfaceBody, unbound_islands
 from .config import SceneConfig
 from .fem.integrators import make_integrator
 from .fem.integrators.base import Integrator
-from .fem.mass_scaling import scale_mass
+from .fem.mass_scaling import scale_mass, scale_to_reference
 from .fem.model import Attachments, Control, FemModel, State, build_model
 from .fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from .numba_cache import is_cached
@@ -63,6 +63,9 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     model = build_model(mesh, material_of(config), fixed=parts.fixed,
                         gravity=(0.0, 0.0, float(config.physics.gravity)), min_quality=config.body.min_tet_quality)
     say(progress, model.quality.summary())
+    if parts.mass_reference is not None:
+        model, scaling = scale_to_reference(model, parts.mass_reference)
+        say(progress, scaling.summary() + ": the critical step of the voxels the skin was moved from")
     model = scaled_mass(config, model, skeleton is not None, progress)
     method, options = integrator_choice(config)
     say(progress, f"setting up method '{method}'"

@@ -151,7 +151,7 @@ def test_a_stalled_then_bursting_joint_stream_does_not_make_the_warped_jelly_man
     (the default model) is the gradient of an energy and stays bounded even at 1e-5 s. All three are checked,
     so the test shows the cause. The burst's jump is taken as it comes here (input.max_late_jump without limit);
     by default a jump that large re-places the body (tests/test_late_inputs.py), and then even the light
-    per-vertex case stays whole. The flaps are the voxel skin's (body.skin voxel, the default); the smooth skin
+    per-vertex case stays whole. The flaps are the voxel skin's (body.skin voxel); the smooth skin (the default)
     is checked too."""
     assert _stalled_walk(Scene.build(SceneConfig().with_values(body__skin="smooth"))) == []
     assert _stalled_walk(Scene.build(SceneConfig().with_values(body__skin="voxel"))) == []

@@ -30,11 +30,17 @@ class DivergenceError(ClusterFemError, RuntimeError):
 
 def max_eigenvalue(model: FemModel) -> float:
     """Largest eigenvalue of M^-1 K on the free DOFs [1/s^2]."""
-    free = model.free_dofs
+    return largest_eigenvalue(model.K, model.mass, model.free_dofs)
+
+
+def largest_eigenvalue(K: sp.spmatrix, mass: np.ndarray, free: np.ndarray | None = None) -> float:
+    """Largest eigenvalue of M^-1 K (K (3n, 3n), lumped mass (n,)) on the DOFs ``free`` (None: all) [1/s^2]."""
+    free = np.arange(K.shape[0]) if free is None else free
     if free.size == 0:
         return 0.0
-    s = 1.0 / np.sqrt(np.repeat(model.mass, 3)[free])
-    A = (sp.diags(s) @ model.K[free][:, free] @ sp.diags(s)).tocsr()
+    K = sp.csr_matrix(K)
+    s = 1.0 / np.sqrt(np.repeat(mass, 3)[free])
+    A = (sp.diags(s) @ K[free][:, free] @ sp.diags(s)).tocsr()
     if A.shape[0] <= 60:
         return float(np.linalg.eigvalsh(A.toarray())[-1])
     rng = np.random.default_rng(0)

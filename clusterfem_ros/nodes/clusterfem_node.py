@@ -379,6 +379,7 @@ class ClusterFemNode(Node):
                   "step_ms": (last.wall_s / max(last.steps, 1) * 1e3) if s else 0.0,
                   "real_time_factor": self._rtf,
                   "substeps": last.substeps if s else 0,
+                  "substeps_mean": s.substeps_done / s.steps_done if s and s.steps_done else 0.0,
                   "stability_margin": last.margin if s else 0.0,
                   "energy_J": self._energy(snap),
                   "volume_error": self._volume_error(snap),

@@ -383,7 +383,8 @@ def _final(sim, ns: str, args: argparse.Namespace, result: dict) -> None:
     if d.get("dropped_time_s", 0.0) > 0:
         print(f"  behind          {d['dropped_time_s']:.1f} s of simulated time dropped: physics fell more than "
               f"physics.max_catchup_steps behind its inputs and the body was put back on the skeleton")
-    print(f"  stability       sub-steps {d['substeps']}, margin {d['stability_margin']:.2f}")
+    print(f"  stability       sub-steps {d['substeps']} (a step: {d.get('substeps_mean', 0.0):.3f} since the start), "
+          f"margin {d['stability_margin']:.2f}")
     print(f"  volume error    {d['volume_error'] * 100:+.3f} %;  energy {d['energy_J']:.4g} J")
     print(f"  inputs          {d['inputs_accepted']} joint states used, {d['inputs_rejected']} rejected, "
           f"{d['resets_after_divergence']} resets after divergence, {d.get('physics_failures', 0)} physics failures")

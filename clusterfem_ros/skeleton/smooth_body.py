@@ -204,12 +204,20 @@ def _held_above(x: np.ndarray, wanted: np.ndarray, tets: np.ndarray, floor: np.n
     return x + scale[:, None] * move
 
 
-def smooth_jelly_man_mesh(spec, target_tets: int = 5000, glue_hops: int | None = 2, blend: float = BLEND,
-                          min_altitude: float = MIN_ALTITUDE, q: np.ndarray | None = None,
-                          axis_consistent: bool = False) -> TetMesh:
-    """``jelly_body.jelly_man_mesh`` (same tets, same vertex count) with its skin on the blended capsules, built
-    in configuration ``q`` (None: q = 0)."""
+def smooth_jelly_man_meshes(spec, target_tets: int = 5000, glue_hops: int | None = 2, blend: float = BLEND,
+                            min_altitude: float = MIN_ALTITUDE, q: np.ndarray | None = None,
+                            axis_consistent: bool = False) -> tuple[TetMesh, TetMesh]:
+    """(smooth body, the voxel body it was moved from): ``jelly_body.jelly_man_mesh`` (same tets, same vertex
+    count) with its skin on the blended capsules, built in configuration ``q`` (None: q = 0). The voxel body is
+    the reference of the smooth one's mass scaling (fem/mass_scaling.py)."""
     from .jelly_body import jelly_man_mesh
     voxels = jelly_man_mesh(spec, target_tets=target_tets, glue_hops=glue_hops, q=q, axis_consistent=axis_consistent)
     mesh, _ = snap_to_shape(voxels, smooth_capsules_of(spec, glue_hops, blend, q), min_altitude)
-    return mesh
+    return mesh, voxels
+
+
+def smooth_jelly_man_mesh(spec, target_tets: int = 5000, glue_hops: int | None = 2, blend: float = BLEND,
+                          min_altitude: float = MIN_ALTITUDE, q: np.ndarray | None = None,
+                          axis_consistent: bool = False) -> TetMesh:
+    """The smooth body of ``smooth_jelly_man_meshes``."""
+    return smooth_jelly_man_meshes(spec, target_tets, glue_hops, blend, min_altitude, q, axis_consistent)[0]
