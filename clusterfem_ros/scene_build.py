@@ -207,11 +207,12 @@ def _jelly_man(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progress) -
     axis_consistent = source != "builtin" and body.flesh == "auto"
     if body.skin == "smooth":
         say(progress, f"meshing the jelly man (~{body.target_tets} tets): voxels, skin on the blended capsules")
-        mesh = smooth_jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
+        mesh, voxels = smooth_jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q,
+                                             axis_consistent=axis_consistent, with_voxels=True)
     else:
         say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
-        mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
-    allowed = voxel_bones(spec, mesh, bind_q) if source != "builtin" else None
+        mesh = voxels = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
+    allowed = voxel_bones(spec, mesh, bind_q, voxels) if source != "builtin" else None
     # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
     # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
     return SceneParts(config, mesh, np.zeros(mesh.n_vertices, dtype=bool), skeleton, urdf_xml,

@@ -206,10 +206,11 @@ def _held_above(x: np.ndarray, wanted: np.ndarray, tets: np.ndarray, floor: np.n
 
 def smooth_jelly_man_mesh(spec, target_tets: int = 5000, glue_hops: int | None = 2, blend: float = BLEND,
                           min_altitude: float = MIN_ALTITUDE, q: np.ndarray | None = None,
-                          axis_consistent: bool = False) -> TetMesh:
+                          axis_consistent: bool = False, with_voxels: bool = False):
     """``jelly_body.jelly_man_mesh`` (same tets, same vertex count) with its skin on the blended capsules, built
-    in configuration ``q`` (None: q = 0)."""
+    in configuration ``q`` (None: q = 0); with ``with_voxels``, (that mesh, the voxel mesh it was made from), for
+    ``jelly_body.voxel_bones``."""
     from .jelly_body import jelly_man_mesh
     voxels = jelly_man_mesh(spec, target_tets=target_tets, glue_hops=glue_hops, q=q, axis_consistent=axis_consistent)
     mesh, _ = snap_to_shape(voxels, smooth_capsules_of(spec, glue_hops, blend, q), min_altitude)
-    return mesh
+    return (mesh, voxels) if with_voxels else mesh
