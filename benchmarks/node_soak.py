@@ -46,8 +46,8 @@ def _marker_distance(raw: bytes, states: list[tuple[int, np.ndarray]], skeleton,
 
 def _played(player) -> float:
     """How far into the motion the player is [s]: its motion time runs on the clock, so a player whose timer
-    falls behind under load still stops after ``length`` of motion (counting its samples played 43 s of a 13 s
-    soak on a loaded host)."""
+    falls behind under load still stops after ``length`` of motion (its sample count would run on for several
+    times that on a loaded host)."""
     return player.motion_time(player.get_clock().now().nanoseconds * 1e-9) if player.published else 0.0
 
 

@@ -98,7 +98,7 @@ class ClusterFemNode(Node):
     def _log(self, level: str, text: str) -> None:
         """The physics thread's log lines (throttled like the callbacks' own). One call site per level: rclpy
         keys a throttled line by where it is logged from and refuses another severity there ("Logger severity
-        cannot be changed between calls"), which killed the physics thread when a reset followed a warning."""
+        cannot be changed between calls"), which would end the physics thread at a reset logged after a warning."""
         log = self.get_logger()
         if level == "error":
             log.error(text, throttle_duration_sec=2.0)

@@ -7,9 +7,9 @@ stored angles are continuous and may leave [-pi, pi]. The three angles of a ball
 are stored as the triple of their rotation nearest the previous one, (a, b, c) or (a + pi, pi - b, c + pi),
 so a sender flipping between the two never makes the interpolation swing. Between samples v is the slope of the
 interpolating segment (the finite difference of the bracketing samples), message velocities or not: the pose
-and the velocity the body is driven with must agree. Interpolating the message velocities instead gave, on
-samples 50 ms apart (a player's timer late on a loaded host), a fast toe a velocity far from its segment's, and
-the binding's damping tore the foot's flesh 0.3 m from its bone. Message velocities carry the pose on after the
+and the velocity the body is driven with must agree. Interpolated message velocities would not: on samples
+50 ms apart (a player's timer late on a loaded host) a fast toe's would lie far from its segment's slope, and
+the binding's damping would tear the foot's flesh from its bone. Message velocities carry the pose on after the
 newest sample (``horizon``) and are checked against ``max_joint_speed``.
 
 No wild extrapolation: after the newest sample the pose moves on with the newest velocity for at most
