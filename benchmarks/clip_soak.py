@@ -46,17 +46,11 @@ import yaml
 from clusterfem_ros.config import SceneConfig
 from clusterfem_ros.fem.stability import DivergenceError, StabilityError
 from clusterfem_ros.fem.mesh.tet_mesh import signed_volumes
-from .clips import clip_config, find_clip, load_manifest, missing_message
+from .clips import MIN_SECONDS, clip_config, find_clip, load_manifest, missing_message, played_seconds
 from .timing import table
 
 RATE_HZ = 120.0
 T0 = 1000.0                 # stamps far from zero, as on a ROS clock
-MIN_SECONDS = 13.0          # a clip shorter than this is looped until it has played this long
-
-
-def played_seconds(duration: float, seconds: float | None) -> float:
-    """How long a clip of ``duration`` [s] is played: ``seconds`` if given, else its length or MIN_SECONDS."""
-    return max(duration, MIN_SECONDS) if seconds is None else float(seconds)
 
 
 def looped(motion):

@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .clip_soak import played_seconds
-from .clips import clip_config
+from .clips import clip_config, played_seconds
 
 
 @dataclass
