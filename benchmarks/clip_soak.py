@@ -2,7 +2,9 @@
 
     python -m benchmarks.clip_soak [--clips NAME ...] [--scene FILE] [--set key=value ...] [--node]
 
-Per clip (tests/data/mocap_clips.yaml; files found by bench/clips.py) the BVH is played at 120 Hz into a
+Per clip (tests/data/mocap_clips.yaml; files found by bench/clips.py) the BVH is played at 120 Hz, looped as the
+player loops it (its default ``loop_blend``: ``Motion.looping``) for its length or ``MIN_SECONDS``, whichever is
+longer (``--seconds S``: exactly S), into a
 Scene built on the clip's own skeleton (skeleton.source robot_description; the default scene's jelly body, or
 ``--scene FILE``'s character surface fitted to the clip's skeleton, as ``scripts/run --scene FILE --bvh CLIP``
 plays it; ``--set`` changes parameters, e.g. ``--set warping=false``), stepping up to each sample's stamp as
@@ -44,11 +46,18 @@ import yaml
 from clusterfem_ros.config import SceneConfig
 from clusterfem_ros.fem.stability import DivergenceError, StabilityError
 from clusterfem_ros.fem.mesh.tet_mesh import signed_volumes
-from .clips import clip_config, find_clip, load_manifest, missing_message
+from .clips import MIN_SECONDS, clip_config, find_clip, load_manifest, missing_message, played_seconds
 from .timing import table
 
 RATE_HZ = 120.0
 T0 = 1000.0                 # stamps far from zero, as on a ROS clock
+
+
+def looped(motion):
+    """The clip's trajectory looped as the player loops it at its default loop_blend (player_node)."""
+    from clusterfem_ros.motion import PLAYER_TABLE
+    blend = next(p.default for p in PLAYER_TABLE if p.name == "loop_blend")
+    return motion.looping(min(blend, 0.5 * motion.trajectory.duration))
 
 
 @dataclass
@@ -139,14 +148,14 @@ def inverted_elements(positions: np.ndarray, tets: np.ndarray, rest_volumes: np.
 
 def headless_soak(path: Path, overrides: dict | None = None, seconds: float | None = None,
                   scene_file: Path | None = None) -> SoakResult:
-    """Play the clip at ``path`` into a Scene (of ``scene_file``, default: the default scene) for its whole length
-    (or ``seconds``); see the module docstring."""
+    """Play the clip at ``path``, looped, into a Scene (of ``scene_file``, default: the default scene) for
+    ``played_seconds`` (its length or MIN_SECONDS, or ``seconds``); see the module docstring."""
     from clusterfem_ros.motion import load_motion
     from clusterfem_ros.scene import Scene
     motion = load_motion("bvh", path)
-    tr = motion.trajectory
+    tr = looped(motion)
     scene = Scene.build(clip_config(overrides, scene_file, path), urdf_xml=motion.urdf)
-    length = tr.duration if seconds is None else min(seconds, tr.duration)
+    length = played_seconds(tr.duration, seconds)
     res = SoakResult(path.stem, length)
     res.unit = unit_found(path)[0]
     res.skeleton_height, res.bare = flesh_check(scene)
@@ -156,7 +165,7 @@ def headless_soak(path: Path, overrides: dict | None = None, seconds: float | No
     res.joint_speed, res.raw_joint_speed = joint_speeds(path)
     for k in range(int(length * RATE_HZ) + 1):
         t = T0 + k / RATE_HZ
-        q, v = tr.sample(k / RATE_HZ)
+        q, v = tr.sample(k / RATE_HZ, loop=True)
         res.rejected += sum(1 for kind, _ in scene.push_joint_state(t, tr.names, q, v) if kind != "unknown_joint")
         try:
             scene.advance_to(t)
@@ -199,7 +208,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clips", nargs="*", default=None, help="manifest names to run (default: every clip present)")
     ap.add_argument("--scene", type=Path, default=None, help="scene file (default: the default scene's jelly body)")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="scene parameters to change")
-    ap.add_argument("--seconds", type=float, default=None, help="play at most this long of each clip")
+    ap.add_argument("--seconds", type=float, default=None,
+                    help="play each clip this long, looped (default: its length or MIN_SECONDS, the longer)")
     ap.add_argument("--node", action="store_true", help="also play each clip through the node")
     args = ap.parse_args(argv)
     overrides = _overrides(args.set)

@@ -63,6 +63,14 @@ def missing_message(clip: Clip) -> str:
             f"{clip.repository} (entry '{clip.name}' of {MANIFEST.relative_to(REPO)})")
 
 
+MIN_SECONDS = 13.0          # a clip shorter than this is looped until it has played this long
+
+
+def played_seconds(duration: float, seconds: float | None) -> float:
+    """How long a clip of ``duration`` [s] is played: ``seconds`` if given, else its length or MIN_SECONDS."""
+    return max(duration, MIN_SECONDS) if seconds is None else float(seconds)
+
+
 def clip_config(overrides: dict | None = None, scene: Path | None = None, bvh: Path | None = None) -> SceneConfig:
     """The default scene (or the scene file ``scene``) on a BVH's own skeleton, what ``scripts/run --bvh`` runs:
     the jelly man built on it (in the pose motion.capture_bind_pose chooses for the clip ``bvh``), or the scene's

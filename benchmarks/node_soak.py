@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .clips import clip_config
+from .clips import clip_config, played_seconds
 
 
 @dataclass
@@ -43,9 +43,17 @@ def _marker_distance(raw: bytes, states: list[tuple[int, np.ndarray]], skeleton,
     return float(segment_distance(pts, starts, ends).min(axis=1).max())
 
 
+def _played(player) -> float:
+    """How far into the motion the player is [s]: its motion time runs on the clock, so a player whose timer
+    falls behind under load still stops after ``length`` of motion (its sample count would run on for several
+    times that on a loaded host)."""
+    return player.motion_time(player.get_clock().now().nanoseconds * 1e-9) if player.published else 0.0
+
+
 def node_soak(path: Path, overrides: dict | None = None, seconds: float | None = None,
               timeout_factor: float = 6.0, scene_file: Path | None = None) -> NodeSoakResult:
-    """Play the clip at ``path`` once (loop off) through the node (on the default scene, or ``scene_file``'s body
+    """Play the clip at ``path``, looped by the player, for ``played_seconds`` (its length or MIN_SECONDS, or
+    ``seconds``) through the node (on the default scene, or ``scene_file``'s body
     fitted to the clip's skeleton); see the module docstring."""
     from rclpy.parameter import Parameter
     from rclpy.serialization import deserialize_message
@@ -58,7 +66,7 @@ def node_soak(path: Path, overrides: dict | None = None, seconds: float | None =
     from clusterfem_ros.nodes.player_node import MocapPlayer
     from clusterfem_ros import topics
     motion = load_motion("bvh", path)
-    length = motion.trajectory.duration if seconds is None else min(seconds, motion.trajectory.duration)
+    length = played_seconds(motion.trajectory.duration, seconds)
     config = clip_config({"physics.clock": "input", "output.marker_rate_hz": 30.0, "output.stress_rate_hz": 0.0,
                           "output.diagnostics_rate_hz": 0.0, **(overrides or {})}, scene_file, path)
     res = NodeSoakResult(path.stem, length)
@@ -69,11 +77,9 @@ def node_soak(path: Path, overrides: dict | None = None, seconds: float | None =
         sent = world.collect(JointState, topics.JOINT_STATES.name, qos=1000)
         player = world.add(MocapPlayer(context=world.context, parameter_overrides=[
             Parameter("source", value="bvh"), Parameter("file", value=str(path)), Parameter("rate_hz", value=120.0),
-            Parameter("loop", value=False)]))
+            Parameter("loop", value=True)]))
         deadline = time.monotonic() + 60.0 + timeout_factor * length
-        while time.monotonic() < deadline and not player.finished:
-            if seconds is not None and player.published > length * 120.0:
-                break
+        while time.monotonic() < deadline and _played(player) <= length:
             time.sleep(0.1)
         time.sleep(0.5)                                          # the last ticks' markers
         world.executor.shutdown(timeout_sec=5.0)

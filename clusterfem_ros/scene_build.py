@@ -221,11 +221,12 @@ def build_jelly_man(config: SceneConfig, skeleton, urdf_xml, leaf_shapes, progre
         say(progress, f"meshing the jelly man (~{body.target_tets} tets): voxels, skin on the blended capsules")
         mesh, reference = smooth_jelly_man_meshes(spec, target_tets=body.target_tets, q=bind_q,
                                                   axis_consistent=axis_consistent)
+        voxels = reference
     else:
         say(progress, f"voxelizing the jelly man (~{body.target_tets} tets)")
-        mesh = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
+        mesh = voxels = jelly_man_mesh(spec, target_tets=body.target_tets, q=bind_q, axis_consistent=axis_consistent)
         reference = None
-    allowed = voxel_bones(spec, mesh, bind_q) if source != "builtin" else None
+    allowed = voxel_bones(spec, mesh, bind_q, voxels) if source != "builtin" else None
     # a jelly body of equal capsules on another skeleton has no flesh meant to hang free: its only vertices
     # beyond the outermost level are voxel corners just outside it, one-tet flaps that flutter on fast motion
     return SceneParts(config, mesh, np.zeros(mesh.n_vertices, dtype=bool), skeleton, urdf_xml,

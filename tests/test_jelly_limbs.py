@@ -146,3 +146,23 @@ def test_a_capsule_body_on_another_skeleton_leaves_no_vertex_free_and_the_built_
     built_in = Scene.build(SceneConfig().with_values(body__target_tets=700))
     assert not built_in.bind_all and (built_in.binding.level < 0).any()
     np.testing.assert_array_equal(built_in.binding.level_radii, c["binding.level_radii"])
+
+
+def test_a_vertex_binds_only_bones_its_voxels_were_kept_for():
+    """Flesh sized by role (a thick pelvis and thigh beside a thin hanging arm, as on the 3ds-Max and Bandai
+    Namco rigs): the voxels of bones that may not touch share no vertex, so the bones a vertex may bind to
+    (voxel_bones) must be bones that may touch one another. Read at the tets' centroids rather than at their
+    voxels' centres, a forearm voxel's tets came out in the pelvis's capsule, and a vertex of the forearm
+    followed the pelvis until the raised arm tore it 0.3 m from its bone."""
+    from clusterfem_ros.skeleton.jelly_body import voxel_bones
+    urdf = bvh_urdf(parse_bvh(ARMS_DOWN, unit_m=1.0))
+    sk = Skeleton.from_urdf_string(urdf)
+    radius = {"Hips": 0.16, "LeftUpLeg": 0.09, "LeftLeg": 0.06, "Spine": 0.12, "LeftArm": 0.045,
+              "LeftForeArm": 0.04, "LeftHand": 0.035}
+    spec = HumanoidSpec(urdf, {n: radius[n] for n in sk.bone_names if n in radius})
+    mesh = jelly_man_mesh(spec, target_tets=3000, axis_consistent=True)
+    hops = bone_hops(np.asarray(sk.bone_parent))
+    allowed = voxel_bones(spec, mesh)
+    assert allowed.any(axis=1).all()                      # every vertex has a bone
+    worst = max(int(hops[np.ix_(np.flatnonzero(row), np.flatnonzero(row))].max()) for row in allowed)
+    assert worst <= 2, f"a vertex may bind bones {worst} hops apart"

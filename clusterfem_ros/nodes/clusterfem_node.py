@@ -96,8 +96,18 @@ class ClusterFemNode(Node):
         self.physics.start()
 
     def _log(self, level: str, text: str) -> None:
-        """The physics thread's log lines (throttled like the callbacks' own)."""
-        getattr(self.get_logger(), level)(text, throttle_duration_sec=2.0)
+        """The physics thread's log lines (throttled like the callbacks' own). One call site per level: rclpy
+        keys a throttled line by where it is logged from and refuses another severity there ("Logger severity
+        cannot be changed between calls"), which would end the physics thread at a reset logged after a warning."""
+        log = self.get_logger()
+        if level == "error":
+            log.error(text, throttle_duration_sec=2.0)
+        elif level == "warning":
+            log.warning(text, throttle_duration_sec=2.0)
+        elif level == "info":
+            log.info(text, throttle_duration_sec=2.0)
+        else:
+            raise ValueError(f"log level {level!r}: give 'info', 'warning' or 'error'")
 
     def _refuse_description(self, kind: str, text: str) -> None:
         """One line and one count (diagnostics: robot_description_refused_<kind>) per refused description."""

@@ -259,16 +259,25 @@ def jelly_man_mesh(spec, target_tets: int = 5000, max_iterations: int = 24, glue
     return best
 
 
-def voxel_bones(spec, mesh, q: np.ndarray | None = None) -> np.ndarray:
-    """(n, nb) bool, nb the skeleton's bones (those without flesh never set): for each vertex of ``mesh`` (a ``jelly_man_mesh`` of ``spec``), the bones of the voxels around
-    it (each tet's centroid labelled as the voxels were: the capsule or leaf shape it lies deepest in). Binding a
-    vertex only to these keeps a limb's flesh on its own bone where another bone passes close at rest (a robot's
-    hand folded beside its forearm): the nearest segment alone would give part of one limb's tets to the other.
-    ``q``: the configuration the mesh was built in (None: q = 0)."""
+def voxel_bones(spec, mesh, q: np.ndarray | None = None, voxels=None) -> np.ndarray:
+    """(n, nb) bool, nb the skeleton's bones (those without flesh never set): for each vertex of ``mesh`` (a
+    ``jelly_man_mesh`` of ``spec``), the bones of the voxels around it, each voxel labelled as ``jelly_man_mesh``
+    labelled it when it kept voxels of bones that may not touch apart (the capsule or leaf shape its centre lies
+    deepest in). Every tet of the grid's split spans its whole voxel, so a tet's voxel centre is the middle of its
+    bounding box. Binding a vertex only to these keeps a limb's flesh on its own bone where another bone passes
+    close at rest (a robot's hand folded beside its forearm, an arm hanging beside the pelvis): the nearest segment
+    alone would give part of one limb's tets to the other, and a label read anywhere else in the voxel (its tets'
+    centroids) can name a bone the voxel was kept apart from. ``q``: the configuration the mesh was built in (None:
+    q = 0); ``voxels``: the voxel mesh ``mesh`` shares its tets with when its vertices were moved (the smooth skin;
+    None: ``mesh`` itself)."""
     from .kinematics import Skeleton
     s, e, r = humanoid_capsules(spec, q=q)
-    centroid = mesh.vertices[mesh.tets].mean(axis=1)
-    label = _label(centroid, s, e, r, leaf_shapes_placed(spec, q))
+    grid = mesh if voxels is None else voxels
+    if grid.tets.shape != mesh.tets.shape or not np.array_equal(grid.tets, mesh.tets):
+        raise ValueError("voxels has other tets than mesh: pass the voxel mesh the body was made from")
+    corners = grid.vertices[grid.tets]
+    centre = 0.5 * (corners.min(axis=1) + corners.max(axis=1))
+    label = _label(centre, s, e, r, leaf_shapes_placed(spec, q))
     names = Skeleton.from_urdf_string(spec.urdf).bone_names
     bone = np.array([b for b, n in enumerate(names) if n in spec.bone_radius])   # capsule -> skeleton bone
     out = np.zeros((mesh.n_vertices, len(names)), dtype=bool)
