@@ -1,8 +1,8 @@
 """The fetched motion-capture clips of tests/data/mocap_clips.yaml: where each file is, checked by sha256.
 
-The small clips of other sources than CMU are in this repository (tests/data/mocap/, their licences in its
-SOURCE.md); the CMU clips are not. ``find_clip(entry)`` looks for ``<name>.bvh`` in tests/data/mocap/, in
-``../shared/data/mocap/`` beside the checkout and in ``$CLUSTERFEM_DATA/mocap/``; ``missing_message`` names the
+No clip is in this repository: each is fetched by its manifest entry (repository, commit, path, sha256, licence)
+into a data folder. ``find_clip(entry)`` looks for ``<name>.bvh`` in ``mocap/`` of each data folder
+(clusterfem_ros/data_dirs.py: ``$CLUSTERFEM_DATA``, ``../shared/data`` beside the checkout, the user data folder); ``missing_message`` names the
 file and the manifest entry to fetch it from.
 """
 from __future__ import annotations
@@ -36,11 +36,9 @@ def load_manifest(path: Path = MANIFEST) -> list[Clip]:
 
 
 def clip_dirs() -> list[Path]:
-    """Where clips are looked for, in order."""
-    dirs = [REPO / "tests" / "data" / "mocap", REPO.parent / "shared" / "data" / "mocap"]
-    if os.environ.get("CLUSTERFEM_DATA"):
-        dirs.append(Path(os.environ["CLUSTERFEM_DATA"]) / "mocap")
-    return dirs
+    """Where clips are looked for, in order: ``mocap/`` of each data folder (clusterfem_ros/data_dirs.py)."""
+    from clusterfem_ros.data_dirs import data_roots
+    return [root / "mocap" for root in data_roots()]
 
 
 def find_clip(clip: Clip) -> Path | None:

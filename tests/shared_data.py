@@ -59,3 +59,22 @@ def walk_clip(beside_only: bool = False) -> Path:
                                     f"{entry['sha256']}: copy {entry['path']} at commit {entry['commit']} of "
                                     f"{entry['repository']} again")
     return found[0]
+
+
+def manifest_clip(name: str) -> Path:
+    """The clip ``name`` of tests/data/mocap_clips.yaml, found where benchmarks/clips.py looks and checked against
+    its sha256; the calling test is skipped, naming the manifest entry, when it is absent."""
+    import pytest
+
+    from benchmarks.clips import find_clip, load_manifest, missing_message
+    clip = next(c for c in load_manifest() if c.name == name)
+    path = find_clip(clip)
+    if path is None:
+        pytest.skip(missing_message(clip))
+    return path
+
+
+def manifest_clips() -> list[Path]:
+    """Every clip of tests/data/mocap_clips.yaml that is present (sha256-checked), in manifest order."""
+    from benchmarks.clips import find_clip, load_manifest
+    return [p for p in (find_clip(c) for c in load_manifest()) if p is not None]

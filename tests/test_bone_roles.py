@@ -9,8 +9,8 @@ import pytest
 from clusterfem_ros.skeleton.bone_roles import NotHumanoid, flesh_radii, label_bones, label_skeleton, name_side
 from clusterfem_ros.skeleton.humanoid import default_humanoid
 from clusterfem_ros.skeleton.kinematics import Skeleton
+from tests.shared_data import manifest_clip
 
-DATA = Path(__file__).resolve().parent / "data" / "mocap"
 HUMANOID_ROLE = {"pelvis": "pelvis", "abdomen": "spine", "chest": "spine", "neck": "neck", "head": "head",
                  "clavicle": "clavicle", "upper_arm": "upper_arm", "forearm": "forearm", "hand": "hand",
                  "thigh": "thigh", "shin": "shin", "foot": "foot", "toes": "toe"}
@@ -108,11 +108,8 @@ def test_a_chain_is_not_a_human():
 
 
 def _bvh_files():
-    files = sorted(DATA.glob("*.bvh"))
-    from benchmarks.clips import clip_dirs
-    for d in clip_dirs()[1:]:
-        files += sorted(d.glob("cmu_*.bvh"))
-    return files
+    from tests.shared_data import manifest_clips
+    return manifest_clips()
 
 
 def _bvh_skeleton(path: Path, rename: dict | None = None) -> Skeleton:
@@ -148,7 +145,7 @@ def test_captures_of_every_source_get_both_limbs_of_every_major_role(path):
 
 def test_a_capture_with_meaningless_names_gets_the_same_roles():
     """The Mixamo rig with every joint renamed (j0, j1, ...): the same role for every bone as with its own names."""
-    path = DATA / "mixamo_rig_freebvh.bvh"
+    path = manifest_clip("mixamo_rig_freebvh")
     from clusterfem_ros.skeleton.bvh import load_bvh
     names = [j.name for j in load_bvh(path).joints]
     rename = {n: f"j{k}" for k, n in enumerate(names)}
@@ -167,7 +164,7 @@ def test_the_jelly_body_on_a_mixamo_rig_has_flesh_on_every_major_bone():
     from clusterfem_ros.scene import Scene
     from clusterfem_ros.scene_build import jelly_radii
     lines = []
-    motion = load_motion("bvh", DATA / "mixamo_rig_freebvh.bvh")
+    motion = load_motion("bvh", manifest_clip("mixamo_rig_freebvh"))
     scene = Scene.build(on_capture_skeleton(SceneConfig()), urdf_xml=motion.urdf, progress=lines.append)
     assert flesh_check(scene)[1] == "none"
     bare = [line for line in lines if line.startswith("bones left bare")]
@@ -193,7 +190,7 @@ def test_a_rig_whose_zero_pose_is_no_standing_human_gets_its_flesh_in_frame_0():
     from clusterfem_ros.motion import capture_bind_pose, load_motion, on_capture_skeleton
     from clusterfem_ros.scene import Scene
     from clusterfem_ros.skeleton.bone_roles import stands
-    bandai, mixamo = DATA / "bandai_namco_dash.bvh", DATA / "mixamo_rig_freebvh.bvh"
+    bandai, mixamo = manifest_clip("bandai_namco_dash"), manifest_clip("mixamo_rig_freebvh")
     assert capture_bind_pose(mixamo)[0] == "neutral"
     pose, why = capture_bind_pose(bandai)
     assert pose == "first_frame" and "no human stands in its zero pose" in why
