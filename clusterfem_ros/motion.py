@@ -19,6 +19,7 @@ import numpy as np
 
 from .config import BVH_UP, ConfigError, Param, check_param
 from .registries import Registry
+from .skeleton.capture_frames import bvh_frames
 from .skeleton.trajectory import JointTrajectory
 
 WALK_CYCLES = 4          # the built-in walk is this many whole gait periods, so looping is seamless
@@ -53,13 +54,22 @@ class MotionSource:
     load: Callable[..., Motion]     # (path or None, speed_mps=, unit=, up=) -> Motion
     file_kind: str | None = None    # what its 'file' holds ('.bvh'); None: it needs no file
     skeleton_source: str = "builtin"    # the node's skeleton.source its skeleton fits
+    # its files' frames as recorded, (path, unit=, up=) -> JointTrajectory, frame 0 first: what a bind pose in a
+    # capture's frame 0 reads (skeleton/capture_frames.py); None: its files give no bind pose
+    bind_frames: Callable[..., JointTrajectory] | None = None
 
 
 MOTION_SOURCES = Registry("motion source")
 
 
 def register_source(source: MotionSource) -> MotionSource:
-    """Add a motion source under its name (a name already taken is refused); returns it."""
+    """Add a motion source under its name (a name already taken is refused), and its files' frame reader for a
+    bind pose (``bind_frames``) under its file kind; returns it."""
+    from .skeleton.capture_frames import FRAME_READERS, register_frames
+    if source.bind_frames is not None and FRAME_READERS.get(str(source.file_kind).lower()) is not source.bind_frames:
+        if not source.file_kind:
+            raise ValueError(f"motion source {source.name!r} gives bind_frames but no file_kind to read them from")
+        register_frames(source.file_kind, source.bind_frames)
     return MOTION_SOURCES.register(source.name, source)
 
 
@@ -103,7 +113,8 @@ def _joint_sweep(path, **_) -> Motion:
 
 for _source in (MotionSource("builtin_walk", "the built-in humanoid walking", _builtin_walk),
                 # a capture plays on its own skeleton, which the player latches on robot_description
-                MotionSource("bvh", "a BVH capture on its own skeleton", _bvh, ".bvh", "robot_description"),
+                MotionSource("bvh", "a BVH capture on its own skeleton", _bvh, ".bvh", "robot_description",
+                             bvh_frames),
                 MotionSource("keyframes", "timed targets for the built-in humanoid's joints", _keyframes,
                              ".yaml/.csv"),
                 # the URDF file the sweep reads (or the same URDF latched on robot_description)

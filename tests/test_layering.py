@@ -42,8 +42,8 @@ ALLOWED = {
 }
 FEM = {p for p in ALLOWED if p.split(".")[0] == "fem"}
 ALLOWED.update({
-    "skeleton": {"errors", "numba_config", "data_dirs"} | FEM,      # the jelly body's mesh; URDF mesh files
-    "body": {"errors", "numba_config", "data_dirs", "skeleton"} | FEM,
+    "skeleton": {"errors", "numba_config", "data_dirs", "registries"} | FEM,      # the jelly body's mesh; URDF mesh files
+    "body": {"errors", "numba_config", "data_dirs", "registries", "skeleton"} | FEM,
     "": {"errors", "numba_cache", "numba_config", "data_dirs", "registries", "topics", "recording", "skeleton",
          "body", ""} | FEM,  # config, scene, ...
 })

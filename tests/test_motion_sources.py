@@ -83,3 +83,40 @@ def test_the_main_job_plays_a_joint_sweep_on_the_urdf_file_it_sweeps(tmp_path):
                                   scene, load_scene_file(scene))
     assert player == {"source": "joint_sweep", "file": str(urdf.resolve())}
     assert (config.skeleton.source, config.skeleton.urdf_file) == ("urdf_file", str(urdf.resolve()))
+
+
+def test_a_registered_capture_format_gives_the_bind_pose_of_its_files_frame_0(tmp_path):
+    """A motion source of a new file kind, registered with its frame reader, is what skeleton.bind_pose
+    'first_frame' reads for a file of that kind (body/fit.py asks skeleton/capture_frames.py by suffix, no format
+    named there): the bind configuration is the file's frame 0; a file of no registered kind is refused naming the
+    kinds that are."""
+    from clusterfem_ros.body.fit import FitError, bind_configuration
+    from clusterfem_ros.skeleton.capture_frames import FRAME_READERS
+    from clusterfem_ros.skeleton.kinematics import Skeleton
+    spec = default_humanoid()
+    names = list(spec.joint_names)
+    skeleton = Skeleton.from_urdf_string(spec.urdf)
+    k = names.index(skeleton.joint_names[3])
+
+    def frames(path, **_):
+        q = np.zeros((2, len(names)))
+        q[0, k] = float(path.read_text())           # the file holds one angle: frame 0's value of one joint
+        return JointTrajectory(np.array([0.0, 1.0]), names, q)
+
+    def play(path, **_):
+        return motion.Motion(spec.urdf, frames(path), f"toy capture {path.name}", True)
+    source = motion.register_source(motion.MotionSource("toy_capture", "one angle in a file", play, ".toycap",
+                                                        bind_frames=frames))
+    try:
+        f = tmp_path / "pose.toycap"
+        f.write_text("0.4")
+        q = bind_configuration(skeleton, "first_frame", bvh_file=str(f))
+        assert q[skeleton.joint_names.index(names[k])] == pytest.approx(0.4)
+        assert np.count_nonzero(q - skeleton.neutral()) == 1
+        other = tmp_path / "pose.unknown"
+        other.write_text("0.4")
+        with pytest.raises(FitError, match=r"no capture file a bind pose can read: .*\.bvh, \.toycap"):
+            bind_configuration(skeleton, "first_frame", bvh_file=str(other))
+    finally:
+        motion.MOTION_SOURCES.unregister(source.name)
+        FRAME_READERS.unregister(".toycap")

@@ -71,8 +71,8 @@ def bind_configuration(skeleton, pose: str = "neutral", joints: Sequence[str] = 
     """The skeleton's configuration q (nq,) in the pose the mesh was modelled in.
 
     ``pose``: 'neutral' (the URDF's zero pose) or 'first_frame' (frame 0 of ``bvh_file``, a capture of
-    this skeleton: its T-pose for the CMU files; read in ``bvh_unit`` with up axis ``bvh_up``, 'auto' as the
-    player finds them); then each of ``joints`` is set to its entry of
+    this skeleton: its T-pose for the CMU files; any file kind a motion source registered a reader for,
+    skeleton/capture_frames.py; read in ``bvh_unit`` with up axis ``bvh_up``, 'auto' as the player finds them); then each of ``joints`` is set to its entry of
     ``angles`` [rad, or m for a prismatic joint].
     """
     if len(joints) != len(angles):
@@ -83,10 +83,11 @@ def bind_configuration(skeleton, pose: str = "neutral", joints: Sequence[str] = 
         if not bvh_file:
             raise FitError("skeleton.bind_pose = 'first_frame' needs skeleton.bind_bvh: the BVH file the player "
                            "plays (its frame 0 is the pose the mesh was modelled in)")
-        from ..skeleton.bvh import load_bvh
-        from ..skeleton.bvh_to_urdf import bvh_trajectory
-        traj = bvh_trajectory(load_bvh(find_data_file(str(bvh_file), what="skeleton.bind_bvh"), bvh_unit, bvh_up),
-                              skip_tpose=False, despike=False)
+        from ..skeleton.capture_frames import read_frames
+        try:
+            traj = read_frames(find_data_file(str(bvh_file), what="skeleton.bind_bvh"), bvh_unit, bvh_up)
+        except ValueError as exc:
+            raise FitError(f"skeleton.bind_bvh: {exc}") from None
         missing = [n for n in skeleton.joint_names if n not in traj.names]
         if missing:
             raise FitError(f"skeleton.bind_bvh {str(bvh_file)!r} is a capture of another skeleton: it has no joint "
