@@ -22,7 +22,6 @@ the face the side the feet reach further out to (toes in front of the ankles, he
 from __future__ import annotations
 
 import argparse
-import hashlib
 import os
 import tempfile
 import time
@@ -82,15 +81,8 @@ def mesh_dirs() -> list[Path]:
 
 def find_mesh(entry: CharacterMesh) -> Path | None:
     """The entry's file if present with the manifest's sha256 (a file with another hash raises ValueError)."""
-    for d in mesh_dirs():
-        f = d / entry.file
-        if f.is_file():
-            digest = hashlib.sha256(f.read_bytes()).hexdigest()
-            if digest != entry.sha256:
-                raise ValueError(f"{f} has sha256 {digest}, the manifest ({MANIFEST.name}) says {entry.sha256}: copy "
-                                 f"{entry.path} at commit {entry.commit} of {entry.repository} again")
-            return f
-    return None
+    from .clips import find_fetched
+    return find_fetched(mesh_dirs(), entry.file, entry, MANIFEST)
 
 
 def missing_message(entry: CharacterMesh) -> str:

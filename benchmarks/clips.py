@@ -41,17 +41,23 @@ def clip_dirs() -> list[Path]:
     return [root / "mocap" for root in data_roots()]
 
 
-def find_clip(clip: Clip) -> Path | None:
-    """The clip's file if present with the manifest's sha256 (a file with another hash raises ValueError)."""
-    for d in clip_dirs():
-        f = d / f"{clip.name}.bvh"
+def find_fetched(dirs: list[Path], name: str, entry, manifest: Path) -> Path | None:
+    """The first ``dirs/name`` that exists, checked against the manifest ``entry``'s sha256 (another hash raises
+    ValueError naming where to copy it from: the entry's path, commit and repository); None when absent."""
+    for d in dirs:
+        f = d / name
         if f.is_file():
             digest = hashlib.sha256(f.read_bytes()).hexdigest()
-            if digest != clip.sha256:
-                raise ValueError(f"{f} has sha256 {digest}, the manifest ({MANIFEST.name}) says {clip.sha256}: "
-                                 f"copy {clip.path} at commit {clip.commit} of {clip.repository} again")
+            if digest != entry.sha256:
+                raise ValueError(f"{f} has sha256 {digest}, the manifest ({manifest.name}) says {entry.sha256}: "
+                                 f"copy {entry.path} at commit {entry.commit} of {entry.repository} again")
             return f
     return None
+
+
+def find_clip(clip: Clip) -> Path | None:
+    """The clip's file if present with the manifest's sha256 (a file with another hash raises ValueError)."""
+    return find_fetched(clip_dirs(), f"{clip.name}.bvh", clip, MANIFEST)
 
 
 def missing_message(clip: Clip) -> str:

@@ -233,23 +233,16 @@ def capture_bind_pose(bvh_file: str | Path) -> tuple[str, str]:
     The zero pose when a human stands in it (skeleton/bone_roles.py: feet to head within 45 deg of up); frame 0
     when only there (a rig whose bones lie along their parents' axes until the frames pose them)."""
     from .body.fit import bind_configuration
-    from .skeleton.bone_roles import NotHumanoid, label_skeleton, stands
+    from .skeleton.bone_roles import stands_in
     from .skeleton.kinematics import Skeleton
     path = Path(bvh_file)
     capture = load_motion("bvh", path)
     skeleton = Skeleton.from_urdf_string(capture.urdf)
 
-    def standing(q) -> tuple[bool, str]:
-        try:
-            roles = label_skeleton(skeleton, q)
-        except NotHumanoid as exc:
-            return False, f"no human ({exc})"
-        return stands(roles), f"feet to head along {np.round(roles.up, 2).tolist()}"
-
-    zero, zero_why = standing(None)
+    zero, zero_why = stands_in(skeleton)
     if zero:
         return "neutral", f"jelly body built in the capture's zero pose (a human stands in it: {zero_why})"
-    first, first_why = standing(bind_configuration(skeleton, "first_frame", bvh_file=str(path)))
+    first, first_why = stands_in(skeleton, bind_configuration(skeleton, "first_frame", bvh_file=str(path)))
     if first:
         return "first_frame", (f"jelly body built in frame 0 of {path.name}: no human stands in its zero pose "
                                f"({zero_why}), one does in frame 0 ({first_why}); skeleton.bind_pose 'neutral' "

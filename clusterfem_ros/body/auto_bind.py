@@ -442,17 +442,10 @@ def rest_configuration(skeleton, bvh_file: str = "", bvh_unit="auto", bvh_up: st
     """(q, the line saying which): the skeleton's rest the limbs are turned from: its zero pose when a human stands in
     it (bone_roles: feet to head within 45 deg of up), else frame 0 of ``bvh_file`` (the capture played) when one
     stands there; FitError naming the way out otherwise."""
-    from ..skeleton.bone_roles import NotHumanoid, label_skeleton, stands
+    from ..skeleton.bone_roles import stands_in
     from .fit import bind_configuration
 
-    def standing(q) -> tuple[bool, str]:
-        try:
-            roles = label_skeleton(skeleton, q)
-        except NotHumanoid as exc:
-            return False, f"no human ({exc})"
-        return stands(roles), f"feet to head along {np.round(roles.up, 2).tolist()}"
-
-    zero, zero_why = standing(None)
+    zero, zero_why = stands_in(skeleton)
     if zero:
         return skeleton.neutral(), f"bind pose from the skeleton's zero pose ({zero_why})"
     if not bvh_file:
@@ -460,7 +453,7 @@ def rest_configuration(skeleton, bvh_file: str = "", bvh_unit="auto", bvh_up: st
                        "capture whose frame 0 could serve: play the capture with --bvh (the scene then binds on its "
                        "frame 0) or set skeleton.bind_bvh")
     q = bind_configuration(skeleton, "first_frame", bvh_file=bvh_file, bvh_unit=bvh_unit, bvh_up=bvh_up)
-    first, first_why = standing(q)
+    first, first_why = stands_in(skeleton, q)
     if not first:
         raise FitError(f"no human stands in the skeleton's zero pose ({zero_why}) nor in frame 0 of "
                        f"{bvh_file} ({first_why}): check the capture's up axis (the player's 'up', skeleton.bvh_up)")

@@ -340,6 +340,16 @@ def label_skeleton(skeleton, q: np.ndarray | None = None) -> BoneRoles:
     return label_bones(skeleton.bone_names, skeleton.bone_parent, starts, ends)
 
 
+def stands_in(skeleton, q: np.ndarray | None = None) -> tuple[bool, str]:
+    """(whether a human stands in ``skeleton``'s configuration ``q`` (None: its zero pose), the reason in words):
+    False with what is missing when the tree is no human's (NotHumanoid), else ``stands`` of its roles."""
+    try:
+        roles = label_skeleton(skeleton, q)
+    except NotHumanoid as exc:
+        return False, f"no human ({exc})"
+    return stands(roles), f"feet to head along {np.round(roles.up, 2).tolist()}"
+
+
 # capsule radius per role over the default humanoid's joint height (feet to the top of its head bone)
 def _role_fractions() -> dict[str, float]:
     from .humanoid import BONE_RADIUS, PELVIS_HEIGHT
