@@ -197,3 +197,22 @@ def test_readme_and_docs_carry_no_dates_and_link_only_existing_files():
         for target in re.findall(r"\]\(([^)#]+)\)", text):
             if "://" not in target:
                 assert (page.parent / target).exists(), f"{page.name} links {target}, which does not exist"
+
+
+def test_the_pictures_scenes_are_the_shipped_scenes_on_the_input_clock():
+    """The README's picture shows what a user runs: each recording scene of docs/media is its shipped scene with
+    the joint-state clock and the motion played once, nothing else changed (a tuned copy would drift)."""
+    import yaml
+    from clusterfem_ros.config import _flatten, from_mapping, load_scene_file
+    pairs = {"character_walk_recording.yaml": ROOT / "config" / "character_walk.yaml",
+             "jelly_walk_recording.yaml": ROOT / "config" / "default_scene.yaml"}
+    for name, shipped in pairs.items():
+        rec = yaml.safe_load((ROOT / "docs" / "media" / name).read_text())
+        node = _flatten(rec["clusterfem"]["ros__parameters"])
+        assert node.pop("physics.clock") == "input", name
+        assert from_mapping(node) == load_scene_file(shipped), f"{name} differs from {shipped.name}"
+        player = dict(rec["mocap_player"]["ros__parameters"])
+        assert player.pop("loop") is False, name
+        player.pop("start_delay", None)
+        shipped_player = (yaml.safe_load(shipped.read_text()).get("mocap_player") or {}).get("ros__parameters")
+        assert player == (shipped_player or {"source": "builtin_walk"}), (name, player)
