@@ -11,13 +11,13 @@ import yaml
 from clusterfem_ros.config import SceneConfig, scene_file_text
 from clusterfem_ros.motion import load_player_section, skeleton_source_for
 from tests.shared_data import walk_clip
+from tests.ros_env import child_env
 
 pytestmark = pytest.mark.ros
 
 
 def _run(args, cwd, timeout=240):
-    env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="SHM", ROS_DOMAIN_ID=str(140 + os.getpid() % 20),
-               PYTHONPATH=os.pathsep.join([str(__import__("pathlib").Path(__file__).resolve().parents[1])] +
+    env = child_env(140, PYTHONPATH=os.pathsep.join([str(__import__("pathlib").Path(__file__).resolve().parents[1])] +
                                           os.environ.get("PYTHONPATH", "").split(os.pathsep)))
     run = subprocess.run([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--duration", "2", "--no-record", *args],
                          env=env, cwd=cwd, capture_output=True, text=True, timeout=timeout)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import ast
 import json
-import os
 import re
 import signal
 import subprocess
@@ -17,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from tests.shared_data import walk_clip
+from tests.ros_env import child_env
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -104,7 +104,7 @@ def test_the_readme_node_commands_run_together(tmp_path):
     block = [c for c in readme_commands(README.read_text()) if c.startswith(("clusterfem_node", "mocap_player"))]
     assert len(block) == 2, block
     walk_clip(beside_only=True)          # the README's example clip, read from ../shared beside the repository
-    env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="SHM", ROS_DOMAIN_ID=str(160 + os.getpid() % 30))
+    env = child_env(160, span=30)
     bindir = Path(sys.executable).parent
     procs, lines = [], {}
     try:

@@ -13,6 +13,7 @@ import pytest
 from rclpy.parameter import Parameter
 
 from clusterfem_ros.nodes.testing import RosWorld
+from tests.ros_env import child_env
 
 pytestmark = pytest.mark.ros
 pytest.importorskip("foxglove")
@@ -103,12 +104,10 @@ def test_the_live_view_is_off_by_default_and_a_taken_port_is_one_clear_error():
 
 def test_the_main_job_serves_its_topics_live():
     """`scripts/run --live PORT` (the README's command): the main job's node serves its topics on 127.0.0.1:PORT."""
-    import os
     import subprocess
     import sys
     port = _free_port()
-    env = dict(os.environ, PYTHONPATH=str(ROOT), FASTDDS_BUILTIN_TRANSPORTS="SHM",
-               ROS_DOMAIN_ID=str(100 + os.getpid() % 20))
+    env = child_env(100, PYTHONPATH=str(ROOT))
     job = subprocess.Popen([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--duration", "30", "--no-record",
                             "--no-png", "--no-video", "--live", str(port)], cwd=ROOT, env=env,
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

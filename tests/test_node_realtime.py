@@ -12,6 +12,7 @@ from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 
 from clusterfem_ros.nodes.testing import RosWorld
+from tests.ros_env import child_env
 
 pytestmark = pytest.mark.ros
 
@@ -142,7 +143,7 @@ def test_the_demo_runs_two_bodies_as_two_processes(tmp_path):
     out = tmp_path / "summary.json"
     run = subprocess.run([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--bodies", "2", "--process-per-body",
                           "--duration", "3", "--no-png", "--bags", str(tmp_path), "--summary-json", str(out), *scenes],
-                         capture_output=True, text=True, timeout=300)
+                         env=child_env(180), capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     bodies = json.loads(out.read_text())["bodies"]
     assert [b["namespace"] for b in bodies] == ["/body1", "/body2"]
@@ -159,7 +160,7 @@ def test_the_demo_s_summary_of_two_bodies_in_one_process_tells_each_body_s_own_n
     out = tmp_path / "summary.json"
     run = subprocess.run([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--bodies", "2", "--duration", "3",
                           "--no-png", "--no-record", "--summary-json", str(out)],
-                         capture_output=True, text=True, timeout=300)
+                         env=child_env(180), capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     bodies = {b["namespace"].strip("/"): b for b in json.loads(out.read_text())["bodies"]}
     assert sorted(bodies) == ["body1", "body2"], run.stdout[-3000:]

@@ -1,5 +1,4 @@
 """SIGINT and SIGTERM stop the node process cleanly with its recording finalised (complete MCAP)."""
-import os
 import signal
 import subprocess
 import sys
@@ -8,6 +7,7 @@ import time
 from pathlib import Path
 
 import pytest
+from tests.ros_env import child_env
 
 pytestmark = pytest.mark.ros
 
@@ -16,7 +16,7 @@ pytestmark = pytest.mark.ros
 def test_signal_finalises_the_recording(tmp_path, sig):
     from rosbags.highlevel import AnyReader
     from clusterfem_ros.recording.recover import is_complete
-    env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="SHM", ROS_DOMAIN_ID=str(150 + os.getpid() % 50 + sig))
+    env = child_env(150 + sig, span=50)
     proc = subprocess.Popen(
         [sys.executable, "-m", "clusterfem_ros.nodes.clusterfem_node", "--ros-args",
          "-p", "body.kind:=sphere", "-p", "skeleton.source:=none", "-p", "warping:=false",
@@ -111,7 +111,7 @@ def test_the_main_job_runs_a_scene_without_skeleton_without_waiting_for_a_player
     scene.write_text(scene_file_text(SceneConfig().with_values(
         body__kind="sphere", skeleton__source="none", body__fix_bottom=False, anchors__points=cap,
         anchors__radius=0.05, output__marker_rate_hz=10.0)))
-    env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="SHM", ROS_DOMAIN_ID=str(120 + os.getpid() % 20))
+    env = child_env(120)
     t0 = time.monotonic()
     run = subprocess.run([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--duration", "2", "--scene", str(scene),
                           "--no-record", "--png", str(tmp_path / "final.png")],

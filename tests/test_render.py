@@ -3,7 +3,6 @@ the sample bag written to a playable MP4 and GIF (VTK off screen, and the matplo
 imageio, with the body on screen in every frame."""
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +13,7 @@ import pytest
 from clusterfem_ros.bag_frames import BagFramesError, decode_stress_cloud, decode_surface_marker, read_bag_frames
 from clusterfem_ros.render import Camera, VideoOptions, main, render_bag, video_frames
 from clusterfem_ros.render_vtk import opengl_available
+from tests.ros_env import child_env
 
 SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "sample_default_scene"
 
@@ -195,7 +195,7 @@ def test_the_main_job_renders_its_recording(tmp_path):
     scene = tmp_path / "cube.yaml"                  # the paper's cube, its bottom held, sagging under gravity
     scene.write_text(scene_file_text(SceneConfig().with_values(
         body__kind="cube", skeleton__source="none", body__fix_bottom=True, output__marker_rate_hz=10.0)))
-    env = dict(os.environ, FASTDDS_BUILTIN_TRANSPORTS="SHM", ROS_DOMAIN_ID=str(140 + os.getpid() % 20))
+    env = child_env(140)
     run = subprocess.run([sys.executable, "-m", "clusterfem_ros.nodes.demo", "--duration", "2", "--scene", str(scene),
                           "--bags", str(tmp_path / "bags")], env=env, capture_output=True, text=True, timeout=300)
     out = run.stdout + run.stderr
