@@ -29,6 +29,7 @@ class SurfaceBody:
     fit: Fit
     tets: TetResult         # the tets in file units, with their quality and cache facts
     unbound: tuple[str, ...] = ()   # bones without flesh: fingers, toes, root helpers outside it (bind_pose 'auto')
+    limb_distances: dict | None = None   # bind_pose 'auto': auto_bind.limb_report's {(side, kind): (mean, max) [m]}
 
 
 def build_surface_body(config, skeleton, progress: Callable[[str], None] | None = None) -> SurfaceBody:
@@ -53,13 +54,14 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     triangles = boundary_triangles(tets.mesh)
     say(f"fitting {path.name} on the skeleton ({'bind pose from the mesh, ' if auto else ''}{s.fit})")
     unbound: list[str] = []
+    distances = None
     if auto:
         if s.fit != "auto":
             raise FitError("skeleton.bind_pose 'auto' places the mesh itself: set skeleton.fit 'auto' (or choose "
                            "skeleton.bind_pose 'neutral' / 'first_frame' for skeleton.fit 'manual')")
         found = auto_bind_pose(skeleton, q_rest, tets.mesh.vertices, triangles, b.surface_unit, s.fit_up,
                                s.fit_forward, say=say)
-        q, fit = found.q, found.fit
+        q, fit, distances = found.q, found.fit, found.distances
         say(found.report)
     else:
         fit = fit_mesh(tets.mesh.vertices, *skeleton.bone_segments(q), s.fit, b.surface_unit, s.fit_up,
@@ -85,7 +87,7 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     depth = surface_depth(mesh.vertices, mesh.vertices, triangles)
     say(f"surface body: {mesh.n_tets} tets / {mesh.n_vertices} vertices, min dihedral "
         f"{tets.min_dihedral_deg:.1f} deg, min radius ratio {tets.min_radius_ratio:.3f}")
-    return SurfaceBody(mesh, q, depth, fit, tets, tuple(unbound))
+    return SurfaceBody(mesh, q, depth, fit, tets, tuple(unbound), distances)
 
 
 def unbound_islands(tets: np.ndarray, n_vertices: int, driven: np.ndarray) -> list[tuple[int, np.ndarray]]:
