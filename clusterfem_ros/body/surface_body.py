@@ -16,6 +16,7 @@ import numpy as np
 from ..fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from ..fem.mesh.tetrahedralize import TetResult, surface_to_tets
 from .auto_bind import auto_bind_pose, bones_to_unbind, rest_configuration
+from .limb_bridges import bridge_tets, cut_bridges
 from .fit import Fit, FitError, bind_configuration, bone_outside_distances, find_data_file, fit_mesh, surface_depth
 
 MANIFEST = "config/character_data.md"
@@ -76,6 +77,8 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
             f"hand, foot or pelvis): "
             f"{', '.join(f'{n} ({100 * out[skeleton.bone_names.index(n)]:.1f} cm out)' for n in unbound)}"
             if unbound else "every bone binds flesh (no finger, toe or root-helper bone outside the mesh)")
+        mesh, triangles = _cut_limb_bridges(mesh, triangles, starts, ends, found.roles,
+                                            np.array([n not in unbound for n in skeleton.bone_names]), say)
     outside = sorted(((n, float(d)) for n, d in zip(skeleton.bone_names, out)
                       if d > s.fit_tolerance and n not in unbound), key=lambda p: -p[1])
     if outside:
@@ -88,6 +91,20 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     say(f"surface body: {mesh.n_tets} tets / {mesh.n_vertices} vertices, min dihedral "
         f"{tets.min_dihedral_deg:.1f} deg, min radius ratio {tets.min_radius_ratio:.3f}")
     return SurfaceBody(mesh, q, depth, fit, tets, tuple(unbound), distances)
+
+
+def _cut_limb_bridges(mesh: TetMesh, triangles: np.ndarray, starts: np.ndarray, ends: np.ndarray, roles,
+                      binds: np.ndarray, say) -> tuple[TetMesh, np.ndarray]:
+    """(mesh, its boundary triangles) without the tets that join the left and right limbs (body/limb_bridges.py),
+    one line saying how many were cut."""
+    bridges = bridge_tets(mesh.vertices, mesh.tets, starts, ends, roles, binds)
+    if not bridges.any():
+        return mesh, triangles
+    share = float(mesh.volumes()[bridges].sum() / mesh.volumes().sum())
+    cut = cut_bridges(mesh, bridges)
+    say(f"cut {int(bridges.sum())} tets ({share:.1%} of the body's volume) joining flesh of the left and right "
+        "limbs: the mesh's limbs touch or lie closer than its tets are wide")
+    return cut, boundary_triangles(cut)
 
 
 def unbound_islands(tets: np.ndarray, n_vertices: int, driven: np.ndarray) -> list[tuple[int, np.ndarray]]:
