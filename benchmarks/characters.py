@@ -7,10 +7,12 @@ prints, per manifest entry, the body measured from the surface (up axis, forward
 angle to the body axis, pose) beside what the manifest states, then meshes it as ``body.kind: surface`` does
 (fem/mesh/tetrahedralize.surface_to_tets, ``body.target_tets`` = --tets) into an empty cache folder: tets,
 seconds, the smallest dihedral angle and radius ratio, or the error. With ``--walk``, each mesh then takes the
-place of MakeHuman's in config/character_walk.yaml (its file, group, unit and axes, which skeleton.fit_up and
-fit_forward take without their sign; bound in frame 0 of each capture as that frame stands, no bind angles) and is driven by each capture's trajectory for --duration simulated
-seconds (benchmarks/character_report.drive): resets, worst volume error, worst distance of a surface vertex to
-its bone, steps/s, or the error that stopped the build. Times depend on the machine and its load.
+place of MakeHuman's in config/character_walk.yaml (its file, group, unit and signed axes: ``walk_overrides``),
+bound by ``skeleton.bind_pose: auto`` on each capture's own skeleton and played by it for --duration simulated
+seconds as the clip soak plays it (benchmarks/clip_soak.headless_soak: looped as the player loops it): resets,
+withheld states, worst distance of a published vertex to its bone, worst volume error, and the bind's report
+per limb (the largest distance of the limb's bones from the middle of the mesh's limb), or the error that
+refused the build; then a table of them all. Times depend on the machine and its load.
 
 ``find_mesh(entry)`` looks for the entry's ``file`` in ``meshes/`` of each data folder
 (clusterfem_ros/data_dirs.py: ``$CLUSTERFEM_DATA``, ``../shared/data`` beside the checkout, the user data folder); ``missing_message`` names the
@@ -188,6 +190,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--walk", nargs="*", type=Path, default=[], help="BVH captures to drive each character by")
     parser.add_argument("--duration", type=float, default=3.0, help="simulated seconds of each walk (default 3)")
     args = parser.parse_args(argv)
+    rows: list[list] = []
     for entry in load_manifest():
         if args.only and entry.name not in args.only:
             continue
@@ -216,36 +219,49 @@ def main(argv: list[str] | None = None) -> None:
             os.environ["CLUSTERFEM_CACHE"] = cache              # the scenes below read these tets from the cache
             try:
                 for bvh in args.walk:
-                    print(f"  {bvh.name}: {walk(path, entry, bvh, args.tets, args.duration)}", flush=True)
+                    line, row = walk(path, entry, bvh, args.tets, args.duration)
+                    rows.append(row)
+                    print(f"  {bvh.name}: {line}", flush=True)
             finally:
                 if old is None:
                     del os.environ["CLUSTERFEM_CACHE"]
                 else:
                     os.environ["CLUSTERFEM_CACHE"] = old
+    if rows:
+        from .timing import table
+        print(f"\nmesh x capture, {args.duration:g} s each at --tets {args.tets} (config/character_walk.yaml, "
+              "bind_pose auto):")
+        print(table(["mesh", "capture", "resets", "withheld", "worst vertex-to-bone [m]", "worst volume error",
+                     "bind: bones from the limb's middle, max [cm]", "bones unbound"], rows))
 
 
-def walk(path: Path, entry: CharacterMesh, bvh: Path, tets: int, duration: float) -> str:
-    """One line: the character scene on ``path`` bound in frame 0 of ``bvh`` and driven by it (the module
-    docstring says how), or the error that stopped it."""
-    from clusterfem_ros.config import load_scene_file
-    from clusterfem_ros.errors import ClusterFemError
-    from clusterfem_ros.scene import Scene
-    from .character_report import DEFAULT_SCENE, bvh_skeleton, drive
-    urdf, trajectory = bvh_skeleton(bvh)
-    config = load_scene_file(DEFAULT_SCENE).with_values({
-        "body.surface_file": str(path), "body.surface_group": entry.group, "body.surface_unit": entry.metres_per_unit,
-        "body.target_tets": tets, "skeleton.bind_bvh": str(bvh), "skeleton.bind_joints": [],
-        "skeleton.bind_angles": [], "skeleton.fit_up": entry.up[1], "skeleton.fit_forward": entry.forward[1]})
+def walk_overrides(path: Path, entry: CharacterMesh, tets: int) -> dict:
+    """The parameters that put the entry's mesh in place of MakeHuman's in config/character_walk.yaml: its file,
+    group, unit and signed axes, as ``scripts/run --set`` gives them."""
+    return {"body.surface_file": str(path), "body.surface_group": entry.group,
+            "body.surface_unit": entry.metres_per_unit, "body.target_tets": tets, "skeleton.fit_up": entry.up.lstrip("+"),
+            "skeleton.fit_forward": entry.forward.lstrip("+")}
+
+
+def walk(path: Path, entry: CharacterMesh, bvh: Path, tets: int, duration: float) -> tuple[str, list]:
+    """(one line, a table row): the character scene on ``path`` played by the capture ``bvh`` as
+    ``python -m benchmarks.clip_soak --scene config/character_walk.yaml --set ...`` plays it (the capture's own
+    skeleton, bound 'auto', looped as the player loops it) for ``duration`` s, or the error that stopped it."""
+    from .character_report import DEFAULT_SCENE
+    from .clip_soak import headless_soak
     t0 = time.perf_counter()
     try:
-        scene = Scene.build(config, urdf_xml=urdf)
-    except (ClusterFemError, ValueError) as exc:           # the scene refuses bad input with these, naming it
-        return f"not built ({time.perf_counter() - t0:.0f} s): {type(exc).__name__}: {exc}"
-    built = time.perf_counter() - t0
-    r = drive(scene, trajectory, duration)
-    return (f"built in {built:.0f} s ({scene.model.mesh.n_tets} tets); {duration:g} s driven: {r['resets']} resets, "
-            f"worst volume error {r['volume_error']:.2%}, worst vertex-to-bone {r['bone_distance_m']:.3f} m, "
-            f"{r['steps_per_s']:.0f} steps/s, {r['withheld']} states withheld, finite {r['finite']}")
+        r = headless_soak(bvh, walk_overrides(path, entry, tets), duration, DEFAULT_SCENE)
+    except ValueError as exc:           # FitError, ConfigError, UrdfError: the scene refuses the input, naming it
+        return (f"refused ({time.perf_counter() - t0:.0f} s): {type(exc).__name__}: {exc}",
+                [entry.name, bvh.stem, "refused", "", "", "", "", ""])
+    limbs = ", ".join(f"{k[0]}{k[1]} {100 * v[1]:.0f}" for k, v in (r.limbs or {}).items())
+    line = (f"{r.seconds:g} s played in {time.perf_counter() - t0:.0f} s: {r.resets} resets, {r.withheld} withheld, "
+            f"worst volume error {r.worst_volume:.2%}, worst vertex-to-bone {r.worst_distance:.3f} m, "
+            f"{r.step_ms:.2f} ms a step; bones from the limbs' middle (max, cm): {limbs or '-'}; "
+            f"unbound: {', '.join(r.unbound) or 'none'}" + (f"; first reset: {r.first_problem}" if r.resets else ""))
+    return line, [entry.name, bvh.stem, r.resets, r.withheld, f"{r.worst_distance:.3f}",
+                  f"{100 * r.worst_volume:.1f} %", limbs or "-", len(r.unbound)]
 
 
 if __name__ == "__main__":

@@ -82,6 +82,8 @@ class SoakResult:
     skeleton_height: float = 0.0     # [m], at rest, feet to the head's end
     body_height: float = 0.0         # [m], at rest, along the scene's Z
     bare: str = ""                   # major bones without flesh ('none'), or why they cannot be told
+    limbs: dict | None = None        # a surface body bound 'auto': {(side, kind): (mean, max) [m]} of its bind
+    unbound: tuple = ()              # a surface body's bones left without flesh
 
 
 def joint_speeds(path: Path) -> tuple[float, float]:
@@ -160,6 +162,8 @@ def headless_soak(path: Path, overrides: dict | None = None, seconds: float | No
     res.unit = unit_found(path)[0]
     res.skeleton_height, res.bare = flesh_check(scene)
     res.body_height = float(np.ptp(scene.model.rest[:, 2]))
+    if scene.surface_body is not None:
+        res.limbs, res.unbound = scene.surface_body.limb_distances, scene.surface_body.unbound
     tets = scene.model.mesh.tets
     rest_volumes = scene.model.mesh.volumes()
     res.joint_speed, res.raw_joint_speed = joint_speeds(path)

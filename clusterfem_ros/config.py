@@ -136,8 +136,11 @@ PARAMS: tuple[Param, ...] = (
     Param("skeleton.fit", "auto", "how the surface sits on the skeleton: 'auto' scales it so the skeleton spans 93 % "
           "of its height, centres it, then moves and scales it so the bones lie 1 cm under the skin (least squares); "
           "'manual' uses body.surface_unit and skeleton.fit_offset", choices=("auto", "manual")),
-    Param("skeleton.fit_up", "Z", "the surface file's up axis (Y for most modelling tools)", choices=("X", "Y", "Z")),
-    Param("skeleton.fit_forward", "X", "the surface file's forward axis (the way the character faces)", choices=("X", "Y", "Z")),
+    Param("skeleton.fit_up", "Z", "the surface file's up axis, from the feet to the head (Y for most modelling "
+          "tools; -Y for a file upside down)", choices=BVH_AXES),
+    Param("skeleton.fit_forward", "X", "the surface file's forward axis, the way the character faces (-Z for a "
+          "character modelled facing away along Z); with skeleton.bind_pose 'auto' the feet decide when they point "
+          "clearly", choices=BVH_AXES),
     Param("skeleton.fit_offset", [0.0, 0.0, 0.0], "with skeleton.fit 'manual': where the file's origin goes in the "
           "skeleton's bind-pose frame [m]"),
     Param("skeleton.fit_tolerance", 0.02, "a bone may leave the surface body by this much before the fit is refused [m]", 0.0, 1.0),
@@ -595,9 +598,9 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
                           f"skeleton.bind_angles {len(out['skeleton.bind_angles'])} values: give one angle per joint")
     if len(out["skeleton.fit_offset"]) != 3:
         raise ConfigError(f"skeleton.fit_offset = {out['skeleton.fit_offset']}: give x, y, z [m]")
-    if out["skeleton.fit_up"] == out["skeleton.fit_forward"]:
-        raise ConfigError(f"skeleton.fit_up and skeleton.fit_forward are both {out['skeleton.fit_up']!r}: give two "
-                          "different axes")
+    if out["skeleton.fit_up"].lstrip("-") == out["skeleton.fit_forward"].lstrip("-"):
+        raise ConfigError(f"skeleton.fit_up = {out['skeleton.fit_up']!r} and skeleton.fit_forward = "
+                          f"{out['skeleton.fit_forward']!r} lie along one axis: give two different axes")
     check_material_choice(out)
     return SceneConfig(out)
 

@@ -142,7 +142,8 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
     binding.skip_bones nor the ``bare`` bones of a jelly body (they have no flesh). ``bind_all``: the outermost
     level is widened to reach every vertex. ``allowed`` (n, nb): the bones each vertex may bind to (a jelly body
     on a URDF: the bones of its own voxels). A surface body's
-    pieces that no bone and no anchor reaches are refused (refuse_islands)."""
+    pieces that no bone and no anchor reaches are carried by their nearest bone when small, else refused
+    (hold_islands)."""
     b = config.binding
     poses = skeleton.forward(q0, np.zeros(skeleton.nv))
     starts, ends = skeleton.bone_segments(q0)
@@ -175,7 +176,7 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
                                rest_rotation=poses.rotation, rest_translation=poses.translation,
                                bone_names=skeleton.bone_names, warn=False, surface_depth=depth, allowed=allowed)
     if surface is not None:
-        refuse_islands(model, binding, anchors)
+        binding = hold_islands(model, binding, anchors, progress)
     return binding
 
 
@@ -205,19 +206,37 @@ def skeleton_driver(config: SceneConfig, binding: Binding, rest: np.ndarray, ske
                           lines=[a for a in anchors if isinstance(a, LineConstraint)])
 
 
-def refuse_islands(model: FemModel, binding: Binding, anchors: list) -> None:
-    """A piece of a surface body that no bone reaches (no vertex in the innermost level: relative levels
-    bind the skin of any piece at its outer level) and no anchor holds would be dragged, not carried:
-    refuse it."""
+ISLAND_SHARE = 0.05     # a loose piece of a surface body up to this share of its vertices is carried by its bone
+
+
+def hold_islands(model: FemModel, binding: Binding, anchors: list,
+                 progress: Callable[[str], None] | None = None) -> Binding:
+    """``binding`` with every small piece of a surface body that no bone reaches (no vertex in the innermost
+    level: relative levels bind the skin of any piece at its outer level) and no anchor holds carried by the bones
+    it is bound to: its bound vertices put in the innermost level (a mesh's loose parts, fingers or eyes modelled
+    apart from the body, tetrahedralized as pieces of their own). A piece beyond ISLAND_SHARE of the body's
+    vertices, or with no vertex bound at all, would be dragged, not carried: refused."""
+    import dataclasses
     driven = binding.level == 0
     driven[[a.vertex for a in anchors]] = True
     islands = unbound_islands(model.mesh.tets, model.n_vertices, driven)
-    if islands:
-        size, index = islands[0]
-        centre = model.rest[index].mean(axis=0)
-        raise ValueError(f"{len(islands)} piece(s) of the surface body are reached by no bone and no anchor; the "
-                         f"first has {size} vertices around ({', '.join(f'{x:.3f}' for x in centre)}) m: raise "
-                         "binding.level_radii, or hold it with anchors.points / anchors.bones")
+    if not islands:
+        return binding
+    level = binding.level.copy()
+    for size, index in islands:
+        held = index[binding.level[index] >= 0]
+        if size > ISLAND_SHARE * model.n_vertices or held.size == 0:
+            centre = model.rest[index].mean(axis=0)
+            raise ValueError(f"{len(islands)} piece(s) of the surface body are reached by no bone and no anchor; "
+                             f"one has {size} vertices ({size / model.n_vertices:.1%} of the body, more than "
+                             f"{ISLAND_SHARE:.0%} are not carried whole by a bone) around "
+                             f"({', '.join(f'{x:.3f}' for x in centre)}) m: raise binding.level_radii, or hold it "
+                             "with anchors.points / anchors.bones")
+        level[held] = 0
+    sizes = sorted((size for size, _ in islands), reverse=True)
+    say(progress, f"{len(islands)} loose piece(s) of the surface ({', '.join(map(str, sizes))} vertices) reached by "
+                  "no bone's core: carried whole by the bones they are bound to")
+    return dataclasses.replace(binding, level=level)
 
 
 def joint_inputs(config: SceneConfig, skeleton: Skeleton, q0: np.ndarray) -> tuple[JointMap, JointStreamInterpolator]:

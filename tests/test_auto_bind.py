@@ -104,6 +104,49 @@ def test_toes_out_of_the_foot_are_left_unbound_and_a_leg_swung_out_is_not(skelet
     assert ab.bones_to_unbind(label_skeleton(skeleton, q_mesh), at_rest) == [], at_rest
 
 
+def test_a_skeleton_whose_head_ends_short_has_its_limbs_traced_on_a_mesh_sized_by_its_hips(skeleton, meshes):
+    """The mesh sized by a skeleton that ends at its shoulders (as a rig whose head end site stops short of the crown
+    looks) is too small for the skeleton's legs: grown about its centre until the hips stand HIP_RATIO of its
+    height above the soles; a mesh sized by the whole skeleton is left as it is (its hips stand lower)."""
+    from clusterfem_ros.body.fit import fit_mesh
+    vertices, _, _ = meshes["A-pose"]
+    rest = skeleton.neutral()
+    starts, ends = skeleton.bone_segments(rest)
+    roles = label_skeleton(skeleton, rest)
+    limbs = ab.skeleton_limbs(roles, starts, ends)
+    whole = fit_mesh(vertices, starts, ends, "auto", 1.0, "Z", "X")
+    assert ab._trace_size(whole, vertices, starts, ends, limbs) == (whole, "")
+    body = [b for b, r in enumerate(roles.roles) if r not in ("head", "neck")]
+    short = fit_mesh(vertices, starts[body], ends[body], "auto", 1.0, "Z", "X")
+    grown, why = ab._trace_size(short, vertices, starts, ends, limbs)
+    x = grown.apply(vertices)
+    hips = np.mean([limbs[(side, "leg")].root[2] for side in "lr"]) - np.vstack([starts, ends])[:, 2].min()
+    assert hips / np.ptp(x[:, 2]) == pytest.approx(ab.HIP_RATIO, rel=1e-9)
+    assert grown.scale > 1.05 * short.scale and "times larger" in why, why
+    centre = short.inverse(0.5 * (short.apply(vertices).min(axis=0) + short.apply(vertices).max(axis=0)))
+    assert grown.apply(centre[None]) == pytest.approx(short.apply(centre[None]))
+
+
+def test_a_hand_that_ends_at_the_palm_is_traced_at_a_humans_hand_length(skeleton):
+    """The wrist ring is sought the hand's length from the fingertip: a rig whose hand bone ends at the palm
+    (Bandai Namco's: 5 cm, a fifth of its forearm) would put it in the fingers; a hand is taken at least
+    HAND_FOREARM of the forearm, the feet as they are."""
+    rest = skeleton.neutral()
+    starts, ends = skeleton.bone_segments(rest)
+    roles = label_skeleton(skeleton, rest)
+    hands = [b for b, r in enumerate(roles.roles) if r == "hand"]
+    palm = ends.copy()
+    palm[hands] = starts[hands] + 0.2 * (ends[hands] - starts[hands])      # the hand bones end a fifth of the way
+    limbs = ab.skeleton_limbs(roles, starts, palm)
+    full = ab.skeleton_limbs(roles, starts, ends)
+    for key, limb in limbs.items():
+        forearm = np.linalg.norm(limb.end - limb.middle)
+        if key[1] == "arm":
+            assert limb.tip_length == pytest.approx(ab.HAND_FOREARM * forearm)
+        else:
+            assert limb.tip_length == full[key].tip_length
+
+
 def test_a_mesh_lying_along_another_axis_is_refused_naming_its_up_axis(skeleton, meshes):
     vertices, triangles, _ = meshes["T-pose"]
     lying = vertices @ np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]).T       # head along -y

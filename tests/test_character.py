@@ -184,6 +184,35 @@ def test_surface_body_walks_one_second_deterministically(surface, cache, monkeyp
     assert np.array_equal(runs[0], runs[1])
 
 
+def test_a_placement_on_another_pose_than_the_bind_settles_before_it_is_shown(surface, cache, monkeypatch):
+    """Bound straight and placed bent by 1.2 rad: carried rigidly, the flesh at the bend is carried by both bones,
+    not where their springs hold it, and the steps after the placement show it springing; settled on the still
+    pose first (Scene._settle), the state shown is where it stays."""
+    import clusterfem_ros.scene as scene_module
+
+    def swing(settle_steps: int) -> tuple[float, int]:
+        monkeypatch.setattr(scene_module, "SETTLE_MAX_STEPS", settle_steps)
+        scene = _build(surface, cache, monkeypatch)
+        names = scene.skeleton.joint_names
+        q = np.zeros(len(names))
+        q[names.index("bend")] = 1.2
+        scene.push_joint_state(0.0, names, q, np.zeros_like(q))
+        scene.push_joint_state(1.0, names, q, np.zeros_like(q))
+        scene.advance_to(0.0)
+        assert scene.output_problem() is None
+        shown = scene.volume_error()
+        after = []
+        for k in range(1, 101):
+            scene.advance_to(k * scene.h)
+            after.append(scene.volume_error())
+        return float(np.max(np.abs(np.array(after) - shown))), scene.settle_steps
+
+    most = scene_module.SETTLE_MAX_STEPS
+    (carried, none), (settled, steps) = swing(0), swing(most)
+    assert none == 0 and 0 < steps <= most
+    assert settled < 0.25 * carried, (carried, settled)
+
+
 def test_auto_fit_puts_the_bones_inside(surface, cache, monkeypatch):
     scene = _build(surface, cache, monkeypatch, **{"skeleton.fit": "auto"})
     fit = scene.surface_body.fit
@@ -222,6 +251,28 @@ def test_a_piece_of_the_mesh_no_bone_reaches_is_refused(surface, tmp_path, cache
     apart.export(tmp_path / "two_pieces.stl")
     with pytest.raises(ValueError, match=r"1 piece\(s\) of the surface body are reached by no bone.*anchors"):
         _build(tmp_path / "two_pieces.stl", cache, monkeypatch, **{"body.target_tets": 1200})
+
+
+def test_a_small_loose_piece_is_carried_whole_by_its_bone(surface, tmp_path, cache, monkeypatch):
+    """A piece modelled apart from the body (a finger, an eye) that no bone's core reaches: its bound vertices are
+    put in the innermost level, so the bone carries it rigidly; the log line says so."""
+    from clusterfem_ros.scene import Scene
+    m = trimesh.load(surface)
+    bead = trimesh.creation.icosphere(subdivisions=1, radius=1.5)      # cm, 2 cm beside the capsule's side
+    centre = TO_FILE @ np.array([13.5, 0.0, 5.0])                      # ROS x = 0.135 m, z = 0.05 m, in the file
+    apart = trimesh.util.concatenate([m, trimesh.Trimesh(bead.vertices + centre, bead.faces)])
+    apart.export(tmp_path / "bead.stl")
+    monkeypatch.setenv("CLUSTERFEM_CACHE", str(cache))
+    lines = []
+    scene = Scene.build(_config(tmp_path / "bead.stl", **{"body.target_tets": 1200}), urdf_xml=_urdf(),
+                        progress=lines.append)
+    from clusterfem_ros.scene_setup import ISLAND_SHARE
+    islands = [line for line in lines if "loose piece" in line]
+    assert len(islands) == 1, lines
+    rest = scene.model.rest
+    piece = np.flatnonzero(rest[:, 0] > 0.11)                           # the fit is manual: file cm -> m
+    assert 0 < piece.size < ISLAND_SHARE * scene.model.n_vertices
+    assert (scene.binding.level[piece] == 0).all()
 
 
 def test_islands_no_bone_reaches_are_found():
@@ -292,6 +343,22 @@ def test_surface_parameters_are_cross_checked():
                                    "binding.relative_levels": True, "binding.level_radii": [0.5, 2.0]})
     with pytest.raises(ConfigError, match="one angle per joint"):
         SceneConfig().with_values({"skeleton.bind_joints": ["a", "b"], "skeleton.bind_angles": [0.1]})
+
+
+def test_the_fit_axes_take_a_sign_and_refuse_two_along_one_axis():
+    """A character modelled facing away along Z (ojg_male_base of tests/data/character_meshes.yaml) says
+    skeleton.fit_forward '-Z': its file's -Z becomes the world's forward (ROS +X), its +Y up (+Z)."""
+    from clusterfem_ros.body.fit import fit_mesh
+    config = SceneConfig().with_values({"skeleton.fit_up": "Y", "skeleton.fit_forward": "-Z"})
+    assert (config["skeleton.fit_up"], config["skeleton.fit_forward"]) == ("Y", "-Z")
+    box = np.array([[x, y, z] for x in (-0.2, 0.2) for y in (0.0, 1.8) for z in (-0.1, 0.1)])
+    starts, ends = np.array([[0.0, 0.0, 0.1]]), np.array([[0.0, 0.0, 1.6]])
+    fit = fit_mesh(box, starts, ends, "manual", 1.0, config["skeleton.fit_up"], config["skeleton.fit_forward"])
+    assert fit.apply(np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])) == pytest.approx(np.array([[1, 0, 0], [0, 0, 1.0]]))
+    for up, forward in (("Z", "-Z"), ("-Y", "Y")):
+        with pytest.raises(ConfigError, match=f"skeleton.fit_up = '{up}' and skeleton.fit_forward = '{forward}' "
+                                              "lie along one axis"):
+            SceneConfig().with_values({"skeleton.fit_up": up, "skeleton.fit_forward": forward})
 
 
 def test_the_character_scene_file_loads_and_names_its_data(monkeypatch, tmp_path):

@@ -9,7 +9,8 @@ A character mesh is modelled in some pose (T-pose, A-pose, arms down) and a capt
    Each limb is the part of the surface nearer its extremity than the other three limbs' (where two touch).
    From the extremity, the rings of equal geodesic distance go round the limb; their centroids trace the limb's
    middle (a level-set skeleton). The skeleton's own lengths say which ring is the wrist / ankle (the first whose
-   centroid lies the hand's / foot's length from the tip), the elbow / knee and the upper limb; the line through
+   centroid lies the hand's / foot's length from the tip: at least HAND_FOREARM of the forearm, a rig's hand that
+   ends at the palm is no hand's length), the elbow / knee and the upper limb; the line through
    a bone's ring centroids is its direction in the mesh. The toes point the way the mesh faces (the declared
    ``skeleton.fit_forward`` only when the feet do not tell).
 2. **The skeleton's limbs** (``turn_limbs``): roles from the tree and the rest geometry (skeleton/bone_roles.py);
@@ -43,6 +44,8 @@ LOWER_SPAN = (0.2, 0.8)
 REGULARIZE = 0.01           # weight of the joints' change in the least squares (keeps the twist)
 UNBIND_MARGIN = 0.005       # [m] a finger or toe bone this far outside the skin binds no flesh
 UNBINDABLE_ROLES = ("finger", "toe", "root")   # a 'root' helper: a bone from the floor up to the pelvis
+HAND_FOREARM = 0.7          # a human's hand (wrist to fingertip) is about 0.74 of the forearm (Drillis & Contini)
+HIP_RATIO = 0.53            # a human's hip joints stand this share of the stature above the soles (Drillis & Contini)
 
 
 @dataclass
@@ -102,7 +105,8 @@ class SkeletonLimb:
     root: np.ndarray            # (3,) shoulder / hip joint
     middle: np.ndarray          # (3,) elbow / knee
     end: np.ndarray             # (3,) wrist / ankle
-    tip_length: float           # wrist / ankle to the farthest end of the hand / foot bones [m]
+    tip_length: float           # wrist / ankle to the farthest end of the hand / foot bones, a hand at least
+                                # HAND_FOREARM of the forearm [m]
     distal: int = -1            # the hand / foot bone (-1: none with length)
     tip_rise: float = 0.0       # how far the wrist / ankle lies above that farthest end along world Z [m]
 
@@ -126,6 +130,8 @@ def skeleton_limbs(roles, starts: np.ndarray, ends: np.ndarray) -> dict:
         wrist = ends[lo]
         far = max(tips, key=lambda t: float(np.linalg.norm(t - wrist)), default=wrist)
         reach = float(np.linalg.norm(far - wrist))
+        if kind == "arm":       # a hand whose bones end at the palm (an end site, no fingers) is a human's length
+            reach = max(reach, HAND_FOREARM * float(np.linalg.norm(ends[lo] - starts[lo])))
         hands = [b for b in solid if roles.roles[b] == distal[0]]
         out[(side, kind)] = SkeletonLimb(u, lo, starts[u].copy(), ends[u].copy(), wrist.copy(), reach,
                                          hands[0] if hands else -1, float(wrist[2] - far[2]))
@@ -402,6 +408,9 @@ def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles
                        f"({exc}): set skeleton.bind_pose 'neutral' or 'first_frame'") from None
     limbs = skeleton_limbs(roles, starts, ends)
     first = fit_mesh(vertices, starts, ends, "auto", unit, up, forward)
+    first, why = _trace_size(first, vertices, starts, ends, limbs)
+    if why:
+        say(why)
     pose = mesh_pose(first.apply(vertices), triangles, limbs, declared_forward=np.array([1.0, 0.0, 0.0]))
     say(pose.describe())
     for note in pose.notes:
@@ -422,6 +431,28 @@ def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles
     fit = refine_fit(fit, vertices, triangles, starts[binds], ends[binds], scale=False)
     report, distances = limb_report(pose, lambda pts: fit.apply(first.inverse(pts)), limbs, starts, ends)
     return AutoBind(q, fit, pose, first, roles, limbs, report, distances)
+
+
+def _trace_size(first, vertices: np.ndarray, starts: np.ndarray, ends: np.ndarray, limbs: dict):
+    """(fit, the line saying what was decided or ''): ``first`` (the mesh sized so the skeleton spans
+    fit.HEIGHT_RATIO of it) made larger when the skeleton's hips stand higher than HIP_RATIO of that size: the
+    limbs are traced at the skeleton's lengths from the mesh's tips, and a mesh too small for its skeleton's legs
+    has their upper rings run on into the trunk (their centre then lies towards the middle: the thighs are turned
+    inwards). A head end site short of the crown (Bandai Namco's rig ends 10 cm above the head joint) makes a
+    skeleton look shorter than it is; the hips do not depend on it. The landmark fit then sizes the mesh."""
+    from .fit import Fit
+    x = first.apply(vertices)
+    height = float(np.ptp(x[:, 2]))
+    soles = float(np.vstack([starts, ends])[:, 2].min())
+    hips = float(np.mean([limbs[(side, "leg")].root[2] for side in "lr"])) - soles
+    k = hips / (HIP_RATIO * height)
+    if k <= 1.0:
+        return first, ""
+    centre = 0.5 * (x.min(axis=0) + x.max(axis=0))
+    grown = Fit(first.rotation, first.scale * k, centre - k * (centre - first.offset))
+    return grown, (f"the skeleton's hips stand {hips / height:.3f} of the mesh's height "
+                   f"above its soles, a human's {HIP_RATIO:g}: its limbs are traced on the mesh made {k:.3f} times "
+                   "larger (a head end site short of the crown makes the skeleton look short)")
 
 
 def _landmark_fit(R: np.ndarray, scale0: float, marks: np.ndarray, joints: np.ndarray):

@@ -16,6 +16,7 @@ import numpy as np
 from ..fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from ..fem.mesh.tetrahedralize import TetResult, surface_to_tets
 from .auto_bind import auto_bind_pose, bones_to_unbind, rest_configuration
+from .limb_bridges import bridge_tets, cut_bridges
 from .fit import Fit, FitError, bind_configuration, bone_outside_distances, find_data_file, fit_mesh, surface_depth
 
 MANIFEST = "config/character_data.md"
@@ -29,6 +30,7 @@ class SurfaceBody:
     fit: Fit
     tets: TetResult         # the tets in file units, with their quality and cache facts
     unbound: tuple[str, ...] = ()   # bones without flesh: fingers, toes, root helpers outside it (bind_pose 'auto')
+    limb_distances: dict | None = None   # bind_pose 'auto': auto_bind.limb_report's {(side, kind): (mean, max) [m]}
 
 
 def build_surface_body(config, skeleton, progress: Callable[[str], None] | None = None) -> SurfaceBody:
@@ -53,13 +55,14 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     triangles = boundary_triangles(tets.mesh)
     say(f"fitting {path.name} on the skeleton ({'bind pose from the mesh, ' if auto else ''}{s.fit})")
     unbound: list[str] = []
+    distances = None
     if auto:
         if s.fit != "auto":
             raise FitError("skeleton.bind_pose 'auto' places the mesh itself: set skeleton.fit 'auto' (or choose "
                            "skeleton.bind_pose 'neutral' / 'first_frame' for skeleton.fit 'manual')")
         found = auto_bind_pose(skeleton, q_rest, tets.mesh.vertices, triangles, b.surface_unit, s.fit_up,
                                s.fit_forward, say=say)
-        q, fit = found.q, found.fit
+        q, fit, distances = found.q, found.fit, found.distances
         say(found.report)
     else:
         fit = fit_mesh(tets.mesh.vertices, *skeleton.bone_segments(q), s.fit, b.surface_unit, s.fit_up,
@@ -74,6 +77,8 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
             f"hand, foot or pelvis): "
             f"{', '.join(f'{n} ({100 * out[skeleton.bone_names.index(n)]:.1f} cm out)' for n in unbound)}"
             if unbound else "every bone binds flesh (no finger, toe or root-helper bone outside the mesh)")
+        mesh, triangles = _cut_limb_bridges(mesh, triangles, starts, ends, found.roles,
+                                            np.array([n not in unbound for n in skeleton.bone_names]), say)
     outside = sorted(((n, float(d)) for n, d in zip(skeleton.bone_names, out)
                       if d > s.fit_tolerance and n not in unbound), key=lambda p: -p[1])
     if outside:
@@ -85,7 +90,21 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     depth = surface_depth(mesh.vertices, mesh.vertices, triangles)
     say(f"surface body: {mesh.n_tets} tets / {mesh.n_vertices} vertices, min dihedral "
         f"{tets.min_dihedral_deg:.1f} deg, min radius ratio {tets.min_radius_ratio:.3f}")
-    return SurfaceBody(mesh, q, depth, fit, tets, tuple(unbound))
+    return SurfaceBody(mesh, q, depth, fit, tets, tuple(unbound), distances)
+
+
+def _cut_limb_bridges(mesh: TetMesh, triangles: np.ndarray, starts: np.ndarray, ends: np.ndarray, roles,
+                      binds: np.ndarray, say) -> tuple[TetMesh, np.ndarray]:
+    """(mesh, its boundary triangles) without the tets that join the left and right limbs (body/limb_bridges.py),
+    one line saying how many were cut."""
+    bridges = bridge_tets(mesh.vertices, mesh.tets, starts, ends, roles, binds)
+    if not bridges.any():
+        return mesh, triangles
+    share = float(mesh.volumes()[bridges].sum() / mesh.volumes().sum())
+    cut = cut_bridges(mesh, bridges)
+    say(f"cut {int(bridges.sum())} tets ({share:.1%} of the body's volume) joining flesh of the left and right "
+        "limbs: the mesh's limbs touch or lie closer than its tets are wide")
+    return cut, boundary_triangles(cut)
 
 
 def unbound_islands(tets: np.ndarray, n_vertices: int, driven: np.ndarray) -> list[tuple[int, np.ndarray]]:
