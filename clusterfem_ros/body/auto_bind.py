@@ -11,8 +11,10 @@ A character mesh is modelled in some pose (T-pose, A-pose, arms down) and a capt
    middle (a level-set skeleton). The skeleton's own lengths say which ring is the wrist / ankle (the first whose
    centroid lies the hand's / foot's length from the tip: at least HAND_FOREARM of the forearm, a rig's hand that
    ends at the palm is no hand's length), the elbow / knee and the upper limb; the line through
-   a bone's ring centroids is its direction in the mesh. The toes point the way the mesh faces (the declared
-   ``skeleton.fit_forward`` only when the feet do not tell).
+   a bone's ring centroids is its direction in the mesh. The feet point the way the mesh faces: each foot's
+   long axis below its ankle (its vertices' principal direction across the floor), turned towards its toe tip;
+   the tip alone is no direction, as the farthest vertex of a rounded toe lies anywhere round its rim (the
+   declared ``skeleton.fit_forward`` only when the toes lie too near the ankles to tell).
 2. **The skeleton's limbs** (``turn_limbs``): roles from the tree and the rest geometry (skeleton/bone_roles.py);
    the mesh is turned about the vertical to face the skeleton's way, each limb's upper and lower bone is turned
    onto the mesh's directions by least squares on the joints of those two bones, then the hand / foot towards
@@ -273,7 +275,20 @@ def mesh_pose(vertices: np.ndarray, triangles: np.ndarray, limbs: dict, declared
     toes = np.mean([x[f] - leg_of[f].end for f in feet], axis=0)
     toes = toes - up * (toes @ up)
     if np.linalg.norm(toes) > 0.03 * h:
-        forward, forward_by = _unit(toes), "the feet"
+        # the feet tell (their tips lie that far ahead of the ankles); the way they point: each foot's long axis
+        # below its ankle, towards its tip (the farthest vertex of a rounded toe may lie anywhere round its rim)
+        axes = []
+        for f in feet:
+            p = x[np.isfinite(geo[f]) & (x[:, 2] < leg_of[f].end[2])]
+            p = p - up * (p @ up)[:, None]
+            if len(p) < 3:                       # no foot below the ankle to take an axis of: its tip's way
+                axes.append(_unit(x[f] - leg_of[f].end))
+                continue
+            axis = np.linalg.svd(p - p.mean(axis=0), full_matrices=False)[2][0]
+            axes.append(axis if axis @ toes > 0 else -axis)
+        foot = np.mean(axes, axis=0)
+        foot = foot - up * (foot @ up)
+        forward, forward_by = _unit(foot), "the feet"
     else:
         forward, forward_by = _unit(declared_forward - up * (declared_forward @ up)), "skeleton.fit_forward"
     left = np.cross(up, forward)

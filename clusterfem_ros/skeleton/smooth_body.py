@@ -1,9 +1,13 @@
 """The jelly man with a smooth skin: the voxel body's surface vertices moved onto a blended union of its capsules.
 
 The shape is the one ``jelly_body`` voxelizes (a capsule around every bone that has a radius, and a leaf link's
-own URDF shapes), with a round fillet where a bone meets its parent: ``SmoothCapsules.depth`` is, for each point,
-the smallest of the bones' signed distances and of every (parent, child) pair's smooth minimum
-(``smooth_min``, quadratic, radius ``blend`` times the pair's smaller radius). Limbs stay apart: a point is
+own URDF shapes), with a round fillet in the crease where a bone meets its parent: ``SmoothCapsules.depth`` is,
+for each point, the smallest of the bones' signed distances and of every (parent, child) pair's smooth minimum
+(``smooth_min``, quadratic, radius ``blend`` times the pair's smaller radius times ``crease_blend``, which grows
+from 0 where the two capsules' normals agree to 1 where they are opposite). A smooth minimum of constant radius
+would swell every joint, straight ones too, where the two distances are equal all round, and put that flesh
+across the joints, where the bones' rigid motions crush it (``python -m pytest -s tests/test_smooth_body.py``
+prints the blended shape's volume over the plain union's). Limbs stay apart: a point is
 measured only against the bones its own bone may touch (``jelly_body.bone_hops`` <= ``glue_hops``), so a hand
 hanging by a thigh is never pulled onto the thigh's skin, and no fillet joins bones that are not parent and
 child.
@@ -42,6 +46,14 @@ def smooth_min(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> np.ndarray:
     return np.minimum(a, b) - 0.25 * k * h * h
 
 
+def crease_blend(n_a: np.ndarray, n_b: np.ndarray) -> np.ndarray:
+    """(...) the share of the fillet radius a point gets from the unit normals (..., 3) of two bones' flesh
+    there: (1 - cos) / 2 of the angle between them. Where two capsules run on in one line (a straight joint)
+    their normals agree and the smooth minimum would only swell the joint into a ring; in the crease of a bent
+    joint they part and the fillet fills it (a gradient-weighted blend, as in Gourmel et al. 2013)."""
+    return 0.5 * (1.0 - np.clip(np.einsum("...j,...j->...", n_a, n_b), -1.0, 1.0))
+
+
 @dataclass(frozen=True)
 class SmoothCapsules:
     """The blended union of a body's capsules (see the module docstring). Bones are the capsules' order in
@@ -54,19 +66,30 @@ class SmoothCapsules:
     shapes: tuple = ()
     blend: float = BLEND
 
-    def bone_depths(self, points: np.ndarray) -> np.ndarray:
-        """(k, nb) signed distance of every point to every bone's flesh (its capsule, or its shapes if nearer)."""
+    def bone_depths(self, points: np.ndarray, normals: bool = False):
+        """(k, nb) signed distance of every point to every bone's flesh (its capsule, or its shapes if nearer);
+        with ``normals`` also (k, nb, 3) the unit gradient of each (central differences on a shape)."""
         x = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         d = self.ends - self.starts
         L2 = np.einsum("bj,bj->b", d, d)
         rel = x[:, None, :] - self.starts[None]
         t = np.clip(np.einsum("kbj,bj->kb", rel, d) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
-        out = np.linalg.norm(rel - t[..., None] * d[None], axis=2) - self.radii[None]
+        off = rel - t[..., None] * d[None]                       # from the nearest point of each axis
+        dist = np.linalg.norm(off, axis=2)
+        out = dist - self.radii[None]
+        grad = off / np.maximum(dist, 1e-300)[..., None] if normals else None
         if self.shapes:
             from .link_shapes import shape_depth
             for shape in self.shapes:
-                out[:, shape.bone] = np.minimum(out[:, shape.bone], shape_depth(x, shape))
-        return out
+                depth = shape_depth(x, shape)
+                nearer = depth < out[:, shape.bone]
+                out[:, shape.bone] = np.where(nearer, depth, out[:, shape.bone])
+                if normals and nearer.any():
+                    eps = 1e-6
+                    g = np.stack([shape_depth(x[nearer] + eps * e, shape) - shape_depth(x[nearer] - eps * e, shape)
+                                  for e in np.eye(3)], axis=1) / (2 * eps)
+                    grad[nearer, shape.bone] = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-300)
+        return (out, grad) if normals else out
 
     def bone_of(self, points: np.ndarray) -> np.ndarray:
         """(k,) the bone each point lies deepest in."""
@@ -74,8 +97,8 @@ class SmoothCapsules:
 
     def depth(self, points: np.ndarray, bones: np.ndarray) -> np.ndarray:
         """(k,) signed distance-like depth of each point to the skin of the neighbourhood of ``bones`` (k,):
-        the bones that bone may touch, with a fillet at each of their joints."""
-        D = self.bone_depths(points)
+        the bones that bone may touch, with a fillet in the crease of each of their joints (``crease_blend``)."""
+        D, G = self.bone_depths(points, normals=True)
         allowed = self.may_touch[np.asarray(bones, dtype=np.int64)]
         D = np.where(allowed, D, 1.0e3)                          # far: never the minimum, never blended
         out = D.min(axis=1)
@@ -84,8 +107,8 @@ class SmoothCapsules:
             parent = self.parents[child]
             r = np.stack([self.radii[parent], self.radii[child]])
             r = np.where(r > 0, r, r.max(axis=0))                # a shaped leaf (radius 0) takes its parent's
-            k = self.blend * r.min(axis=0)
-            out = np.minimum(out, smooth_min(D[:, parent], D[:, child], k[None]).min(axis=1))
+            k = self.blend * r.min(axis=0)[None] * crease_blend(G[:, parent], G[:, child])
+            out = np.minimum(out, smooth_min(D[:, parent], D[:, child], k).min(axis=1))
         return out
 
     def project(self, points: np.ndarray, bones: np.ndarray, max_move: float) -> np.ndarray:
