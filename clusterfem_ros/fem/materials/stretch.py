@@ -59,7 +59,8 @@ import math
 import numba
 import numpy as np
 
-from ..linear.assembly import shape_gradients
+from ..linear.assembly import element_stiffness_blocks, shape_gradients
+from .element_rotation import LANES
 from ...numba_config import HOLDS_GIL
 
 SQRT3 = math.sqrt(3.0)
@@ -107,6 +108,50 @@ def stiffening(tets: np.ndarray, gradients: np.ndarray, rest: np.ndarray, u: np.
     return max(0.0, SQRT3 * max_gradient_norm(tets, gradients, rest, u, x) - 3.0)
 
 
+def element_weights(model, lam_max: float, block: int = 4096) -> np.ndarray:
+    """r_e = min(1, lambda_max(K_e, M_e) / lam_max), (m,): element e's own largest eigenvalue at rest (its linear 12 x 12
+    stiffness over its four vertices' whole, scaled, masses) against the body's. r_e <= 1 (the Rayleigh quotient of
+    the body restricted to one element's vertices), 1 for the elements that set the body's step, small for large
+    heavy ones (module docstring, The plan element by element). In blocks of ``block`` elements (12 x 12 each)."""
+    tets = np.asarray(model.mesh.tets)
+    if not (lam_max > 0 and math.isfinite(lam_max)):
+        raise ValueError(f"lam_max = {lam_max!r} 1/s^2: the body's largest eigenvalue must be positive and finite")
+    K = element_stiffness_blocks(model.mesh, model.material)                  # (m, 4, 4, 3, 3)
+    s = 1.0 / np.sqrt(np.repeat(np.asarray(model.mass, dtype=np.float64)[tets], 3, axis=1))    # (m, 12)
+    out = np.empty(tets.shape[0])
+    for a in range(0, tets.shape[0], block):
+        Ke = np.transpose(K[a:a + block], (0, 1, 3, 2, 4)).reshape(-1, 12, 12)
+        sb = s[a:a + block]
+        out[a:a + block] = np.linalg.eigvalsh(Ke * sb[:, :, None] * sb[:, None, :])[:, -1]
+    return np.minimum(1.0, out / lam_max)
+
+
+def weights_by_lane(weights: np.ndarray) -> np.ndarray:
+    """(chunks, LANES) of the element weights in the force pass's lane order (ElementFrames: element e in chunk e //
+    LANES, lane e % LANES), the padding lanes 0."""
+    chunks = -(-weights.size // LANES)
+    lanes = np.zeros(chunks * LANES)
+    lanes[:weights.size] = weights
+    return lanes.reshape(chunks, LANES)
+
+
+@numba.njit(**HOLDS_GIL)
+def element_need(kept: np.ndarray, weights: np.ndarray, rest_modulus: float, knee: float, accuracy: float,
+                 inverted_factor: float) -> float:
+    """max over elements of r_e s_e a_e: s_e = max(1, |b_e| / rest_modulus) from the tangent bounds the force pass
+    left in kept[:, :LANES] (negative: inverted), a_e the accuracy factor min(accuracy, max(1, s_e / knee)), or
+    ``inverted_factor`` for an inverted element when it is larger than 0 (module docstring)."""
+    worst = 0.0
+    for c in range(weights.shape[0]):
+        for l in range(LANES):
+            r = weights[c, l]
+            b = kept[c, l]
+            s = max(1.0, abs(b) / rest_modulus)
+            a = inverted_factor if (b < 0.0 and inverted_factor > 0.0) else min(accuracy, max(1.0, s / knee))
+            worst = max(worst, r * s * a)
+    return worst
+
+
 class StretchPlan:
     """The stretch factor a warped explicit body plans its sub-steps with (module docstring). The corotated
     bound (``factor``) is taken at most every ``every`` simulated seconds (5 ms: every fifth step of the node's
@@ -120,7 +165,8 @@ class StretchPlan:
     KNEE, ACCURACY = 4.0, 4.0      # Neo-Hookean: beyond 4x the linear stiffness, up to 4x more (half the sub-step)
     INVERTED = 16.0                # Neo-Hookean: 16x while an element is inverted (a quarter of the sub-step)
 
-    def __init__(self, model, hold: float | None = None, every: float = EVERY, energy: str = "corotated"):
+    def __init__(self, model, hold: float | None = None, every: float = EVERY, energy: str = "corotated",
+                 lam_max: float | None = None):
         if energy not in self.HOLD:
             raise ValueError(f"energy = {energy!r}: 'corotated' or 'neohookean'")
         self.energy = energy
@@ -128,6 +174,9 @@ class StretchPlan:
         if energy == "neohookean":
             lam, mu = model.material.lame
             self.rest_modulus = 3.0 * lam + 2.0 * mu      # the tangent's largest eigenvalue at rest
+            # each element's weight r_e by lane (``element_factor``); without lam_max every element weighs 1
+            weights = np.ones(model.mesh.n_tets) if lam_max is None else element_weights(model, lam_max)
+            self.weights = weights_by_lane(weights)
         else:
             self.tets = np.ascontiguousarray(model.mesh.tets, dtype=np.int64)
             self.gradients = np.ascontiguousarray(shape_gradients(model.rest, self.tets)[0])
@@ -156,6 +205,16 @@ class StretchPlan:
         stiffer = max(1.0, bound / self.rest_modulus)
         accuracy = self.INVERTED if inverted else min(self.ACCURACY, max(1.0, stiffer / self.KNEE))
         return self._settle(stiffer * accuracy, h)
+
+    def element_factor(self, kept: np.ndarray, h: float, undamped: bool = False) -> float:
+        """The Neo-Hookean factor element by element: >= max_e r_e s_e a_e (``element_need``; the tangent bounds by
+        lane in kept[:, :LANES], as the force pass leaves them in ElementFrames.rot_lanes), rounded up to a quarter
+        octave; ``undamped`` takes INVERTED for an inverted element's accuracy factor."""
+        if self.energy != "neohookean":
+            raise ValueError("element_factor plans the Neo-Hookean energy; the corotated one: factor(u, h)")
+        need = element_need(kept, self.weights, self.rest_modulus, self.KNEE, self.ACCURACY,
+                            self.INVERTED if undamped else 0.0)
+        return self._settle(max(1.0, need), h)
 
     def _settle(self, stiffer: float, h: float) -> float:
         """The factor for ``stiffer`` after rounding: it rises at once and falls after ``hold`` without need."""
