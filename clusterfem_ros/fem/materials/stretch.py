@@ -158,10 +158,11 @@ class StretchPlan:
     1 ms, every step of a 10 ms one: a bound costs about a quarter of the jelly man's step). The Neo-Hookean one
     (``neohookean_factor``) comes with every step's first force: its stiffness grows with the square of the
     stretch, and the fine hard-case bar torn at h = 1 ms diverged in the steps between two bounds 5 ms apart
-    (benchmarks/stability_table.py). ``hold`` None takes the energy's own (HOLD; module docstring)."""
+    (benchmarks/stability_table.py). ``hold`` None takes the energy's own (HOLD, or DAMPED_HOLD for a body with damping; module docstring)."""
 
     EVERY = 0.005
     HOLD = {"corotated": 5.0, "neohookean": 0.5}
+    DAMPED_HOLD = {"corotated": 5.0, "neohookean": 0.02}   # a damped body dissipates what a change of step leaves
     KNEE, ACCURACY = 4.0, 4.0      # Neo-Hookean: beyond 4x the linear stiffness, up to 4x more (half the sub-step)
     INVERTED = 16.0                # Neo-Hookean: 16x while an element is inverted (a quarter of the sub-step)
 
@@ -170,7 +171,8 @@ class StretchPlan:
         if energy not in self.HOLD:
             raise ValueError(f"energy = {energy!r}: 'corotated' or 'neohookean'")
         self.energy = energy
-        hold = self.HOLD[energy] if hold is None else hold
+        damped = model.material.xi > 0.0 or model.material.zeta > 0.0
+        hold = (self.DAMPED_HOLD if damped else self.HOLD)[energy] if hold is None else hold
         if energy == "neohookean":
             lam, mu = model.material.lame
             self.rest_modulus = 3.0 * lam + 2.0 * mu      # the tangent's largest eigenvalue at rest
@@ -209,10 +211,13 @@ class StretchPlan:
     def element_factor(self, kept: np.ndarray, h: float, undamped: bool = False) -> float:
         """The Neo-Hookean factor element by element: >= max_e r_e s_e a_e (``element_need``; the tangent bounds by
         lane in kept[:, :LANES], as the force pass leaves them in ElementFrames.rot_lanes), rounded up to a quarter
-        octave; ``undamped`` takes INVERTED for an inverted element's accuracy factor."""
+        octave; ``undamped`` takes the accuracy factors (ACCURACY past KNEE, INVERTED for an inverted element), a damped
+        body the stiffening alone."""
         if self.energy != "neohookean":
             raise ValueError("element_factor plans the Neo-Hookean energy; the corotated one: factor(u, h)")
-        need = element_need(kept, self.weights, self.rest_modulus, self.KNEE, self.ACCURACY,
+        # the accuracy and inverted factors keep an undamped body's shadow energy; a damped one dissipates the drift,
+        # and their shorter sub-steps would take a placement's crushed elements past physics.max_substeps
+        need = element_need(kept, self.weights, self.rest_modulus, self.KNEE, self.ACCURACY if undamped else 1.0,
                             self.INVERTED if undamped else 0.0)
         return self._settle(max(1.0, need), h)
 
