@@ -98,7 +98,7 @@ PARAMS: tuple[Param, ...] = (
     Param("physics.timer_hz", 100.0, "wall clock: the physics thread steps up to the clock on every joint state and at least this often; a batch of steps lasts at most 0.7 / this, and the state a batch ends on goes to the outputs when their last snapshot is 1 / this old", 1.0, 2000.0),
     Param("physics.safety", 0.8, "explicit sub-steps keep h_sub <= safety * h_crit", 0.05, 1.0),
     Param("physics.mass_scaling", 0.0, "explicit methods: add lumped mass to the light, stiff vertices whose critical step is shorter than one sub-step of physics.step (fem/mass_scaling.py), at most this share of the body's mass (0 = off; the log line says how many vertices and how much)", 0.0, 0.2),
-    Param("physics.plan_stretch", True, "explicit with warping: plan the sub-steps for the body's most stretched element (fem/materials/stretch.py; keeps an undamped torn vertex bounded) instead of the linear stiffness alone"),
+    Param("physics.plan_stretch", True, "explicit with warping: plan the sub-steps for the elements' stretch (fem/materials/stretch.py; the Neo-Hookean elements each against their own rest frequency; keeps an undamped torn vertex bounded) instead of the linear stiffness alone"),
     Param(ACKNOWLEDGEMENT, False, "true: accept warping_model 'vertex' (the paper's per-vertex warping), and "
           "'element' on an explicit method without damping, knowing their energy can grow without bound (torn "
           "vertices, slivers; benchmarks/stability_table.py); 'vertex' runs with a warning. false: such a scene is "

@@ -308,7 +308,8 @@ class ClusteredExplicit:
         m = model.material
         self._zeta, self._xi = float(m.zeta), float(m.xi)
         energy = self.material_model.stretch_energy
-        self.stretch = StretchPlan(model, energy=energy) if energy is not None and plan_stretch else None
+        self.stretch = (StretchPlan(model, energy=energy, lam_max=self.lam_max if energy == "neohookean" else None)
+                        if energy is not None and plan_stretch else None)
         self._plan_key = None
         self._plan = None
         self._info = None
@@ -357,11 +358,10 @@ class ClusteredExplicit:
             return stretch.factor(state.u, h), False
         self._first_force[parallel](*self._model_args, self._common.fixed_index, state.u, state.v, self._zeta,
                                     self._w)
-        bound, inverted = self._parts.bound()
         # the inverted elements' tighter plan bounds an undamped body's energy; a damped one dissipates the
         # drift, and its quartered sub-step would push real motion past physics.max_substeps
         undamped = self._zeta == 0.0 and self._xi == 0.0
-        return stretch.neohookean_factor(bound, h, inverted and undamped), True
+        return stretch.element_factor(self._parts.bound(), h, undamped), True
 
     def compiled_step(self, state: State, control: Control, h: float) -> tuple:
         """(function, arguments) of one step's compiled part for a body without attachments or prescribed

@@ -45,9 +45,10 @@ class ClusteredParts:
     warped_e: tuple | None          # (serial, threaded) builds of the warped pass, called as
                                     #   warped_e(*model_args, u, w, work); None: the linear cluster sweep
     build_suffix: str               # names this model's step builds apart in numba's cache
-    bound: Callable[[], tuple[float, bool]] | None = None
-    # ^ (largest tangent bound, whether an element is inverted) that the first force leaves: the step makes
-    #   its first force before it plans (the Neo-Hookean plan); None: planned from the state (stretch.factor)
+    bound: Callable[[], np.ndarray] | None = None
+    # ^ the element tangent bounds by lane that the first force leaves (ElementFrames.rot_lanes, the bounds in its
+    #   first LANES columns, negative where inverted): the step makes its first force before it plans (the
+    #   Neo-Hookean plan, StretchPlan.element_factor); None: planned from the state (stretch.factor)
 
 
 @dataclass
