@@ -48,6 +48,9 @@ class ClusteredParts:
     bound: Callable[[], tuple[float, bool]] | None = None
     # ^ (largest tangent bound, whether an element is inverted) that the first force leaves: the step makes
     #   its first force before it plans (the Neo-Hookean plan); None: planned from the state (stretch.factor)
+    later_e: tuple | None = None
+    # ^ (serial, threaded) builds of the pass for a step's later sub-steps, which nothing plans from (the
+    #   Neo-Hookean pass without its bounds: the same forces); None: warped_e
 
 
 @dataclass
