@@ -17,16 +17,19 @@ square root or a min/max one), for one element of one sub-step:
                                                        443
 
 of which the elastic force alone (no damping, no bound: differences of u, F, cof F and J, mu F + k cof F
-times V, the corner forces and their sums by vertex) is about 190. Bytes per tet streamed from memory or
+times V, the corner forces and their sums by vertex) is about 190. That is a step's first sub-step, whose
+bounds the step plans from; its later sub-steps run the pass without the bound (367). Bytes per tet streamed from memory or
 L2 each sub-step: the corner indices (4 x 8), the rest gradients (9 x 8) and volume (8), the corner forces
 written to their element slots (12 x 8; the serial pass adds them to the vertex rows while they are in L1,
 fem/materials/neohookean.py ``_fused_e``): 208; the vertex rows of u and w it reads and of e it adds to
 (4 corners x 3 x 3 x 8 = 288) come from L1/L2 (a vertex is shared by about 20 tets).
 
-The host's peak is counted, not measured: vector lanes (4 with AVX2, 8 with AVX-512) x 2 flops per FMA x 2 FMA
-pipes x the clock /proc/cpuinfo gives; its bandwidth is measured, a numpy copy of 1 MB (L2) and of 64 MB
-(memory), read plus write bytes over the median time. The floor is the larger of flops / peak and bytes /
-bandwidth; a pass of adds and multiplies that do not pair into FMAs reaches at most half the peak.
+The host's peak is counted: vector lanes (4 with AVX2, 8 with AVX-512) x 2 flops per FMA x 2 FMA pipes x the
+clock /proc/cpuinfo gives. Beside it the rate a compiled loop of independent FMAs reaches (``fma_rate``), as
+numba builds it (LLVM's preferred vector width: 256-bit on AVX-512 parts, as the pass's lane loop): what the
+pass's arithmetic can run at. The bandwidth is measured, a numpy copy of 1 MB (L2) and of 64 MB (memory), read
+plus write bytes over the median time. The floor is the larger of flops / the measured FMA rate and bytes /
+bandwidth; a pass of adds and multiplies that do not pair into FMAs reaches at most half of it.
 """
 from __future__ import annotations
 
@@ -34,6 +37,7 @@ import re
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 
 FLOPS = {"differences of u and w": 18, "F and G": 96, "Z = G - F": 9, "cof F and J": 32, "tangent bound": 76,
@@ -55,6 +59,37 @@ def host_peak() -> tuple[float, int, float]:
     return lanes * 2 * 2 * ghz * 1e9, lanes, ghz
 
 
+FMA_CHAIN = 16             # fused multiply-adds an element per pass of _fma_loop (written out there)
+
+
+@numba.njit(cache=True, fastmath={"contract"})
+def _fma_loop(x, reps):
+    """x[i] <- FMA_CHAIN fused multiply-adds of x[i], reps times: independent elements, so LLVM vectorizes the
+    loop and the out-of-order core keeps both FMA pipes busy (x stays in L1)."""
+    for _ in range(reps):
+        for i in range(x.shape[0]):
+            a = x[i]        # written out: an inner loop would be the one LLVM vectorizes (a chain: it cannot)
+            a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3  # noqa: E702
+            a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3  # noqa: E702
+            a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3  # noqa: E702
+            a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3; a = a * 0.999 + 1e-3  # noqa: E702
+            x[i] = a
+
+
+def fma_rate(repeats: int = 25) -> float:
+    """Flops per second (2 an FMA) of one core running _fma_loop: the fastest of ``repeats`` runs of ~4 ms (the
+    fastest, not the median: a peak, which other jobs on the host can only lower)."""
+    x = np.ones(2048)
+    reps = 2000
+    _fma_loop(x, 1)                                 # compiled or loaded before timing
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        _fma_loop(x, reps)
+        best = min(best, time.perf_counter() - t0)
+    return 2.0 * FMA_CHAIN * x.size * reps / best
+
+
 def copy_bandwidth(nbytes: int, reps: int = 20) -> float:
     """Bytes per second of a numpy copy of ``nbytes`` (read + write), median of ``reps``."""
     a = np.ones(nbytes // 8)
@@ -70,14 +105,17 @@ def copy_bandwidth(nbytes: int, reps: int = 20) -> float:
 def roofline_line(body: str, tets: int, seconds: float, linear_seconds: float) -> str:
     """One line: the Neo-Hookean step on ``body`` (``seconds`` per step, serial) against its floor."""
     peak, lanes, ghz = host_peak()
+    rate = fma_rate()
     l2, memory = copy_bandwidth(1 << 20), copy_bandwidth(64 << 20, reps=5)
-    compute = FLOPS_PER_TET / peak
+    compute = FLOPS_PER_TET / rate
     stream = BYTES_PER_TET / l2
     floor = max(compute, stream)
     per_tet = seconds / tets
     return (f"roofline, Neo-Hookean step on the {body} ({tets} tets): {FLOPS_PER_TET} flops and {BYTES_PER_TET} "
             f"bytes per tet (benchmarks/roofline.py); this host {lanes} lanes x 2 FMA pipes at {ghz:.2f} GHz = "
-            f"{peak / 1e9:.0f} Gflop/s, copy {l2 / 1e9:.0f} GB/s in L2, {memory / 1e9:.0f} GB/s from memory; floor "
-            f"{floor * 1e9:.1f} ns per tet (compute {compute * 1e9:.1f}, L2 {stream * 1e9:.1f}; all-FMA peak, so "
-            f"{2 * compute * 1e9:.1f} at half of it); measured {per_tet * 1e9:.1f} ns per tet = "
+            f"{peak / 1e9:.0f} Gflop/s counted, {rate / 1e9:.0f} Gflop/s measured (a numba FMA loop, "
+            f"{rate / (ghz * 1e9):.1f} flops a cycle), copy {l2 / 1e9:.0f} GB/s in L2, {memory / 1e9:.0f} GB/s from "
+            f"memory; floor {floor * 1e9:.1f} ns per tet (compute at the measured rate {compute * 1e9:.1f}, at the "
+            f"counted peak {FLOPS_PER_TET / peak * 1e9:.1f}, L2 {stream * 1e9:.1f}; all-FMA, so "
+            f"{2 * compute * 1e9:.1f} at half the measured rate); measured {per_tet * 1e9:.1f} ns per tet = "
             f"{per_tet / floor:.1f}x the floor, {(seconds - linear_seconds) / tets * 1e9:.1f} ns over the linear step")

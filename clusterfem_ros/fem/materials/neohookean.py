@@ -43,8 +43,10 @@ mu + lambda_s I2 + sqrt(2) lambda_s |J - alpha| |F|_F, the smaller of the two. A
 motion it is 3 lambda + 2 mu, the linear material's largest modulus, exactly; elsewhere within 1.6 x of the
 tangent's largest eigenvalue (tests/test_neohookean.py). The force pass computes it beside each element's force
 from the same F (``ElementFrames.bounds``; four square roots an element, about a seventh of the pass on the
-jelly man), so the step gets it with its first force; ``tangent_bounds`` runs the pass without the forces. The
-bound is kept with the sign of J: negative for an inverted (or flat) element, which the step plan takes a
+jelly man), so the step gets it with its first force; ``tangent_bounds`` runs the pass without the forces. A
+step's later sub-steps run the pass without the bound (``neohookean_e_unplanned_*``, the lane loop built with
+``PLANS`` false: the same forces bit for bit): the plan reads only the bounds of the state the step starts
+from, which the bounds then still hold. The bound is kept with the sign of J: negative for an inverted (or flat) element, which the step plan takes a
 shorter step for (fem/materials/stretch.py, ``largest_bound``).
 
 The compiled pass has the element warping's layout (fem/materials/element_warping.py: ``ElementFrames``, chunks of
@@ -56,7 +58,8 @@ tests and the stability table use.
 
 Builds: the element warping's pass and force sources (``element_pass_source``, ``element_force_source``) with this
 module's ``_neohookean_chunk`` bound as their ``chunk`` (numba_config.compiled); the threaded pass and gather is the
-element warping's ``element_e_source``, the serial one ``_fused_e``.
+element warping's ``element_e_source``, the serial one ``_fused_e``; each with the lane loop with the bounds and
+(for the later sub-steps) without them.
 """
 from __future__ import annotations
 
