@@ -25,20 +25,33 @@ fem/materials/neohookean.py ``_fused_e``): 208; the vertex rows of u and w it re
 (4 corners x 3 x 3 x 8 = 288) come from L1/L2 (a vertex is shared by about 20 tets).
 
 The host's peak is counted: vector lanes (4 with AVX2, 8 with AVX-512) x 2 flops per FMA x 2 FMA pipes x the
-clock /proc/cpuinfo gives. Beside it the rate a compiled loop of independent FMAs reaches (``fma_rate``), as
+clock /proc/cpuinfo gives (the nominal one: a core may run faster). Beside it the rate a compiled loop of independent FMAs reaches (``fma_rate``), as
 numba builds it (LLVM's preferred vector width: 256-bit on AVX-512 parts, as the pass's lane loop): what the
 pass's arithmetic can run at. The bandwidth is measured, a numpy copy of 1 MB (L2) and of 64 MB (memory), read
 plus write bytes over the median time. The floor is the larger of flops / the measured FMA rate and bytes /
 bandwidth; a pass of adds and multiplies that do not pair into FMAs reaches at most half of it.
+
+``pieces_line``: the serial pass by piece, each timed over the body's chunks in interleaved rounds: the corner
+differences of u and w (scalar loads and stores: 24 loads and 18 stores a tet, no vector gather), the lane loop
+(F, the bound, the damping, P, the corner forces: vectors across tets, bound by the FMA pipes), the same loop
+without the bound (a step's later sub-steps), and the corner forces' sums by vertex (scalar: 24 loads and 12
+stores a tet). The floor above counts the flops alone; the two scalar pieces are bound by the load and store
+ports, not by flops or bytes.
 """
 from __future__ import annotations
 
 import re
+import statistics
 import time
 from pathlib import Path
 
 import numba
 import numpy as np
+
+from clusterfem_ros.fem.materials import neohookean as nh
+from clusterfem_ros.fem.materials.element_rotation import LANES
+from clusterfem_ros.fem.materials.element_warping import ElementFrames, element_differences
+from .timing import interleaved_seconds
 
 FLOPS = {"differences of u and w": 18, "F and G": 96, "Z = G - F": 9, "cof F and J": 32, "tangent bound": 76,
          "damping stress": 72, "stress P times V": 74, "corner forces": 54, "sums by vertex": 12}
@@ -113,9 +126,64 @@ def roofline_line(body: str, tets: int, seconds: float, linear_seconds: float) -
     per_tet = seconds / tets
     return (f"roofline, Neo-Hookean step on the {body} ({tets} tets): {FLOPS_PER_TET} flops and {BYTES_PER_TET} "
             f"bytes per tet (benchmarks/roofline.py); this host {lanes} lanes x 2 FMA pipes at {ghz:.2f} GHz = "
-            f"{peak / 1e9:.0f} Gflop/s counted, {rate / 1e9:.0f} Gflop/s measured (a numba FMA loop, "
-            f"{rate / (ghz * 1e9):.1f} flops a cycle), copy {l2 / 1e9:.0f} GB/s in L2, {memory / 1e9:.0f} GB/s from "
-            f"memory; floor {floor * 1e9:.1f} ns per tet (compute at the measured rate {compute * 1e9:.1f}, at the "
+            f"{peak / 1e9:.0f} Gflop/s counted, {rate / 1e9:.0f} Gflop/s measured (a numba FMA loop), copy "
+            f"{l2 / 1e9:.0f} GB/s in L2, {memory / 1e9:.0f} GB/s from memory; floor {floor * 1e9:.1f} ns per tet (compute at the measured rate {compute * 1e9:.1f}, at the "
             f"counted peak {FLOPS_PER_TET / peak * 1e9:.1f}, L2 {stream * 1e9:.1f}; all-FMA, so "
             f"{2 * compute * 1e9:.1f} at half the measured rate); measured {per_tet * 1e9:.1f} ns per tet = "
             f"{per_tet / floor:.1f}x the floor, {(seconds - linear_seconds) / tets * 1e9:.1f} ns over the linear step")
+
+
+@numba.njit(cache=True)
+def _differences(corner, u, w, D, DW, reps):
+    for _ in range(reps):
+        for c in range(corner.shape[0]):
+            element_differences(corner[c], u, w, D, DW, True)
+
+
+@numba.njit(cache=True)
+def _lane_loops(grad, vol, lam, mu, kept, fe, D, DW, planned, reps):
+    for _ in range(reps):
+        for c in range(grad.shape[0]):
+            if planned:
+                nh._chunk_forces(D, DW, grad[c], vol[c], lam, mu, fe[c], kept[c])
+            else:
+                nh._chunk_forces_unplanned(D, DW, grad[c], vol[c], lam, mu, fe[c], kept[c])
+
+
+@numba.njit(cache=True)
+def _sums(corner, fe, e, m, reps):
+    for _ in range(reps):
+        for c in range(corner.shape[0]):
+            nh._add_corner_forces(corner[c], fe[c], min(LANES, m - c * LANES), e)
+
+
+def pass_pieces(model, u: np.ndarray, reps: int = 50) -> dict[str, float]:
+    """Median seconds of one pass over the body's elements of each piece of the serial Neo-Hookean pass at
+    displacement u (pieces_line), and of the whole pass and sums ('pass'), timed in interleaved rounds. The lane
+    loops run in every chunk on the differences the last chunk left (the same arithmetic, with no gather).
+    ``u`` is taken as it is (rows of the model's vertices, float64); w is u plus the rest shape and a velocity.
+    """
+    frames = ElementFrames.from_model(model)
+    corner, grad, vol, (lam, mu) = frames.elems
+    kept, buf, _, _, fe, e = frames.work
+    D, DW = buf[0, 0], buf[0, 1]
+    w = frames.w
+    w[:-1] = model.rest + u + model.material.zeta * np.ones_like(u)
+    calls = {"differences": lambda: _differences(corner, u, w, D, DW, reps),
+             "lane loop": lambda: _lane_loops(grad, vol, lam, mu, kept, fe, D, DW, True, reps),
+             "without the bound": lambda: _lane_loops(grad, vol, lam, mu, kept, fe, D, DW, False, reps),
+             "sums by vertex": lambda: _sums(corner, fe, e, frames.m, reps),
+             "pass": lambda: [nh.neohookean_e_serial(frames.elems, frames.gather, u, w, frames.work)
+                              for _ in range(reps)]}
+    samples = interleaved_seconds(calls)
+    return {name: statistics.median(ts) / reps for name, ts in samples.items()}
+
+
+def pieces_line(body: str, model, u: np.ndarray, step_seconds: float) -> str:
+    """One line: the serial Neo-Hookean pass on ``body`` by piece (pass_pieces), us and ns a tet."""
+    t = pass_pieces(model, u)
+    m = model.mesh.n_tets
+    part = lambda k: f"{k} {t[k] * 1e6:.1f} us ({t[k] / m * 1e9:.1f} ns a tet)"  # noqa: E731
+    return (f"Neo-Hookean serial pass on the {body} by piece (benchmarks/roofline.py): "
+            + ", ".join(part(k) for k in ("differences", "lane loop", "without the bound", "sums by vertex"))
+            + f"; the whole pass {t['pass'] * 1e6:.1f} us (the step in the table: {step_seconds * 1e6:.1f} us)")
