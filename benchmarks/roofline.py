@@ -16,20 +16,21 @@ square root or a min/max one), for one element of one sub-step:
                                                        ---
                                                        443
 
-of which the elastic force alone (no damping, no bound: differences of u, F, cof F and J, mu F + k cof F
-times V, the corner forces and their sums by vertex) is about 190. That is a step's first sub-step, whose
-bounds the step plans from; its later sub-steps run the pass without the bound (367). Bytes per tet streamed from memory or
+of which the elastic force alone (no damping, no bound: differences of u, F, cof F and J, mu F + k cof F times
+V, the corner forces and their sums by vertex) is about 190. That is a step's first sub-step, whose bounds the
+step plans from; its later sub-steps run the pass without the bound (367). Bytes per tet streamed from memory or
 L2 each sub-step: the corner indices (4 x 8), the rest gradients (9 x 8) and volume (8), the corner forces
 written to their element slots (12 x 8; the serial pass adds them to the vertex rows while they are in L1,
 fem/materials/neohookean.py ``_fused_e``): 208; the vertex rows of u and w it reads and of e it adds to
 (4 corners x 3 x 3 x 8 = 288) come from L1/L2 (a vertex is shared by about 20 tets).
 
 The host's peak is counted: vector lanes (4 with AVX2, 8 with AVX-512) x 2 flops per FMA x 2 FMA pipes x the
-clock /proc/cpuinfo gives (the nominal one: a core may run faster). Beside it the rate a compiled loop of independent FMAs reaches (``fma_rate``), as
-numba builds it (LLVM's preferred vector width: 256-bit on AVX-512 parts, as the pass's lane loop): what the
-pass's arithmetic can run at. The bandwidth is measured, a numpy copy of 1 MB (L2) and of 64 MB (memory), read
-plus write bytes over the median time. The floor is the larger of flops / the measured FMA rate and bytes /
-bandwidth; a pass of adds and multiplies that do not pair into FMAs reaches at most half of it.
+clock /proc/cpuinfo gives (the nominal one: a core may run faster). Beside it the rate a compiled loop of
+independent FMAs reaches (``fma_rate``), as numba builds it (LLVM's preferred vector width: 256-bit on AVX-512
+parts, as the pass's lane loop): what the pass's arithmetic can run at. The bandwidth is measured, a numpy copy
+of 1 MB (L2) and of 64 MB (memory), read plus write bytes over the median time. The floor is the larger of flops
+/ the measured FMA rate and bytes / bandwidth; a pass of adds and multiplies that do not pair into FMAs reaches
+at most half of it.
 
 ``pieces_line``: the serial pass by piece, each timed over the body's chunks in interleaved rounds: the corner
 differences of u and w (scalar loads and stores: 24 loads and 18 stores a tet, no vector gather), the lane loop
@@ -127,8 +128,9 @@ def roofline_line(body: str, tets: int, seconds: float, linear_seconds: float) -
     return (f"roofline, Neo-Hookean step on the {body} ({tets} tets): {FLOPS_PER_TET} flops and {BYTES_PER_TET} "
             f"bytes per tet (benchmarks/roofline.py); this host {lanes} lanes x 2 FMA pipes at {ghz:.2f} GHz = "
             f"{peak / 1e9:.0f} Gflop/s counted, {rate / 1e9:.0f} Gflop/s measured (a numba FMA loop), copy "
-            f"{l2 / 1e9:.0f} GB/s in L2, {memory / 1e9:.0f} GB/s from memory; floor {floor * 1e9:.1f} ns per tet (compute at the measured rate {compute * 1e9:.1f}, at the "
-            f"counted peak {FLOPS_PER_TET / peak * 1e9:.1f}, L2 {stream * 1e9:.1f}; all-FMA, so "
+            f"{l2 / 1e9:.0f} GB/s in L2, {memory / 1e9:.0f} GB/s from memory; floor {floor * 1e9:.1f} ns per tet "
+            f"(compute at the measured rate {compute * 1e9:.1f}, at the counted peak "
+            f"{FLOPS_PER_TET / peak * 1e9:.1f}, L2 {stream * 1e9:.1f}; all-FMA, so "
             f"{2 * compute * 1e9:.1f} at half the measured rate); measured {per_tet * 1e9:.1f} ns per tet = "
             f"{per_tet / floor:.1f}x the floor, {(seconds - linear_seconds) / tets * 1e9:.1f} ns over the linear step")
 

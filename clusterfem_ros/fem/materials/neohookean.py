@@ -46,8 +46,8 @@ from the same F (``ElementFrames.bounds``; four square roots an element, about a
 jelly man), so the step gets it with its first force; ``tangent_bounds`` runs the pass without the forces. A
 step's later sub-steps run the pass without the bound (``neohookean_e_unplanned_*``, the lane loop built with
 ``PLANS`` false: the same forces bit for bit): the plan reads only the bounds of the state the step starts
-from, which the bounds then still hold. The bound is kept with the sign of J: negative for an inverted (or flat) element, which the step plan takes a
-shorter step for (fem/materials/stretch.py, ``largest_bound``).
+from, which the bounds then still hold. The bound is kept with the sign of J: negative for an inverted (or
+flat) element, which the step plan takes a shorter step for (fem/materials/stretch.py, ``largest_bound``).
 
 The compiled pass has the element warping's layout (fem/materials/element_warping.py: ``ElementFrames``, chunks of
 LANES elements by lane, element corner forces gathered per vertex in element order, so serial and threaded
