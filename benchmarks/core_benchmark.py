@@ -6,7 +6,7 @@ jelly man and the paper's three objects (docs/benchmarks.md, "Core", has the tab
 First table: the warped step's cost against the linear one (per-element and per-vertex warping, Neo-Hookean)
 on the jelly man (the default scene's body, free, from a twisted state) and the paper's shapes
 (``warping_cost``); under it one roofline line: the Neo-Hookean step per tet against the floor its flops and
-bytes set on this host (benchmarks/roofline.py).
+bytes set on this host, and one line of its serial pass by piece (benchmarks/roofline.py).
 
 Every method runs the same scene (the object's bottom fixed, gravity, same material and step) and is timed after
 warm-up (JIT compilation excluded). All methods and kernel pieces of a shape are timed in interleaved rounds
@@ -51,7 +51,7 @@ from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import Control, State, build_model
 from clusterfem_ros.numba_config import contains_threads
 from clusterfem_ros.fem.mesh.voxel_mesh import PAPER_SHAPES, paper_mesh
-from .roofline import roofline_line
+from .roofline import pieces_line, roofline_line
 from .timing import interleaved_seconds, paired_ratio, table
 
 PAPER_MS = {"sphere": (1.60, 0.73, 0.83), "cube": (1.89, 0.92, 1.09), "torus": (2.15, 0.97, 1.12)}
@@ -274,7 +274,7 @@ def jelly_man_model(target_tets: int):
 
 def warping_rows(h: float, target_tets: int, timed: dict | None = None) -> list[list[object]]:
     """warping_cost on the jelly man and the paper's shapes, as table rows; ``timed`` gets each body's
-    (tets, warping_cost)."""
+    (tets, warping_cost, model)."""
     bodies = [("jelly man", jelly_man_model(target_tets))]
     for name in PAPER_SHAPES:
         mesh = paper_mesh(name)
@@ -286,7 +286,7 @@ def warping_rows(h: float, target_tets: int, timed: dict | None = None) -> list[
         print(f"  timing warping on {name} ...", file=sys.stderr, flush=True)
         t = warping_cost(model, h)
         if timed is not None:
-            timed[name] = (model.mesh.n_tets, t)
+            timed[name] = (model.mesh.n_tets, t, model)
         us = lambda k: f"{t[k] * 1e6:.1f}"  # noqa: E731
         rows.append([name, model.n_vertices, model.mesh.n_tets, us("linear"),
                      f"{us('warped, element')} ({t['warped, element', 'linear']:.2f}x)",
@@ -350,8 +350,9 @@ def main(argv: list[str] | None = None) -> int:
                 warping_rows(args.step, args.tets, timed)))
     body = "jelly man" if "jelly man" in timed else next(iter(timed), None)
     if body is not None:
-        tets, t = timed[body]
+        tets, t, model = timed[body]
         print(roofline_line(body, tets, t["neohookean"], t["linear"]))
+        print(pieces_line(body, model, twisted_state(model).u, t["neohookean"]))
     if args.warping_only:
         return 0
     rows, rows_raw, ok = [], [], True

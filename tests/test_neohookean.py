@@ -173,3 +173,29 @@ def test_only_the_clustered_method_takes_it():
     assert from_mapping({"method": "implicit_direct", "warping_model": "neohookean", "warping": False})
     # an error budget sets method and warping_model from the point it chooses (method_choice.WARPED_LABELS)
     assert from_mapping({"warping_model": "neohookean", "budget.max_error_mm": 5.0}).warping_model == "neohookean"
+
+
+@pytest.mark.parametrize("threads", [False, True])
+def test_the_later_sub_steps_pass_is_the_planned_pass_without_its_bounds(threads):
+    """The pass a step's later sub-steps run (nothing plans from their state) gives the planned pass's forces
+    bit for bit and leaves the bounds of the state the step planned from."""
+    rng = np.random.default_rng(9)
+    model = _model(zeta=1e-3, xi=2.0, scale=2.0)
+    u, inverted = _inverting(model, rng)
+    assert inverted > 0
+    v = rng.normal(size=u.shape)
+    planned, later = (nh.neohookean_e_parallel, nh.neohookean_e_unplanned_parallel) if threads else \
+        (nh.neohookean_e_serial, nh.neohookean_e_unplanned_serial)
+    frames = ElementFrames.from_model(model)
+    w = frames.w
+    w[:-1] = model.rest + u + model.material.zeta * v
+    planned(frames.elems, frames.gather, u, w, frames.work)
+    e, kept = frames.e.copy(), frames.bounds.copy()
+    assert np.array_equal(np.abs(kept).reshape(-1)[:frames.m], nh.tangent_bounds(model, u))
+    frames.e[:-1] = np.nan                              # the rows by vertex (the last row is unused)
+    u2 = u + rng.normal(scale=0.01, size=u.shape)       # another state: its bounds would differ
+    later(frames.elems, frames.gather, u, w, frames.work)
+    assert np.array_equal(frames.e[:-1], e[:-1])        # the same forces, bit for bit
+    later(frames.elems, frames.gather, u2, w, frames.work)
+    assert np.array_equal(frames.bounds, kept)          # the bounds are the planned state's
+    assert not np.array_equal(frames.e[:-1], e[:-1])

@@ -19,9 +19,9 @@ checked every step (the kernel returns whether every |u| stayed under the limit,
 
 What a build injects: the step sources call compiled functions by global names that no import defines, bound
 per build by numba_config.compiled (``_builds``), hence ``# noqa: F821`` at each call: ``stiffness`` (the
-serial or threaded linear sweep) in ``_symplectic_euler``, ``warped_e`` (the vertex or element model's, serial
-or threaded) in ``_warped_symplectic_euler``, and ``step`` (the matching attached step, called with no
-attachments) in the two ``_free_`` sources.
+serial or threaded linear sweep) in ``_symplectic_euler``, ``warped_e`` and ``later_e`` (the model's pass,
+serial or threaded, for the first sub-step and for the later ones) in ``_warped_symplectic_euler``, and ``step``
+(the matching attached step, called with no attachments) in the two ``_free_`` sources.
 """
 from __future__ import annotations
 
@@ -99,7 +99,7 @@ _NO_GAIN = np.zeros(0)
 
 
 # The fused steps, linear and warped, each with its attachment-free variant, one source each. The globals
-# ``stiffness``, ``warped_e`` and ``step`` are bound per build (numba_config.compiled: serial or threaded
+# ``stiffness``, ``warped_e``, ``later_e`` and ``step`` are bound per build (numba_config.compiled: serial or threaded
 # kernels; not closures, which numba's cache cannot keep across processes).
 
 def _symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner,
@@ -134,7 +134,8 @@ def _free_symplectic_euler(sh_ptr, sh_w_at, sh_blocks, bd_w_at, bd_blocks, owner
 def _warped_symplectic_euler(gradients, slices, rest, work,
                              mass, mass3, inv_mass3, fixed, u, v, f_const, zeta, xi, h, nsub, limit, w, e,
                              first_force, att_idx, att_u, att_v, att_a, att_kp, att_kd):
-    """The warped step around one build of the warped kernel (``warped_e``); w = x0 + u + zeta v. The kernel
+    """The warped step around one build of the warped kernel (``warped_e``; ``later_e`` for the sub-steps after
+    the first, which nothing plans from: the Neo-Hookean pass without its bounds); w = x0 + u + zeta v. The kernel
     leaves e, the warped counterpart of K w (fem/kernels/warped_force_kernel.py), in vertex order, and the update
     finishes the force as in the linear step. ``first_force`` false: the caller has made the first sub-step's
     force (``_warped_first_force``: the Neo-Hookean step plans its sub-steps from the bounds that pass leaves)."""
@@ -143,8 +144,10 @@ def _warped_symplectic_euler(gradients, slices, rest, work,
         _prepare(n, zeta, fixed, rest, u, v, w, True)
     ok = True                               # nsub >= 1 (plan_substeps): the last _update sets it
     for s in range(nsub):
-        if first_force or s > 0:
-            warped_e(gradients, slices, u, w, work)  # noqa: F821 (bound)
+        if s > 0:
+            later_e(gradients, slices, u, w, work)  # noqa: F821 (bound)
+        elif first_force:
+            warped_e(gradients, slices, u, w, work)  # noqa: F821
         _attach(s * h, mass, att_idx, att_u, att_v, att_a, att_kp, att_kd, u, v, e)
         ok = _update(n, h, zeta, inv_mass3, e, xi, mass3, f_const, rest, u, v, w, True, limit, s + 1 < nsub)
     return ok
@@ -185,18 +188,20 @@ def step_builds(parts: ClusteredParts) -> tuple:
     if parts.warped_e is None:
         return _step_serial, _step_parallel, None
     key = parts.build_suffix
+    kernels = (parts.warped_e, parts.later_e or parts.warped_e)
     if key not in _WARPED_BUILDS:
-        serial, parallel = parts.warped_e
+        (serial, parallel), (later_serial, later_parallel) = kernels
         first = None
         if parts.bound is not None:     # the step makes its first force before it plans from the bounds
             first = (compiled(_warped_first_force, key, warped_e=serial),
                      compiled(_warped_first_force, key + "_parallel", warped_e=parallel))
-        steps = (_builds(_warped_symplectic_euler, _free_warped_symplectic_euler, key, warped_e=serial),
+        steps = (_builds(_warped_symplectic_euler, _free_warped_symplectic_euler, key, warped_e=serial,
+                         later_e=later_serial),
                  _builds(_warped_symplectic_euler, _free_warped_symplectic_euler, key + "_parallel",
-                         warped_e=parallel), first)
-        _WARPED_BUILDS[key] = (parts.warped_e, steps)
-    kernels, steps = _WARPED_BUILDS[key]
-    if kernels != parts.warped_e:
+                         warped_e=parallel, later_e=later_parallel), first)
+        _WARPED_BUILDS[key] = (kernels, steps)
+    built, steps = _WARPED_BUILDS[key]
+    if built != kernels:
         raise ValueError(f"build_suffix {key!r} names another model's step builds: give each material model's "
                          "ClusteredParts a build_suffix of its own")
     return steps

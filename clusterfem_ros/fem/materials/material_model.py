@@ -49,6 +49,9 @@ class ClusteredParts:
     # ^ the element tangent bounds by lane that the first force leaves (ElementFrames.rot_lanes, the bounds in its
     #   first LANES columns, negative where inverted): the step makes its first force before it plans (the
     #   Neo-Hookean plan, StretchPlan.element_factor); None: planned from the state (stretch.factor)
+    later_e: tuple | None = None
+    # ^ (serial, threaded) builds of the pass for a step's later sub-steps, which nothing plans from (the
+    #   Neo-Hookean pass without its bounds: the same forces); None: warped_e
 
 
 @dataclass

@@ -43,9 +43,11 @@ mu + lambda_s I2 + sqrt(2) lambda_s |J - alpha| |F|_F, the smaller of the two. A
 motion it is 3 lambda + 2 mu, the linear material's largest modulus, exactly; elsewhere within 1.6 x of the
 tangent's largest eigenvalue (tests/test_neohookean.py). The force pass computes it beside each element's force
 from the same F (``ElementFrames.bounds``; four square roots an element, about a seventh of the pass on the
-jelly man), so the step gets it with its first force; ``tangent_bounds`` runs the pass without the forces. The
-bound is kept with the sign of J: negative for an inverted (or flat) element, which the step plan takes a
-shorter step for (fem/materials/stretch.py, ``largest_bound``).
+jelly man), so the step gets it with its first force; ``tangent_bounds`` runs the pass without the forces. A
+step's later sub-steps run the pass without the bound (``neohookean_e_unplanned_*``, the lane loop built with
+``PLANS`` false: the same forces bit for bit): the plan reads only the bounds of the state the step starts
+from, which the bounds then still hold. The bound is kept with the sign of J: negative for an inverted (or
+flat) element, which the step plan takes a shorter step for (fem/materials/stretch.py, ``largest_bound``).
 
 The compiled pass has the element warping's layout (fem/materials/element_warping.py: ``ElementFrames``, chunks of
 LANES elements by lane, element corner forces gathered per vertex in element order, so serial and threaded
@@ -56,7 +58,8 @@ tests and the stability table use.
 
 Builds: the element warping's pass and force sources (``element_pass_source``, ``element_force_source``) with this
 module's ``_neohookean_chunk`` bound as their ``chunk`` (numba_config.compiled); the threaded pass and gather is the
-element warping's ``element_e_source``, the serial one ``_fused_e``.
+element warping's ``element_e_source``, the serial one ``_fused_e``; each with the lane loop with the bounds and
+(for the later sub-steps) without them.
 """
 from __future__ import annotations
 
@@ -73,7 +76,7 @@ from .element_warping import (INLINED, ElementFrames, element_differences, eleme
                               store_corner_forces)
 from .kernel_args import checked_rows, pick_build
 from ..model import FemModel
-from ...numba_config import HOLDS_GIL, SERIAL, compiled, serial_and_parallel
+from ...numba_config import HOLDS_GIL, PARALLEL, SERIAL, compiled, serial_and_parallel
 
 SQRT2 = math.sqrt(2.0)
 THIRD = 1.0 / 3.0
@@ -160,11 +163,11 @@ def lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
     return min(frobenius, max(twist, scaling))
 
 
-@numba.njit(**CONTRACTED)
-def _chunk_forces(D, DW, grad, vol, lam, mu, fe, bound):
+def _chunk_forces_source(D, DW, grad, vol, lam, mu, fe, bound):
     """fe[(3 c + a) LANES + l] <- component a of V P g_c per lane (the force is -fe): F = I + sum_c d_c g_c^T from
     the differences of u (D), G = sum_c dw_c g_c^T from those of w = x0 + u + zeta v (DW), P the elastic stress
-    plus the damping F S_d with zeta dF/dt = G - F (module docstring); bound[l] <- the tangent bound at F."""
+    plus the damping F S_d with zeta dF/dt = G - F (module docstring); bound[l] <- the tangent bound at F where
+    the build ``PLANS`` (a constant per build: the other build has no bound in its lane loop, bound unread)."""
     lam_s = lam + mu
     alpha = 1.0 + mu / lam_s
     for l in range(LANES):
@@ -175,9 +178,10 @@ def _chunk_forces(D, DW, grad, vol, lam, mu, fe, bound):
         z20, z21, z22 = G20 - f20, G21 - f21, G22 - f22
         c00, c01, c02, c10, c11, c12, c20, c21, c22 = lane_cofactor(f00, f01, f02, f10, f11, f12, f20, f21, f22)
         j = f00 * c00 + f01 * c01 + f02 * c02
-        b = lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
-                               c00, c01, c02, c10, c11, c12, c20, c21, c22, j, lam_s, alpha, mu)
-        bound[l] = b if j > 0.0 else -b                             # the sign says: inverted (or flat)
+        if PLANS:  # noqa: F821 (bound per build)
+            b = lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
+                                   c00, c01, c02, c10, c11, c12, c20, c21, c22, j, lam_s, alpha, mu)
+            bound[l] = b if j > 0.0 else -b                         # the sign says: inverted (or flat)
         k = lam_s * (j - alpha)
         e00 = f00 * z00 + f10 * z10 + f20 * z20                     # E' = sym(F^T Z)
         e11 = f01 * z01 + f11 * z11 + f21 * z21
@@ -215,17 +219,27 @@ def _chunk_bounds(D, grad, lam, mu, bound):
         bound[l] = b if j > 0.0 else -b
 
 
-@numba.njit(**SERIAL)
-def _neohookean_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, kept, fe):
+# the lane loop with the tangent bounds (the pass a step plans from: its first force, and every public call) and
+# without them (the later sub-steps of a step: nothing plans from their state); the same forces, bit for bit
+_chunk_forces = compiled(_chunk_forces_source, "", CONTRACTED, PLANS=True)
+_chunk_forces_unplanned = compiled(_chunk_forces_source, "_unplanned", CONTRACTED, PLANS=False)
+
+
+def _neohookean_chunk_source(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, kept, fe):
     """Chunk c: differences of u (and of w), the tangent bounds in kept[c, :LANES] (ElementFrames.bounds: where
-    the corotated chunk keeps its rotations) and with ``forces`` the element forces. The element warping's
-    chunk signature, so its pass runs this one; the rotation workspace (how, tmp) is unused."""
+    the corotated chunk keeps its rotations) and with ``forces`` the element forces (``chunk_forces``: bound per
+    build, with or without the bounds). The element warping's chunk signature, so its pass runs this one; the
+    rotation workspace (how, tmp) is unused."""
     D, DW = buf[0], buf[1]
     element_differences(corner[c], u, w, D, DW, forces)
     if forces:
-        _chunk_forces(D, DW, grad[c], vol[c], lam, mu, fe[c], kept[c])
+        chunk_forces(D, DW, grad[c], vol[c], lam, mu, fe[c], kept[c])  # noqa: F821 (bound per build)
     else:
         _chunk_bounds(D, grad[c], lam, mu, kept[c])
+
+
+_neohookean_chunk = compiled(_neohookean_chunk_source, chunk_forces=_chunk_forces)
+_neohookean_chunk_unplanned = compiled(_neohookean_chunk_source, "_unplanned", chunk_forces=_chunk_forces_unplanned)
 
 
 @numba.njit(**SERIAL)
@@ -257,24 +271,30 @@ def _fused_e(elems, gather, u, w, work):
     """The serial pass and gather in one sweep: e <- 0, then each chunk's corner forces added to their vertices'
     rows while they are in L1. Chunk by chunk and lane by lane is ascending element order, the gather's order
     for every vertex (ElementFrames.gather), so e has the gather's bits; the padding lanes are left out, as the
-    gather leaves them. Same arguments as element_e_source."""
+    gather leaves them. Same arguments as element_e_source; ``chunk``: bound per build."""
     corner, grad, vol, lame = elems
     rot, buf, how, tmp, fe, e = work
     vptr = gather[0]
     m = vptr[vptr.shape[0] - 1] // 4                # 4 corners an element
     e[:, :] = 0.0
     for c in range(rot.shape[0]):
-        _neohookean_chunk(c, buf[0], how[0], tmp[0], True, corner, grad, vol, lame[0], lame[1], u, w, rot, fe)
+        chunk(c, buf[0], how[0], tmp[0], True, corner, grad, vol, lame[0], lame[1], u, w, rot, fe)  # noqa: F821
         _add_corner_forces(corner[c], fe[c], min(LANES, m - c * LANES), e)
 
 
 # the element warping's sources around this chunk: the pass over blocks of chunks, the pass and gather (the
-# serial build fused, _fused_e), and the whole force (w, the pass and gather, the finish)
+# serial build fused, _fused_e), and the whole force (w, the pass and gather, the finish); the pass and gather
+# without the bounds for the step's later sub-steps (``neohookean_e_unplanned_*``)
 neohookean_pass_serial, neohookean_pass_parallel = serial_and_parallel(
     element_pass_source, "_neohookean", serial={"chunk": _neohookean_chunk}, parallel={"chunk": _neohookean_chunk})
-neohookean_e_serial = compiled(_fused_e, "_neohookean")
+neohookean_e_serial = compiled(_fused_e, "_neohookean", chunk=_neohookean_chunk)
 neohookean_e_parallel = compiled(element_e_source, "_neohookean_parallel", element_pass=neohookean_pass_parallel,
                                  gather_rows=gather_parallel)
+_pass_unplanned_parallel = compiled(element_pass_source, "_neohookean_unplanned_parallel", PARALLEL,
+                                    chunk=_neohookean_chunk_unplanned)
+neohookean_e_unplanned_serial = compiled(_fused_e, "_neohookean_unplanned", chunk=_neohookean_chunk_unplanned)
+neohookean_e_unplanned_parallel = compiled(element_e_source, "_neohookean_unplanned_parallel",
+                                           element_pass=_pass_unplanned_parallel, gather_rows=gather_parallel)
 neohookean_kernel_serial = compiled(element_force_source, "_neohookean", kernel_input=kernel_input_serial,
                                     element_e=neohookean_e_serial, finish=finish_serial)
 neohookean_kernel_parallel = compiled(element_force_source, "_neohookean_parallel", kernel_input=kernel_input_parallel,

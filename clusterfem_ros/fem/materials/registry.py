@@ -16,7 +16,8 @@ from .corotational import ElementCorotation
 from .element_warping import ElementFrames, element_e_parallel, element_e_serial, element_force, element_rotations
 from .material_model import ClusteredParts, MaterialModel, StandardParts
 from .stress import compute_stress
-from .neohookean import energy as neohookean_energy, neohookean_e_parallel, neohookean_e_serial
+from .neohookean import (energy as neohookean_energy, neohookean_e_parallel, neohookean_e_serial,
+                         neohookean_e_unplanned_parallel, neohookean_e_unplanned_serial)
 from .warping import VertexFrames, vertex_rotations, warped_e_parallel, warped_e_serial, warped_force
 from .warping_models import DECLARED
 
@@ -113,6 +114,7 @@ class NeoHookean(MaterialModel):
     def clustered(self, model: FemModel) -> ClusteredParts:
         parts = _element_parts(model, (neohookean_e_serial, neohookean_e_parallel), "_neohookean")
         parts.bound = lambda: parts.frames.rot_lanes       # the step plans from the bounds its first force leaves
+        parts.later_e = (neohookean_e_unplanned_serial, neohookean_e_unplanned_parallel)    # no bounds after it
         return parts
 
     def energy_function(self, model: FemModel):
