@@ -7,7 +7,7 @@ real step. scene.Scene receives the result and only runs it (scene.Scene.build c
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -216,7 +216,6 @@ def hold_islands(model: FemModel, binding: Binding, anchors: list,
     it is bound to: its bound vertices put in the innermost level (a mesh's loose parts, fingers or eyes modelled
     apart from the body, tetrahedralized as pieces of their own). A piece beyond ISLAND_SHARE of the body's
     vertices, or with no vertex bound at all, would be dragged, not carried: refused."""
-    import dataclasses
     driven = binding.level == 0
     driven[[a.vertex for a in anchors]] = True
     islands = unbound_islands(model.mesh.tets, model.n_vertices, driven)
@@ -236,7 +235,7 @@ def hold_islands(model: FemModel, binding: Binding, anchors: list,
     sizes = sorted((size for size, _ in islands), reverse=True)
     say(progress, f"{len(islands)} loose piece(s) of the surface ({', '.join(map(str, sizes))} vertices) reached by "
                   "no bone's core: carried whole by the bones they are bound to")
-    return dataclasses.replace(binding, level=level)
+    return replace(binding, level=level)
 
 
 def joint_inputs(config: SceneConfig, skeleton: Skeleton, q0: np.ndarray) -> tuple[JointMap, JointStreamInterpolator]:
