@@ -47,7 +47,7 @@ jelly man), so the step gets it with its first force; ``tangent_bounds`` runs th
 step's later sub-steps run the pass without the bound (``neohookean_e_unplanned_*``, the lane loop built with
 ``PLANS`` false: the same forces bit for bit): the plan reads only the bounds of the state the step starts
 from, which the bounds then still hold. The bound is kept with the sign of J: negative for an inverted (or
-flat) element, which the step plan takes a shorter step for (fem/materials/stretch.py, ``largest_bound``).
+flat) element, which the step plan takes a shorter step for (fem/materials/stretch.py, ``element_need``).
 
 The compiled pass has the element warping's layout (fem/materials/element_warping.py: ``ElementFrames``, chunks of
 LANES elements by lane, element corner forces gathered per vertex in element order, so serial and threaded
@@ -76,7 +76,7 @@ from .element_warping import (INLINED, ElementFrames, element_differences, eleme
                               store_corner_forces)
 from .kernel_args import checked_rows, pick_build
 from ..model import FemModel
-from ...numba_config import HOLDS_GIL, PARALLEL, SERIAL, compiled, serial_and_parallel
+from ...numba_config import PARALLEL, SERIAL, compiled, serial_and_parallel
 
 SQRT2 = math.sqrt(2.0)
 THIRD = 1.0 / 3.0
@@ -306,25 +306,6 @@ def neohookean_force(model: FemModel, u: np.ndarray, v: np.ndarray | None = None
                      threads: bool | None = None) -> np.ndarray:
     """Stable Neo-Hookean elastic + damping force, (n, 3) (module docstring), including -xi M v."""
     return run_element_kernel(neohookean_kernel_serial, neohookean_kernel_parallel, model, u, v, frames, out, threads)
-
-
-@numba.njit(**HOLDS_GIL)
-def _largest_bound(kept):
-    worst = 0.0
-    inverted = False
-    for c in range(kept.shape[0]):
-        for l in range(LANES):
-            b = kept[c, l]
-            inverted |= b < 0.0
-            worst = max(worst, abs(b))
-    return worst, inverted
-
-
-def largest_bound(frames: ElementFrames) -> tuple[float, bool]:
-    """(the largest tangent bound the last pass left, whether an element is inverted or flat): what the step
-    plans for (ElementFrames.bounds holds each bound with the sign of det F, a flat element's negative; padding
-    lanes give the rest value), without numpy's reduction over the strided view (3.7 us a step)."""
-    return _largest_bound(frames.rot_lanes)
 
 
 def tangent_bounds(model: FemModel, u: np.ndarray, frames: ElementFrames | None = None,
