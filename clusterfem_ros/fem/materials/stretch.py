@@ -168,6 +168,9 @@ def element_need(kept: np.ndarray, weights: np.ndarray, rest_modulus: float, kne
     return worst
 
 
+_ONE_ELEMENT = np.eye(1, LANES)      # the weights of a body of one element: 1 in lane 0, padding 0
+
+
 class StretchPlan:
     """The stretch factor a warped explicit body plans its sub-steps with (module docstring). The corotated
     bound (``factor``) is taken at most every ``every`` simulated seconds (5 ms: every fifth step of the node's
@@ -219,12 +222,13 @@ class StretchPlan:
         return self._settle(1.0 + stiffening(self.tets, self.gradients, self.rest, u, self._x), h)
 
     def neohookean_factor(self, bound: float, h: float, inverted: bool = False) -> float:
-        """The Neo-Hookean factor for a step of h whose elements' largest tangent bound is ``bound``
-        (fem/materials/neohookean.py; the force pass leaves it in ElementFrames.bounds): >= 1 + g times the accuracy
-        factor, rounded up to a quarter octave."""
-        stiffer = max(1.0, bound / self.rest_modulus)
-        accuracy = self.INVERTED if inverted else min(self.ACCURACY, max(1.0, stiffer / self.KNEE))
-        return self._settle(stiffer * accuracy, h)
+        """The Neo-Hookean factor of an undamped body for a step of h whose elements' largest tangent bound is
+        ``bound`` (fem/materials/neohookean.py; ``inverted``: that element's): ``element_factor``'s rule on one
+        element of weight 1, >= 1 + g times the accuracy factor, rounded up to a quarter octave."""
+        kept = np.zeros((1, LANES))
+        kept[0, 0] = -bound if inverted else bound
+        need = element_need(kept, _ONE_ELEMENT, self.rest_modulus, self.KNEE, self.ACCURACY, self.INVERTED)
+        return self._settle(max(1.0, need), h)
 
     def element_factor(self, kept: np.ndarray, h: float, undamped: bool = False) -> float:
         """The Neo-Hookean factor element by element: >= max_e r_e s_e a_e (``element_need``; the tangent bounds by
