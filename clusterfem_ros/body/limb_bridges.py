@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fem.mesh.tet_mesh import TetMesh
+from .binding import segment_distance
 
 LIMB_ROLES = ("upper_arm", "forearm", "hand", "finger", "thigh", "shin", "foot", "toe")
 
@@ -22,7 +23,6 @@ def bridge_tets(vertices: np.ndarray, tets: np.ndarray, starts: np.ndarray, ends
     """(m,) bool: the tets with corners nearest to limb bones of both sides and none to another bone (``roles``:
     bone_roles.BoneRoles;
     ``binds`` (nb,) bool: the bones that bind flesh, the only ones a corner is measured to)."""
-    from .binding import segment_distance
     side = np.array([s if r in LIMB_ROLES else "" for r, s in zip(roles.roles, roles.sides)])
     use = np.flatnonzero(binds)
     nearest = use[np.argmin(segment_distance(np.asarray(vertices, dtype=np.float64), starts[use], ends[use]),
