@@ -172,7 +172,12 @@ PARAMS: tuple[Param, ...] = (
     Param("anchors.kd", 400.0, "anchor velocity gain [1/s]", 0.0, 1.0e6),
     Param("input.max_age", 1.0, "reject joint states older than this relative to the newest [s]", 0.0, 3600.0),
     Param("input.max_future", 0.5, "reject joint states stamped this far ahead of the clock [s]", 0.0, 3600.0),
-    Param("input.teleport_distance", 0.5, "a root jump larger than this between samples is a teleport [m]", 0.0, 100.0),
+    Param("input.teleport_distance", 0.5, "a root jump larger than this between samples, and faster than "
+          "input.teleport_speed, is a teleport: the body is re-placed, not swept [m]", 0.0, 100.0),
+    # 10 m/s: a sprinter's top speed; a player stalled on a loaded host resumes its walk at 1-2 m/s
+    Param("input.teleport_speed", 10.0, "a root jump larger than input.teleport_distance is a teleport only if "
+          "faster than this over the time between its samples (a stalled sender resuming is motion) [m/s]",
+          0.01, 1.0e6),
     # 300 rad/s, per joint channel: a BVH's Euler channels trade angle near gimbal lock, so real captures reach
     # ~210 rad/s on one channel after the loader's limit on rotation speed (tests/data/mocap_clips.yaml: the
     # fastest of the seven clips, benchmarks/clip_soak.py); capture glitches (a thigh flipping 175 deg in one
@@ -420,6 +425,7 @@ class InputSection:
     max_age: float
     max_future: float
     teleport_distance: float
+    teleport_speed: float
     max_joint_speed: float
     max_late_jump: float
     max_root_distance: float

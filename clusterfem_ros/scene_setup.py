@@ -246,7 +246,8 @@ def joint_inputs(config: SceneConfig, skeleton: Skeleton, q0: np.ndarray) -> tup
     joints = JointMap(skeleton.joint_names, q0, max_names=c.max_names, limits=limits)
     stream = JointStreamInterpolator(skeleton.joint_names, revolute=skeleton.revolute_mask(),
                                      max_age=c.max_age, max_future=c.max_future,
-                                     teleport_distance=c.teleport_distance, prismatic=~skeleton.revolute_mask(),
+                                     teleport_distance=c.teleport_distance, teleport_speed=c.teleport_speed,
+                                     prismatic=~skeleton.revolute_mask(),
                                      max_root_distance=c.max_root_distance, max_joint_speed=c.max_joint_speed,
                                      balls=skeleton.ball_joints())
     return joints, stream

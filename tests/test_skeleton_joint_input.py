@@ -153,6 +153,20 @@ def test_teleport_is_reported_and_not_interpolated_across():
     np.testing.assert_allclose(s.sample(0.15)[0][0], 5.0)                    # no sweep through the jump
 
 
+def test_a_stalled_sender_resuming_its_walk_is_motion_not_a_teleport():
+    """A player starved for 0.56 s on a loaded host resumes 0.56 m on (1 m/s): longer than teleport_distance, but a
+    walk. It is interpolated across; the same jump in one 10 ms frame is a teleport."""
+    s = stream(teleport_distance=0.5, teleport_speed=10.0)
+    for k in range(5):
+        assert s.push(0.01 * k, np.array([0.01 * k, 0, 0, 0])) == []
+    assert s.push(0.6, np.array([0.6, 0, 0, 0]), now=0.6) == [] and s.teleports == 0   # the node's clock
+    np.testing.assert_allclose(s.sample(0.3)[0][0], 0.3)                    # swept through, as walked
+    problems = s.push(0.61, np.array([1.2, 0, 0, 0]), now=0.61)              # 0.6 m in 10 ms: 60 m/s
+    assert [k for k, _ in problems] == ["teleport"] and "teleport_speed 10 m/s" in problems[0][1]
+    with pytest.raises(ValueError, match="teleport_speed"):
+        stream(teleport_speed=0.0)
+
+
 def test_buffer_is_bounded_and_bad_samples_are_refused():
     s = stream(capacity=8)
     for k in range(50):

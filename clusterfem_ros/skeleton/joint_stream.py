@@ -20,9 +20,10 @@ newer than the newest (``out_of_order``), older than newest - ``max_age`` (``sta
 + ``max_future`` (``future``; or than ``now`` + max_future when the caller passes its clock), of the wrong shape or non-finite (``bad_sample``). A stream that really
 restarted (a replayed bag, a clock jump) is not locked out: ``restart_after`` consecutive rejected
 samples with increasing stamps restart the stream from the last of them, if it passes the range checks
-(reported as ``restart``). A prismatic jump
-larger than ``teleport_distance`` between consecutive samples is accepted but reported (``teleport``)
-and interpolation does not sweep across it: the older samples are dropped.
+(reported as ``restart``). A prismatic jump between consecutive samples larger than ``teleport_distance``
+and faster than ``teleport_speed`` is accepted but reported (``teleport``) and interpolation does not sweep
+across it: the older samples are dropped. Both, because a sender that stalled (a player's timer starved for half
+a second on a loaded host) resumes as far on as its root walked meanwhile: a long jump over a long gap is motion.
 
 Range checks (rejected, counted by the caller; both limits are optional):
 
@@ -30,7 +31,7 @@ Range checks (rejected, counted by the caller; both limits are optional):
   ``max_root_distance`` [m] from the origin. Never accepted later: a body that far away is a broken
   publisher or a scene that needs a larger limit, not motion.
 * ``joint_speed``: a joint moving faster than ``max_joint_speed`` [rad/s or m/s] since the accepted sample
-  that last moved it (unwrapped angles; a prismatic jump beyond ``teleport_distance`` is a teleport instead), or a
+  that last moved it (unwrapped angles; a prismatic teleport is reported as one instead), or a
   reported velocity above it. Capture glitches (a thigh flipping 175 deg in one frame) are dropped. Three
   revolute joints that form one ball joint (``balls``: (B, 3) joint indices, their axes (B, 3, 3), R = R(axis0,
   q0) R(axis1, q1) R(axis2, q2); ``Skeleton.ball_joints``) are checked as a rotation: the geodesic angle of
@@ -173,7 +174,8 @@ class JointStreamInterpolator:
     FATAL = FATAL
 
     def __init__(self, joint_names: Sequence[str], revolute: np.ndarray | None = None, *, max_age: float = 1.0,
-                 max_future: float = 0.5, teleport_distance: float = 0.5, prismatic: np.ndarray | None = None,
+                 max_future: float = 0.5, teleport_distance: float = 0.5, teleport_speed: float = 10.0,
+                 prismatic: np.ndarray | None = None,
                  horizon: float = 0.0, capacity: int = 256, restart_after: int = 3,
                  max_root_distance: float = float("inf"), max_joint_speed: float = float("inf"),
                  balls: tuple[np.ndarray, np.ndarray] | None = None):
@@ -197,13 +199,15 @@ class JointStreamInterpolator:
                           ("horizon", horizon)):
             if not (np.isfinite(val) and val >= 0):
                 raise ValueError(f"{name} = {val!r} must be a finite time/distance >= 0")
-        for name, val in (("max_root_distance", max_root_distance), ("max_joint_speed", max_joint_speed)):
+        for name, val in (("max_root_distance", max_root_distance), ("max_joint_speed", max_joint_speed),
+                          ("teleport_speed", teleport_speed)):
             if not val > 0:
                 raise ValueError(f"{name} = {val!r} must be > 0 (inf: no limit)")
         if capacity < 2 or restart_after < 1:
             raise ValueError(f"capacity = {capacity} must be >= 2 and restart_after = {restart_after} >= 1")
         self.max_age, self.max_future = float(max_age), float(max_future)
         self.teleport_distance, self.horizon = float(teleport_distance), float(horizon)
+        self.teleport_speed = float(teleport_speed)
         self.restart_after = int(restart_after)
         self.max_root_distance, self.max_joint_speed = float(max_root_distance), float(max_joint_speed)
         self._speeding_since: float | None = None     # stamp of the first sample of a run rejected for speed
@@ -230,6 +234,10 @@ class JointStreamInterpolator:
         return len(self._t)
 
     # -- input ---------------------------------------------------------------------------------------
+    def _teleport(self, jump: float, dt: float) -> bool:
+        """A prismatic jump of ``jump`` [m] over ``dt`` [s] since the newest sample is a teleport."""
+        return jump > self.teleport_distance and jump > self.teleport_speed * dt
+
     def _clear(self) -> None:
         self._t.clear(), self._q.clear(), self._v.clear()
         self.revision += 1
@@ -241,11 +249,12 @@ class JointStreamInterpolator:
             q[self.revolute] = prev[self.revolute] + wrap_angle(q[self.revolute] - prev[self.revolute])
             if self.balls.shape[0]:
                 _nearest_ball_triples(q, prev, self.balls)
-            jump = float(np.linalg.norm(q[self.prismatic] - prev[self.prismatic]))
-            if self.prismatic.any() and jump > self.teleport_distance:
+            jump, dt = float(np.linalg.norm(q[self.prismatic] - prev[self.prismatic])), stamp - self._t[-1]
+            if self.prismatic.any() and self._teleport(jump, dt):
                 self.teleports += 1
-                problems.append(("teleport", f"prismatic joints jumped {jump:.3g} m in {stamp - self._t[-1]:.3g} s "
-                                             f"(> teleport_distance {self.teleport_distance:g} m): not "
+                problems.append(("teleport", f"prismatic joints jumped {jump:.3g} m in {dt:.3g} s "
+                                             f"(> teleport_distance {self.teleport_distance:g} m, faster than "
+                                             f"teleport_speed {self.teleport_speed:g} m/s): not "
                                              "interpolated across; older samples dropped"))
                 self._clear()
             self._moved_at[q != prev] = stamp
@@ -356,7 +365,7 @@ class JointStreamInterpolator:
             return ("joint_speed", f"joint {self.joint_names[fastest]!r} reports velocity {v[fastest]:.4g} "
                                    f"(max_joint_speed {self.max_joint_speed:g}): sample dropped")
         if self._t and not alone and np.isfinite(self.max_joint_speed):
-            if jump > self.teleport_distance:
+            if self._teleport(jump, stamp - self._t[-1]):
                 return None                      # a teleport: reported by _store, the body is re-placed
             # per joint, the time since the sample that last moved it: split publishers (arms and legs in
             # separate messages microseconds apart) each move their own joints over their own period
