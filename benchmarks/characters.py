@@ -7,7 +7,7 @@ prints, per manifest entry, the body measured from the surface (up axis, forward
 angle to the body axis, pose) beside what the manifest states, then meshes it as ``body.kind: surface`` does
 (fem/mesh/tetrahedralize.surface_to_tets, ``body.target_tets`` = --tets) into an empty cache folder: tets,
 seconds, the smallest dihedral angle and radius ratio, or the error. With ``--walk``, each mesh then takes the
-place of MakeHuman's in config/character_walk.yaml (its file, group, unit and signed axes: ``walk_overrides``),
+place of MakeHuman's in config/character_walk.yaml (its file and group: ``walk_overrides``; unit and axes 'auto'),
 bound by ``skeleton.bind_pose: auto`` on each capture's own skeleton and played by it for --duration simulated
 seconds as the clip soak plays it (benchmarks/clip_soak.headless_soak: looped as the player loops it): resets,
 withheld states, worst distance of a published vertex to its bone, worst volume error, and the bind's report
@@ -16,10 +16,8 @@ refused the build; then a table of them all. Times depend on the machine and its
 
 ``find_mesh(entry)`` looks for the entry's ``file`` in ``meshes/`` of each data folder
 (clusterfem_ros/data_dirs.py: ``$CLUSTERFEM_DATA``, ``../shared/data`` beside the checkout, the user data folder); ``missing_message`` names the
-file and the manifest entry to fetch it from. ``measure_body`` reads the body's axes from its shape alone: the
-left-right axis is the one the surface is mirror-symmetric about, the front-back axis the thinner of the other
-two, the head the end of the up axis the surface's area lies nearer to (head, trunk and arms above the hips),
-the face the side the feet reach further out to (toes in front of the ankles, heels barely behind).
+file and the manifest entry to fetch it from. ``measure_body`` reads the body's axes and unit from its shape alone, as the
+scene's ``auto`` does (clusterfem_ros/body/mesh_frame.py), and its pose from the arms' angle.
 """
 from __future__ import annotations
 
@@ -32,12 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
+from clusterfem_ros.body.mesh_frame import UNITS as MESH_FRAME_UNITS, measure_frame
+
 REPO = Path(__file__).resolve().parents[1]
 MANIFEST = REPO / "tests" / "data" / "character_meshes.yaml"
 AXES = "XYZ"
-# metres per file unit, for the unit a human's height names (the first whose height in metres is humanly possible)
-UNITS = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "in": 0.0254}
-HUMAN_HEIGHT_M = (0.9, 2.5)
+MANIFEST_UNIT = {"inch": "in"}                  # the manifest's names of body/mesh_frame.UNITS that differ
+UNITS = {MANIFEST_UNIT.get(name, name): metres for name, metres in MESH_FRAME_UNITS.items()}   # manifest names
 T_POSE_MIN_DEG, A_POSE_MIN_DEG = 70.0, 30.0     # the arms' angle to the body axis: T above, arms down below A
 SURFACE_SAMPLES = 20000                         # points spread over the surface (by area) to find the arms in
 
@@ -100,7 +99,7 @@ class BodyShape:
     up: str                 # '+Y', '-Z', ...: feet to head
     forward: str            # the way the face looks
     height: float           # along up, file units
-    unit: str               # a key of UNITS, '' when no unit gives a human height
+    unit: str               # a key of UNITS (as the manifest names them), '' when no unit gives a human height
     arm_angle_deg: float    # the arms' mean angle to the body axis (nan: no arm stands out from the trunk)
     pose: str               # 'T', 'A' or 'arms-down'
     watertight: bool
@@ -111,13 +110,9 @@ class BodyShape:
                 f"arms {self.arm_angle_deg:.1f} deg from the body axis: {pose}")
 
 
-def _signed(axis: int, sign: float) -> str:
-    return ("+" if sign > 0 else "-") + AXES[axis]
-
-
-def unit_of_height(height: float) -> str:
-    """The first unit of UNITS in which ``height`` file units is a human's height, '' if none."""
-    return next((u for u, m in UNITS.items() if HUMAN_HEIGHT_M[0] <= height * m <= HUMAN_HEIGHT_M[1]), "")
+def _plus(axis: str) -> str:
+    """'Y' -> '+Y', '-Z' -> '-Z': the manifest's spelling of a signed axis."""
+    return axis if axis.startswith("-") else "+" + axis
 
 
 def arm_angle(points: np.ndarray, lateral: int, up: int, up_sign: float) -> float:
@@ -142,38 +137,19 @@ def arm_angle(points: np.ndarray, lateral: int, up: int, up_sign: float) -> floa
 
 
 def measure_body(vertices: np.ndarray, faces: np.ndarray) -> BodyShape:
-    """The body's axes, height, unit and pose from its surface alone (the module docstring says how)."""
+    """The body's axes, height and unit (body/mesh_frame.measure_frame: what ``auto`` takes in the scene) and its
+    pose (the arms' angle) from its surface alone."""
     import trimesh
-    from scipy.spatial import cKDTree
     v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
-    tri = v[f]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    centroids = tri.mean(axis=1)
-    centre = (centroids * area[:, None]).sum(axis=0) / area.sum()
-    extent = np.ptp(v, axis=0)
-    tree = cKDTree(centroids)
-    asymmetry = []
-    for a in range(3):
-        mirrored = centroids.copy()
-        mirrored[:, a] = 2.0 * centre[a] - mirrored[:, a]
-        asymmetry.append(float(np.average(tree.query(mirrored)[0], weights=area)))
-    lateral = int(np.argmin(asymmetry))
-    depth = min((a for a in range(3) if a != lateral), key=lambda a: extent[a])
-    up = 3 - lateral - depth
-    lo, hi = v[:, up].min(), v[:, up].max()
-    height = float(hi - lo)
-    up_sign = 1.0 if centre[up] - lo > 0.5 * height else -1.0
-    feet_level = lo + 0.04 * height if up_sign > 0 else hi - 0.04 * height
-    feet = v[(v[:, up] <= feet_level) if up_sign > 0 else (v[:, up] >= feet_level), depth]
-    forward_sign = 1.0 if feet.max() - centre[depth] > centre[depth] - feet.min() else -1.0
+    frame = measure_frame(v, f)
+    up, up_sign = AXES.index(frame.up.lstrip("-")), -1.0 if frame.up.startswith("-") else 1.0
     mesh = trimesh.Trimesh(v, f, process=False)
     points = np.asarray(trimesh.sample.sample_surface(mesh, SURFACE_SAMPLES, seed=0)[0])
-    angle = arm_angle(points, lateral, up, up_sign)
+    angle = arm_angle(points, AXES.index(frame.lateral), up, up_sign)
     pose = ("T" if angle >= T_POSE_MIN_DEG else "A" if angle >= A_POSE_MIN_DEG else "arms-down") \
         if np.isfinite(angle) else "arms-down"
-    watertight = bool(mesh.is_watertight)
-    return BodyShape(AXES[lateral], _signed(up, up_sign), _signed(depth, forward_sign), height,
-                     unit_of_height(height), angle, pose, watertight)
+    return BodyShape(frame.lateral, _plus(frame.up), _plus(frame.forward), frame.height,
+                     MANIFEST_UNIT.get(frame.unit, frame.unit), angle, pose, bool(mesh.is_watertight))
 
 
 def read_entry(path: Path, entry: CharacterMesh) -> tuple[np.ndarray, np.ndarray]:
@@ -236,11 +212,10 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def walk_overrides(path: Path, entry: CharacterMesh, tets: int) -> dict:
-    """The parameters that put the entry's mesh in place of MakeHuman's in config/character_walk.yaml: its file,
-    group, unit and signed axes, as ``scripts/run --set`` gives them."""
-    return {"body.surface_file": str(path), "body.surface_group": entry.group,
-            "body.surface_unit": entry.metres_per_unit, "body.target_tets": tets, "skeleton.fit_up": entry.up.lstrip("+"),
-            "skeleton.fit_forward": entry.forward.lstrip("+")}
+    """The parameters that put the entry's mesh in place of MakeHuman's in config/character_walk.yaml, as
+    ``scripts/run --set`` gives them: its file and group; its unit and axes are the scene's ``auto`` (read from the
+    shape: body/mesh_frame.py), as for a mesh of the user's."""
+    return {"body.surface_file": str(path), "body.surface_group": entry.group, "body.target_tets": tets}
 
 
 def walk(path: Path, entry: CharacterMesh, bvh: Path, tets: int, duration: float) -> tuple[str, list]:

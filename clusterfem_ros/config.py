@@ -56,7 +56,9 @@ PARAMS: tuple[Param, ...] = (
     Param("body.surface_file", "", "triangle surface (.obj/.stl/.ply/.glb) of a character when body.kind is 'surface': a path, "
           "or a path under $CLUSTERFEM_DATA, ../shared/data or the user data folder; tetrahedralized with fTetWild, cached"),
     Param("body.surface_group", "", "the OBJ group of body.surface_file to use ('' = the whole file)"),
-    Param("body.surface_unit", 1.0, "metres per unit of body.surface_file (0.1 for decimetres, 0.01 for cm)", 1.0e-6, 1.0e3),
+    Param("body.surface_unit", "auto", "length unit of body.surface_file: auto (the unit in which the surface is a "
+          "standing human's height: body/mesh_frame.py), m, dm, cm, mm, inch, or metres per file unit as a number",
+          length_unit=True),
     Param("body.bone_radius", 0.05, "capsule radius around each bone of a jelly body on a skeleton other than the built-in humanoid [m]", 0.005, 1.0),
     Param("body.flesh", "auto", "jelly body on a skeleton other than the built-in humanoid: 'auto' tells a human's bones "
           "from the tree and its rest shape (skeleton/bone_roles.py) and gives each a radius in proportion to the "
@@ -136,11 +138,11 @@ PARAMS: tuple[Param, ...] = (
     Param("skeleton.fit", "auto", "how the surface sits on the skeleton: 'auto' scales it so the skeleton spans 93 % "
           "of its height, centres it, then moves and scales it so the bones lie 1 cm under the skin (least squares); "
           "'manual' uses body.surface_unit and skeleton.fit_offset", choices=("auto", "manual")),
-    Param("skeleton.fit_up", "Z", "the surface file's up axis, from the feet to the head (Y for most modelling "
-          "tools; -Y for a file upside down)", choices=BVH_AXES),
-    Param("skeleton.fit_forward", "X", "the surface file's forward axis, the way the character faces (-Z for a "
-          "character modelled facing away along Z); with skeleton.bind_pose 'auto' the feet decide when they point "
-          "clearly", choices=BVH_AXES),
+    Param("skeleton.fit_up", "auto", "the surface file's up axis, from the feet to the head: auto (read from its "
+          "shape: body/mesh_frame.py) or Y (most modelling tools), Z, -Y (a file upside down), ...", choices=BVH_UP),
+    Param("skeleton.fit_forward", "auto", "the surface file's forward axis, the way the character faces: auto (the "
+          "way its feet reach out) or -Z (a character modelled facing away along Z), X, ...; with skeleton.bind_pose "
+          "'auto' the feet's long axes decide when they point clearly", choices=BVH_UP),
     Param("skeleton.fit_offset", [0.0, 0.0, 0.0], "with skeleton.fit 'manual': where the file's origin goes in the "
           "skeleton's bind-pose frame [m]"),
     Param("skeleton.fit_tolerance", 0.02, "a bone may leave the surface body by this much before the fit is refused [m]", 0.0, 1.0),
@@ -328,7 +330,7 @@ class BodySection:
     target_tets: int
     surface_file: str
     surface_group: str
-    surface_unit: float             # metres per unit of surface_file
+    surface_unit: str               # 'auto', a unit name or metres per unit of surface_file (parse_unit)
     bone_radius: float              # [m]
     flesh: str                      # 'auto' (radii by bone role) or 'uniform' (body.bone_radius)
     cover_thickness: float          # [m]
@@ -604,7 +606,7 @@ def from_mapping(values: dict[str, Any]) -> SceneConfig:
                           f"skeleton.bind_angles {len(out['skeleton.bind_angles'])} values: give one angle per joint")
     if len(out["skeleton.fit_offset"]) != 3:
         raise ConfigError(f"skeleton.fit_offset = {out['skeleton.fit_offset']}: give x, y, z [m]")
-    if out["skeleton.fit_up"].lstrip("-") == out["skeleton.fit_forward"].lstrip("-"):
+    if "auto" != out["skeleton.fit_up"].lstrip("-") == out["skeleton.fit_forward"].lstrip("-"):
         raise ConfigError(f"skeleton.fit_up = {out['skeleton.fit_up']!r} and skeleton.fit_forward = "
                           f"{out['skeleton.fit_forward']!r} lie along one axis: give two different axes")
     check_material_choice(out)

@@ -109,3 +109,80 @@ def test_measure_body_reads_axes_unit_and_pose_from_the_shape(arm_deg, pose, fra
     assert shape.height * UNITS[unit] == pytest.approx(0.96 * 1.75, rel=1e-3)      # soles at 0, head top at 0.96 H
     if pose != "arms-down":
         assert shape.arm_angle_deg == pytest.approx(arm_deg, abs=3.0)
+
+
+# The turns a user's file may come in: (file axes from the MakeHuman file's, up, forward, metres per unit)
+TURNS = [(np.eye(3), "Y", "Z", 0.1),
+         (np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]), "Z", "-Y", 0.01),     # Z up, facing -Y, cm
+         (np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]]), "-X", "Z", 0.0254),   # head towards -X, inches
+         (np.array([[0.0, 0, 1], [0, -1, 0], [1, 0, 0]]), "-Y", "X", 1.0)]      # upside down, facing X, metres
+
+
+@pytest.mark.parametrize("turn", range(len(TURNS)))
+def test_the_scene_reads_a_real_mesh_s_up_facing_and_unit_in_any_axes(turn):
+    """MakeHuman's body (decimetres, Y up, facing +Z) turned into other axes and scaled into other units: 'auto'
+    (body/mesh_frame.resolve_frame) gives back the file's up and forward axes and its unit, and says so in one line."""
+    from clusterfem_ros.body.mesh_frame import resolve_frame
+    from tests.shared_data import character_mesh
+    entry = next(m for m in MESHES if m.name == "makehuman_base")
+    v, f = read_entry(character_mesh(), entry)
+    frame, up, forward, metres = TURNS[turn]
+    v = (0.1 / metres) * v @ frame.T
+    unit, got_up, got_forward, line = resolve_frame(v, f, "auto", "auto", "auto")
+    assert (got_up, got_forward) == (up, forward) and unit == metres, line
+    assert line.startswith("surface frame read from its shape (unit, up, forward)") and "1.67 m" in line
+
+
+def test_given_axes_and_units_are_kept_and_the_rest_read_against_them():
+    """What the user sets is taken as set; 'auto' fills in the rest, read against a given up axis."""
+    from clusterfem_ros.body.mesh_frame import resolve_frame
+    v, f = _stick_figure(45.0)
+    v = 100.0 * v @ np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]).T         # Z up, facing -Y, cm
+    assert resolve_frame(v, f, 0.01, "Z", "-Y") == (0.01, "Z", "-Y", None)   # nothing auto: nothing read
+    assert resolve_frame(v, f, "cm", "Z", "auto")[:3] == (0.01, "Z", "-Y")
+    assert resolve_frame(v, f, "auto", "Z", "X")[:3] == (0.01, "Z", "X")      # a given forward is kept
+    unit, up, forward, line = resolve_frame(v, f, "inch", "auto", "auto")
+    assert (unit, up, forward) == (0.0254, "Z", "-Y") and "(up, forward)" in line
+
+
+def test_a_frame_that_cannot_be_read_names_the_parameter_to_set():
+    from clusterfem_ros.body.fit import FitError
+    from clusterfem_ros.body.mesh_frame import resolve_frame
+    v, f = _stick_figure(45.0)
+    with pytest.raises(FitError, match=r"0\.5\d* file units tall .* set body\.surface_unit"):
+        resolve_frame(0.3 * v, f, "auto", "auto", "auto")          # 0.5 units: no unit makes it a human
+    assert resolve_frame(0.3 * v, f, 3.4, "auto", "auto")[0] == 3.4  # a giant's unit, given, is taken
+    with pytest.raises(FitError, match="skeleton.fit_forward = 'Y' lies along the surface's up axis Y"):
+        resolve_frame(v, f, "auto", "auto", "Y")
+    with pytest.raises(FitError, match="body.surface_unit: unit 'furlong'"):
+        resolve_frame(v, f, "furlong", "auto", "auto")
+
+
+def test_the_character_scene_binds_a_turned_copy_of_its_mesh_with_nothing_declared(tmp_path, monkeypatch):
+    """The shipped character scene on MakeHuman's body written Z up, facing -Y, in centimetres (a file nobody declared
+    the unit or axes of): it builds, every bone inside, the file's -Y taken to the world's forward (ROS +X) and its Z
+    to up, at a hundredth of a metre per unit (to the fit's own scaling). A wrong read would turn the body on its side
+    or make it ten times too large, and the build would refuse the bones outside it."""
+    import trimesh
+
+    from benchmarks.clips import clip_config
+    from clusterfem_ros.body.surface_body import build_surface_body
+    from clusterfem_ros.motion import load_motion
+    from clusterfem_ros.skeleton.kinematics import Skeleton
+    from tests.shared_data import CHARACTER_SCENE, character_mesh, walk_clip
+    entry = next(m for m in MESHES if m.name == "makehuman_base")
+    v, f = read_entry(character_mesh(), entry)
+    frame, _, _, metres = TURNS[1]
+    turned = tmp_path / "makehuman_z_up_cm.obj"
+    trimesh.Trimesh((0.1 / metres) * v @ frame.T, f, process=False).export(turned)
+    monkeypatch.setenv("CLUSTERFEM_CACHE", str(tmp_path / "cache"))
+    config = clip_config(scene=CHARACTER_SCENE).with_values(
+        {"body.surface_file": str(turned), "body.surface_group": "", "body.target_tets": 1500})
+    skeleton = Skeleton.from_urdf_string(load_motion("bvh", walk_clip()).urdf)
+    said = []
+    body = build_surface_body(config, skeleton, progress=said.append)
+    assert any(s.startswith("surface frame read from its shape") and "up Z, forward -Y" in s for s in said), said
+    # the bind turns the mesh about the vertical onto the skeleton's heading (body/auto_bind.py): a degree or so
+    np.testing.assert_allclose(body.fit.rotation @ [0, -1, 0], [1, 0, 0], atol=0.03)
+    np.testing.assert_allclose(body.fit.rotation @ [0, 0, 1], [0, 0, 1], atol=1e-9)
+    assert 0.5 * metres < body.fit.scale < 2.0 * metres

@@ -17,6 +17,7 @@ from ..fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from ..fem.mesh.tetrahedralize import TetResult, surface_to_tets
 from .auto_bind import auto_bind_pose, bones_to_unbind, rest_configuration
 from .limb_bridges import bridge_tets, cut_bridges
+from .mesh_frame import resolve_frame
 from .fit import Fit, FitError, bind_configuration, bone_outside_distances, find_data_file, fit_mesh, surface_depth
 
 MANIFEST = "config/character_data.md"
@@ -53,6 +54,9 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
                                s.bvh_up)
     tets = surface_to_tets(path, b.target_tets, group=b.surface_group, progress=progress)
     triangles = boundary_triangles(tets.mesh)
+    unit, up, forward, read = resolve_frame(tets.mesh.vertices, triangles, b.surface_unit, s.fit_up, s.fit_forward)
+    if read:
+        say(read)
     say(f"fitting {path.name} on the skeleton ({'bind pose from the mesh, ' if auto else ''}{s.fit})")
     unbound: list[str] = []
     distances = None
@@ -60,13 +64,12 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
         if s.fit != "auto":
             raise FitError("skeleton.bind_pose 'auto' places the mesh itself: set skeleton.fit 'auto' (or choose "
                            "skeleton.bind_pose 'neutral' / 'first_frame' for skeleton.fit 'manual')")
-        found = auto_bind_pose(skeleton, q_rest, tets.mesh.vertices, triangles, b.surface_unit, s.fit_up,
-                               s.fit_forward, say=say)
+        found = auto_bind_pose(skeleton, q_rest, tets.mesh.vertices, triangles, unit, up, forward, say=say)
         q, fit, distances = found.q, found.fit, found.distances
         say(found.report)
     else:
-        fit = fit_mesh(tets.mesh.vertices, *skeleton.bone_segments(q), s.fit, b.surface_unit, s.fit_up,
-                       s.fit_forward, s.fit_offset, triangles=triangles)
+        fit = fit_mesh(tets.mesh.vertices, *skeleton.bone_segments(q), s.fit, unit, up, forward, s.fit_offset,
+                       triangles=triangles)
     starts, ends = skeleton.bone_segments(q)
     say(f"fitted {path.name} on the skeleton: {fit.describe()}")
     mesh = TetMesh(fit.apply(tets.mesh.vertices), tets.mesh.tets).validate()    # R proper, scale > 0: tets keep sign
