@@ -220,11 +220,13 @@ def test_the_human_of_example_robot_data_stands_with_mesh_shaped_leaves_and_a_fr
                                                    "skeleton.up_axis": "y", "body.target_tets": 2000}),
                         progress=notes.append)
     extent = np.ptp(scene.model.rest, axis=0)
-    print(f"extent {extent}", *notes[:2], sep="\n")
-    assert extent[2] > 1.6 and extent[2] > 3 * max(extent[:2])
-    assert "skeleton root: free" in notes[0]
+    print(f"extent {extent}", *notes[:3], sep="\n")
+    # upright: 1.82 m tall, 0.64 m across the hanging arms' flesh (y: its left side), 0.35 m front to back
+    assert extent[2] > 1.6 and extent[2] > 2.5 * extent[1] and extent[1] > extent[0]
+    said = {n.split(":")[0]: n for n in notes}                   # each log line by its subject
+    assert said["skeleton root"].startswith("skeleton root: free")
     for leaf in ("left_foot", "right_foot", "left_hand", "right_hand", "middle_head"):
-        assert f"{leaf} (box from mesh bounding box" in notes[1]
+        assert f"{leaf} (box from mesh bounding box" in said["leaf links shaped by the URDF"]
     assert not any(n.startswith("warning") for n in notes)
     assert not any("virtual" in n for n in scene.skeleton.bone_names)      # 18 bones, the virtual links are frames
     assert scene.skeleton.n_bones == 18 and scene.skeleton.nq == 42
