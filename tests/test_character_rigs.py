@@ -1,7 +1,7 @@
 """Every character of tests/data/character_meshes.yaml bound by ``skeleton.bind_pose: auto`` on captures of different
 rigs (CMU, Mixamo, Bandai Namco) and played as ``scripts/run --scene config/character_walk.yaml --bvh CLIP --set
-body.surface_file=meshes/X ...`` plays it (benchmarks.clip_soak.headless_soak, the mesh's file, group, unit and
-signed axes from the manifest: benchmarks.characters.walk_overrides): no reset, nothing withheld, the volume
+body.surface_file=meshes/X`` plays it (benchmarks.clip_soak.headless_soak, the mesh's file and group from the
+manifest, its unit and axes read from its shape: benchmarks.characters.walk_overrides): no reset, nothing withheld, the volume
 within 5 %. Skipped, naming the manifest entry, where a mesh or a clip is absent. The tets come from the user's
 mesh cache (the first run meshes each mesh: up to a minute each on 2 cores under load).
 

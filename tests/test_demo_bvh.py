@@ -135,7 +135,28 @@ def test_a_bvh_on_a_character_scene_keeps_the_character_and_a_skeleton_it_refuse
     scene.write_text(scene_file_text(SceneConfig().with_values({
         "body.kind": "surface", "body.surface_file": str(tmp_path / "ball.stl"), "body.target_tets": 300,
         "skeleton.source": "robot_description", "skeleton.fit": "manual", "skeleton.fit_up": "Z",
-        "skeleton.fit_forward": "X"})))
+        "skeleton.fit_forward": "X", "body.surface_unit": 1.0})))     # declared metres: no human's size, refused
     code, out = _run(["--bvh", "walk.bvh", "--scene", str(scene)], cwd=tmp_path, timeout=120)
     assert code != 0, out
     assert "cannot build the scene from robot_description" in out and "times the size of its skeleton" in out, out
+
+
+def test_set_changes_a_scene_parameter_on_top_of_the_scene_file(tmp_path):
+    """`scripts/run --scene FILE --set KEY=VALUE`: the run builds the scene with the value (here a coarser body)."""
+    code, out = _run(["--scene", str(_small_scene(tmp_path / "s.yaml")), "--set", "body.target_tets=400",
+                      "--no-video", "--png", str(tmp_path / "f.png")], cwd=tmp_path)
+    assert code == 0, out
+    tets = int(out.split("  body            ")[1].split()[0])
+    assert abs(tets / 400 - 1) <= 0.2, out                # the scene file's 700 replaced
+
+
+def test_a_bad_set_stops_the_run_naming_it():
+    from clusterfem_ros.nodes.demo import _arguments, _child_argv, _with_sets
+    config = SceneConfig()
+    assert _with_sets(config, ["body.surface_unit=cm", "body.target_tets=900"])["body.target_tets"] == 900
+    for pair, said in (("body.target_tets", "give KEY=VALUE"), ("body.target_tets=[1", "not YAML"),
+                       ("body.no_such=1", "body.no_such"), ("body.target_tets=10", "body.target_tets")):
+        with pytest.raises(SystemExit, match=said):
+            _with_sets(config, [pair])
+    args = _arguments(["--set", "a.b=1", "--set", "c.d=x"])         # --process-per-body passes them on
+    assert _child_argv(args, __import__("pathlib").Path("s.yaml"))[-4:] == ["--set", "a.b=1", "--set", "c.d=x"]

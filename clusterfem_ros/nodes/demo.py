@@ -7,6 +7,7 @@
     scripts/run --source NAME [--file FILE]  # any registered motion source (motion.MOTION_SOURCES; --help lists
                                              # them), the scene's skeleton made to fit it; --bvh F: --source bvh --file F
     scripts/run --bodies 2 [--process-per-body] [--scene a.yaml --scene b.yaml]
+    scripts/run --scene config/character_walk.yaml --set body.surface_file=meshes/cesium_man.glb   # any parameter
 
 The mocap player runs as its own process, the simulation in this one on a single-threaded executor
 (rclpy's multi-threaded one is slower here; DDS discovery on this host only, nodes.spinning.default_discovery:
@@ -180,6 +181,10 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--bvh", default=None, metavar="FILE", help="--source bvh --file FILE: play this BVH file on a "
                     "jelly body built on its own skeleton, or on the scene's surface body fitted to it "
                     "(skeleton.source robot_description)")
+    ap.add_argument("--set", default=[], action="append", metavar="KEY=VALUE",
+                    help="a scene parameter changed on top of the --scene file (every body's), the value read as YAML "
+                         "(repeat for more): e.g. --set body.surface_file=meshes/cesium_man.glb to put another "
+                         "character in config/character_walk.yaml")
     ap.add_argument("--no-record", action="store_true", help="do not record an MCAP bag")
     ap.add_argument("--bags", default="bags", help="folder for the recording (default bags/)")
     ap.add_argument("--png", default=None, help="picture of the final state (default: <bag folder>/final_state.png)")
@@ -210,7 +215,26 @@ def _child_argv(args: argparse.Namespace, scene: Path) -> list[str]:
     out += ["--bvh", args.bvh] if args.bvh else []
     out += ["--source", args.source] if args.source else []
     out += ["--file", args.file] if args.file else []
+    out += [a for pair in args.set for a in ("--set", pair)]
     return out + (["--no-record"] if args.no_record else []) + (["--no-video"] if args.no_video else [])
+
+
+def _with_sets(config, pairs: list[str]):
+    """``config`` with the --set KEY=VALUE pairs applied (values read as YAML); SystemExit naming a bad one."""
+    import yaml
+    values = {}
+    for pair in pairs:
+        key, eq, text = pair.partition("=")
+        if not eq or not key.strip():
+            raise SystemExit(f"[demo] --set {pair!r}: give KEY=VALUE, e.g. --set body.target_tets=3000")
+        try:
+            values[key.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise SystemExit(f"[demo] --set {pair!r}: the value is not YAML ({exc.__class__.__name__})") from None
+    try:
+        return config.with_values(values) if values else config
+    except (ValueError, TypeError) as exc:                 # ConfigError: the name, the value and the range
+        raise SystemExit(f"[demo] --set: {exc}") from None
 
 
 def _scene_files(args: argparse.Namespace, n: int) -> list[Path]:
@@ -239,7 +263,8 @@ def main(argv: list[str] | None = None) -> int:
 
     names = body_namespaces(args.bodies, args.namespace)
     scenes = _scene_files(args, len(names))
-    plans = [_player_plan(args, f, load_scene_file(f)) for f in scenes]   # validated here, before ROS starts
+    plans = [_player_plan(args, f, _with_sets(load_scene_file(f), args.set))   # validated here, before ROS starts
+             for f in scenes]
     configs = [config for _, config in plans]
     for ns, f, (player_params, config) in zip(names, scenes, plans):
         print(f"[demo] {ns or 'scene'} {f}: body {config.body.kind}, method {config.method}, "
