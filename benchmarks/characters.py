@@ -7,7 +7,7 @@ prints, per manifest entry, the body measured from the surface (up axis, forward
 angle to the body axis, pose) beside what the manifest states, then meshes it as ``body.kind: surface`` does
 (fem/mesh/tetrahedralize.surface_to_tets, ``body.target_tets`` = --tets) into an empty cache folder: tets,
 seconds, the smallest dihedral angle and radius ratio, or the error. With ``--walk``, each mesh then takes the
-place of MakeHuman's in config/character_walk.yaml (its file and group: ``walk_overrides``; unit and axes 'auto'),
+place of MakeHuman's in config/character_walk.yaml (its file: ``walk_overrides``; group, unit and axes 'auto'),
 bound by ``skeleton.bind_pose: auto`` on each capture's own skeleton and played by it for --duration simulated
 seconds as the clip soak plays it (benchmarks/clip_soak.headless_soak: looped as the player loops it): resets,
 withheld states, worst distance of a published vertex to its bone, worst volume error, and the bind's report
@@ -213,9 +213,9 @@ def main(argv: list[str] | None = None) -> None:
 
 def walk_overrides(path: Path, entry: CharacterMesh, tets: int) -> dict:
     """The parameters that put the entry's mesh in place of MakeHuman's in config/character_walk.yaml, as
-    ``scripts/run --set`` gives them: its file and group; its unit and axes are the scene's ``auto`` (read from the
-    shape: body/mesh_frame.py), as for a mesh of the user's."""
-    return {"body.surface_file": str(path), "body.surface_group": entry.group, "body.target_tets": tets}
+    ``scripts/run --set`` gives them: its file; its group, unit and axes are the scene's ``auto`` (an OBJ's closed
+    largest group, the unit and axes read from the shape: body/mesh_frame.py), as for a mesh of the user's."""
+    return {"body.surface_file": str(path), "body.target_tets": tets}
 
 
 def walk(path: Path, entry: CharacterMesh, bvh: Path, tets: int, duration: float) -> tuple[str, list]:

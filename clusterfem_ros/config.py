@@ -55,7 +55,8 @@ PARAMS: tuple[Param, ...] = (
     Param("body.target_tets", 4800, "approximate tet count of the jelly man, of a robot cover, or of a surface body (within 20 %)", 100, 400000),
     Param("body.surface_file", "", "triangle surface (.obj/.stl/.ply/.glb) of a character when body.kind is 'surface': a path, "
           "or a path under $CLUSTERFEM_DATA, ../shared/data or the user data folder; tetrahedralized with fTetWild, cached"),
-    Param("body.surface_group", "", "the OBJ group of body.surface_file to use ('' = the whole file)"),
+    Param("body.surface_group", "auto", "the OBJ group of body.surface_file to use: auto (an OBJ's largest group when "
+          "it is closed, as a body beside its helper groups; else the whole file), a group name, or '' (the whole file)"),
     Param("body.surface_unit", "auto", "length unit of body.surface_file: auto (the unit in which the surface is a "
           "standing human's height: body/mesh_frame.py), m, dm, cm, mm, inch, or metres per file unit as a number",
           length_unit=True),

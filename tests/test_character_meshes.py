@@ -186,3 +186,43 @@ def test_the_character_scene_binds_a_turned_copy_of_its_mesh_with_nothing_declar
     np.testing.assert_allclose(body.fit.rotation @ [0, -1, 0], [1, 0, 0], atol=0.03)
     np.testing.assert_allclose(body.fit.rotation @ [0, 0, 1], [0, 0, 1], atol=1e-9)
     assert 0.5 * metres < body.fit.scale < 2.0 * metres
+
+
+def _obj(path, groups):
+    """An OBJ file of named groups, each (vertices, faces)."""
+    lines, base = [], 1
+    for name, (v, f) in groups.items():
+        lines.append(f"g {name}")
+        lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in v]
+        lines += [f"f {a + base} {b + base} {c + base}" for a, b, c in f]
+        base += len(v)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_the_surface_group_auto_takes_a_closed_largest_group_else_the_whole_file(tmp_path):
+    """MakeHuman's OBJ: its 'body' (13378 faces, closed) beside 138 helper and joint groups with faces. A closed largest group
+    is taken, an open one is not (a model split into parts is read whole), nor is a file of one group or not an OBJ;
+    a group named for a file that is not an OBJ is refused, naming the parameter."""
+    import trimesh
+
+    from clusterfem_ros.fem.mesh.tetrahedralize import SurfaceError, pick_group, read_surface
+    from tests.shared_data import character_mesh
+    group, why = pick_group(character_mesh())
+    assert group == "body" and "the largest of the file's 139 groups (13378 faces, closed" in why, why
+    ball = trimesh.creation.icosphere(subdivisions=3)                          # 1280 faces, closed
+    sheet = trimesh.creation.icosphere(subdivisions=4)                         # 5120 faces, its top cut off: open
+    sheet.update_faces(sheet.triangles_center[:, 2] < 0.5)
+    sheet.remove_unreferenced_vertices()
+    assert len(sheet.faces) > len(ball.faces) and not sheet.is_watertight
+    small = trimesh.creation.icosphere(subdivisions=1)
+    parts = {"body": (ball.vertices, ball.faces), "eyes": (small.vertices + 3.0, small.faces)}
+    assert pick_group(_obj(tmp_path / "body.obj", parts))[0] == "body"
+    open_largest = {**parts, "cloth": (sheet.vertices + 6.0, sheet.faces)}
+    group, why = pick_group(_obj(tmp_path / "split.obj", open_largest))
+    assert group == "" and "'cloth', is not a closed surface" in why
+    assert pick_group(_obj(tmp_path / "one.obj", {"only": parts["body"]}))[0] == ""
+    ball.export(tmp_path / "ball.stl")
+    assert pick_group(tmp_path / "ball.stl") == ("", "body.surface_group auto: the whole file (not an OBJ)")
+    with pytest.raises(SurfaceError, match="body.surface_group = 'body' picks an OBJ group"):
+        read_surface(tmp_path / "ball.stl", "body")

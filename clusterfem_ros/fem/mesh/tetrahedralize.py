@@ -59,6 +59,39 @@ def cache_dir() -> Path:
     return Path(os.environ.get("CLUSTERFEM_CACHE") or Path.home() / ".cache" / "clusterfem_ros")
 
 
+def _obj_groups(path: Path) -> dict:
+    from trimesh.exchange.obj import load_obj
+    with open(path, "rb") as f:
+        return load_obj(f, split_groups=True, group_material=False, maintain_order=False,
+                        skip_materials=True)["geometry"]
+
+
+def pick_group(path: str | Path) -> tuple[str, str]:
+    """(group, one line saying why) for ``body.surface_group: auto``: the whole file ('') unless it is an OBJ of
+    several groups whose largest (by faces) is a closed surface, as a body with its helper and clothing groups is
+    (MakeHuman's 'body' beside 'helper-tights', the eyes, ...): that group. A model split into parts (a head, a
+    trunk, ...) has no closed largest part holding the rest, and is read whole."""
+    import trimesh
+    path = Path(path)
+    if path.suffix.lower() != ".obj" or not path.is_file():
+        return "", "body.surface_group auto: the whole file (not an OBJ)"
+    try:
+        parts = _obj_groups(path)
+    except Exception:                # trimesh raises many types: read_surface reports the file's problem
+        return "", "body.surface_group auto: the whole file"
+    if len(parts) <= 1:
+        return "", "body.surface_group auto: the whole file (one group)"
+    sizes = sorted(((len(p["faces"]), name) for name, p in parts.items()), reverse=True)
+    faces, name = sizes[0]
+    closed = trimesh.Trimesh(vertices=parts[name]["vertices"], faces=parts[name]["faces"], process=True).is_watertight
+    others = ", ".join(f"{n} {k}" for k, n in sizes[1:4]) + (" ..." if len(sizes) > 4 else "")
+    if not closed:
+        return "", (f"body.surface_group auto: the whole file (its largest of {len(parts)} groups, {name!r}, is not "
+                    "a closed surface)")
+    return name, (f"body.surface_group auto: group {name!r}, the largest of the file's {len(parts)} groups ({faces} "
+                  f"faces, closed; then {others}): set body.surface_group to choose another, or '' for the whole file")
+
+
 def read_surface(path: str | Path, group: str = "") -> tuple[np.ndarray, np.ndarray]:
     """(vertices (n, 3) float64, triangles (t, 3) int64) of a surface file; ``group``: one OBJ group only."""
     import trimesh
@@ -71,10 +104,7 @@ def read_surface(path: str | Path, group: str = "") -> tuple[np.ndarray, np.ndar
             if path.suffix.lower() != ".obj":
                 raise SurfaceError(f"body.surface_group = {group!r} picks an OBJ group, but {str(path)!r} is not an "
                                    "OBJ file: leave body.surface_group empty")
-            from trimesh.exchange.obj import load_obj
-            with open(path, "rb") as f:
-                parts = load_obj(f, split_groups=True, group_material=False, maintain_order=False,
-                                 skip_materials=True)["geometry"]
+            parts = _obj_groups(path)
             if group not in parts:
                 raise SurfaceError(f"{str(path)!r} has no group {group!r}; its groups are "
                                    f"{', '.join(sorted(parts)[:20])}{' ...' if len(parts) > 20 else ''}")
