@@ -176,7 +176,11 @@ def headless_soak(path: Path, overrides: dict | None = None, seconds: float | No
         except (DivergenceError, StabilityError) as exc:
             res.resets += 1
             res.first_problem = res.first_problem or str(exc)
-            scene.reset()
+            try:
+                scene.reset()
+            except (DivergenceError, StabilityError) as again:     # the placement itself fails: the clip ends here
+                res.first_problem += f"; the reset failed too: {again}"
+                break
             continue
         if scene.sim_time is None:
             continue

@@ -25,7 +25,7 @@ import numpy as np
 from .body.bone_distance import any_beyond, segment_distances
 from .config import SceneConfig
 from .fem.model import Control, State
-from .fem.stability import DivergenceError
+from .fem.stability import DivergenceError, StabilityError
 from .fem.mesh.tet_mesh import total_volume
 from .scene_build import scene_parts
 from .scene_setup import RunningParts, set_up, warm_up
@@ -248,8 +248,8 @@ class Scene:
         springing from there (MakeHuman on Bandai Namco's walk at 5000 tets: 6.6 % of its volume lost in the
         carry, 8.1 % five steps later, 3.3 % once settled; shown, the worst state of the walk). Steps until no
         vertex moves faster than SETTLE_SPEED (checked every SETTLE_CHECK_STEPS steps), at most SETTLE_MAX_STEPS
-        (the capsule of tests/test_character.py bent by 1.2 rad: about 90); a settle that diverges keeps the
-        rigid carry."""
+        (the capsule of tests/test_character.py bent by 1.2 rad: about 90); a settle that diverges, or whose step
+        plan passes physics.max_substeps (elements the carry crushed flat), keeps the rigid carry."""
         q, _ = self.stream.sample(self.sim_time)
         still = self.skeleton.forward(q, np.zeros(self.skeleton.nv))
         carried = self.state
@@ -264,7 +264,7 @@ class Scene:
                         return
                     if speed < SETTLE_SPEED:
                         break
-        except (DivergenceError, FloatingPointError):
+        except (DivergenceError, StabilityError, FloatingPointError):
             return
         finally:
             self.driver.reset()

@@ -319,7 +319,10 @@ class SimLoop:
             except (DivergenceError, StabilityError) as exc:
                 self.divergences += 1
                 self.log("error", f"{exc}; the body is reset ({self.divergences} resets so far)")
-                self._reset()
+                try:
+                    self._reset()
+                except Exception as again:  # noqa: BLE001 (a reset that fails is a failure: counted, the thread goes on)
+                    self._crashed(again)
             except Exception as exc:  # noqa: BLE001 (any failure of a step: report it, reset, go on or stop)
                 self._crashed(exc)
             self._busy += time.perf_counter() - t0 - self._waited[0]

@@ -184,6 +184,27 @@ def test_surface_body_walks_one_second_deterministically(surface, cache, monkeyp
     assert np.array_equal(runs[0], runs[1])
 
 
+def test_a_settle_the_step_plan_refuses_keeps_the_rigid_carry(surface, cache, monkeypatch):
+    """The settle steps from the rigid carry; where that carry crushes elements so far that their plan passes
+    physics.max_substeps (a capture's thumb turned inside a mitten hand), the settle stops and the placement is the
+    rigid carry, as after a settle that diverges: start() does not raise."""
+    from clusterfem_ros.fem.stability import StabilityError
+    scene = _build(surface, cache, monkeypatch)
+    names = scene.skeleton.joint_names
+    q = np.zeros(len(names))
+    q[names.index("bend")] = 1.2
+    scene.push_joint_state(0.0, names, q, np.zeros_like(q))
+
+    def refuse(*args):
+        raise StabilityError("step 0.001 s needs 68 explicit sub-steps (injected)")
+
+    monkeypatch.setattr(scene.integrator, "step", refuse)
+    scene.start(0.0)
+    carried = scene.driver.rigid_state(scene._poses(0.0), 0.0)
+    np.testing.assert_array_equal(scene.state.u, carried.u)
+    assert scene.settle_steps == 0 and scene.placed
+
+
 def test_a_placement_on_another_pose_than_the_bind_settles_before_it_is_shown(surface, cache, monkeypatch):
     """Bound straight and placed bent by 1.2 rad: carried rigidly, the flesh at the bend is carried by both bones,
     not where their springs hold it, and the steps after the placement show it springing; settled on the still

@@ -166,6 +166,38 @@ def test_a_failing_step_is_reported_the_body_reset_and_physics_goes_on():
     assert [lvl for lvl, _ in log] == ["error"] and "RuntimeError" in log[0][1] and "reset" in log[0][1]
 
 
+def test_a_divergence_whose_reset_fails_too_is_a_failure_and_physics_goes_on():
+    """A divergence resets the body; a reset that raises as well (a character's placement its step plan refuses)
+    is counted as a failure and reset again, never the end of the thread."""
+    from clusterfem_ros.fem.stability import DivergenceError, StabilityError
+    scene = Scene.build(SceneConfig().with_values(body__kind="sphere", skeleton__source="none", warping=False))
+    real_step, real_reset = scene.integrator.step, scene.reset
+    left = {"step": 1, "reset": 1}
+
+    def step(*args):
+        if left["step"] and scene.steps_done >= 30:
+            left["step"] -= 1
+            raise DivergenceError("injected divergence")
+        return real_step(*args)
+
+    def reset():
+        if left["reset"]:
+            left["reset"] -= 1
+            raise StabilityError("injected refusal of the placement")
+        real_reset()
+
+    scene.integrator.step, scene.reset = step, reset
+    t_start = time.perf_counter()
+    loop, log = _loop(scene, now=lambda: time.perf_counter() - t_start)
+    loop.start()
+    try:
+        _wait_for(lambda: scene.steps_done > 100, 30, "steps after the failed reset")
+    finally:
+        assert loop.stop()
+    assert loop.divergences == 1 and loop.crashes == 1 and not loop.stopped and left == {"step": 0, "reset": 0}
+    assert "injected refusal" in loop.error and [lvl for lvl, _ in log] == ["error", "error"]
+
+
 def test_failures_in_a_row_stop_the_thread_and_stop_still_returns():
     scene = Scene.build(SceneConfig().with_values(body__kind="sphere", skeleton__source="none", warping=False))
 
