@@ -79,7 +79,9 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
         binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress,
                         bare=parts.bare_bones, allowed=parts.vertex_bones)
                    if parts.cover is None else bind_cover(config, model, skeleton, q0, parts.cover, progress))
-        driver = skeleton_driver(config, binding, model.rest, skeleton, anchors)
+        driver = skeleton_driver(config, binding, model.rest, skeleton, anchors, model.mesh.tets)
+        if driver.crush is not None:
+            say(progress, driver.crush.summary())
         joints, stream = joint_inputs(config, skeleton, q0)
     elif anchors:                   # world points: their targets, once
         index, x, v, a, kp, kd = point_targets(anchors, model.rest)
@@ -195,15 +197,17 @@ def bind_cover(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.
 
 
 def skeleton_driver(config: SceneConfig, binding: Binding, rest: np.ndarray, skeleton: Skeleton,
-                    anchors: list) -> SkeletonDriver:
+                    anchors: list, tets: np.ndarray | None = None) -> SkeletonDriver:
     """What turns the skeleton's poses into the body's constraints: the binding's levels with the gains of
     binding.kp / kd (the innermost kinematic with binding.kinematic_core, the outer binding.sliding_levels sliding
-    along their bones), and the anchors, point or line."""
+    along their bones, falling where the targets crush the elements ``tets`` with binding.crush_release), and the
+    anchors, point or line."""
     b = config.binding
     return SkeletonDriver(binding, rest, LevelGains(kp=tuple(b.kp), kd=tuple(b.kd)), kinematic=b.kinematic_core,
                           bone_names=skeleton.bone_names, sliding_levels=b.sliding_levels,
                           points=[a for a in anchors if isinstance(a, PointConstraint)],
-                          lines=[a for a in anchors if isinstance(a, LineConstraint)])
+                          lines=[a for a in anchors if isinstance(a, LineConstraint)],
+                          tets=tets if b.crush_release > 0 else None, crush_floor=b.crush_release)
 
 
 ISLAND_SHARE = 0.05     # a loose piece of a surface body up to this share of its vertices is carried by its bone

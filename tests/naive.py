@@ -136,3 +136,17 @@ def separate(mask: np.ndarray, body: np.ndarray) -> np.ndarray:
             if ba != bb and (size[ba] > size[bb] or (size[ba] == size[bb] and ba > bb)):
                 keep[tuple(a)] = False
     return keep
+
+
+def release_gains(x: np.ndarray, rows: np.ndarray, v0: np.ndarray, floor: float, kp0: np.ndarray,
+                  kd0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """body/crush_release.release_gains: each corner's smallest target volume ratio over its elements, mapped to
+    g = clip((r - floor) / (1 - floor), 0, 1), 1 for r within 1e-9 of 1 or above; (kp0 g, kd0 sqrt g)."""
+    ratio = np.full(x.shape[0], np.inf)
+    for e, corners in enumerate(rows):
+        r = np.linalg.det(np.stack([x[c] - x[corners[0]] for c in corners[1:]])) / v0[e]
+        for c in corners:
+            ratio[c] = min(ratio[c], r)
+    g = np.clip((ratio - floor) / (1.0 - floor), 0.0, 1.0)
+    g[~(ratio < 1.0 - 1.0e-9)] = 1.0              # kept volume (to round-off) or no element: the levels' gains
+    return kp0 * g, kd0 * np.sqrt(g)

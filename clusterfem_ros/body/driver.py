@@ -29,6 +29,7 @@ import numpy as np
 
 from ..fem.model import Attachments, Control, State
 from .binding import Binding
+from .crush_release import crush_release, release_gains
 from .constraints import (LevelGains, rigid_motion, LineConstraint, PointConstraint, PoseLike, check_poses, line_set,
                           line_set_targets, point_targets, rigid_point_motion)
 from ..numba_config import HOLDS_GIL
@@ -86,13 +87,15 @@ class SkeletonDriver:
     constraints gets the sum of their forces; a prescribed vertex ignores forces. The outermost
     ``sliding_levels`` levels are held by line constraints along their bones (free to slide along the axis,
     the paper's line constraints) with their level's gains, the others by points on the bones; their slide
-    stops at their bone's ends (LineConstraint.within_bone).
+    stops at their bone's ends (LineConstraint.within_bone). With ``crush_floor`` > 0 the gains of the points held
+    fall where the targets crush the body's elements ``tets`` (m, 4) that span bones (body/crush_release.py).
     """
 
     def __init__(self, binding: Binding, rest_vertices: np.ndarray, gains: LevelGains | None = None, *,
                  kinematic: bool = False, difference: str = "backward",
                  points: Sequence[PointConstraint] = (), lines: Sequence[LineConstraint] = (),
-                 bone_names: Sequence[str] | None = None, sliding_levels: int = 0):
+                 bone_names: Sequence[str] | None = None, sliding_levels: int = 0,
+                 tets: np.ndarray | None = None, crush_floor: float = 0.0):
         rest = np.asarray(rest_vertices, dtype=np.float64)
         if rest.shape != (binding.level.size, 3):
             raise ValueError(f"rest_vertices has shape {rest.shape}, but the binding is for "
@@ -129,6 +132,13 @@ class SkeletonDriver:
         lev = binding.level[self.bound]
         self._kp = np.asarray(self.gains.kp)[lev]
         self._kd = np.asarray(self.gains.kd)[lev]
+        if crush_floor and tets is None:
+            raise ValueError(f"crush_floor = {crush_floor!r} needs the body's elements: pass tets")
+        self.crush = None if tets is None else crush_release(binding, tets, rest, self.bound, crush_floor)
+        self._kp0, self._kd0 = self._kp, self._kd                # the levels' gains; _kp, _kd: this step's
+        if self.crush is not None:
+            self._kp, self._kd = self._kp0.copy(), self._kd0.copy()
+            self._ratio = np.empty(self.bound.size)
         self._n_inner = int((lev == 0).sum())                    # level 0 is the prefix bound[:n_inner]
         self._n_held = int((lev < L - sliding_levels).sum())     # held at points: bound[:n_held]; then sliding
         self._bone_b = np.ascontiguousarray(binding.bone[self.bound])
@@ -211,6 +221,7 @@ class SkeletonDriver:
         x, v, a = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
         rigid_motion(np.ascontiguousarray(R), np.ascontiguousarray(p), np.ascontiguousarray(twist),
                       np.ascontiguousarray(dtwist), self._bone_b, self._local_b, x, v, a)
+        self._release(x)
         self.target_u = x - self._rest_b
         self.target_v, self.target_a = v, a
 
@@ -251,11 +262,19 @@ class SkeletonDriver:
         if not _bone_targets(R, p, twist, self._twists[-2], self._twists[-1], self._gaps[-1], self._last_dt,
                              self._bone_b, self._local_b, self._rest_b, self._dtwist, self._x, u, v, a):
             return False
+        self._release(self._x)
         self._twists = [self._twists[-2], self._twists[-1], twist.copy()]     # the history twist_rate keeps
         self._gaps = [self._gaps[-1], self._last_dt]
         self._last_dt = dt
         self.target_u, self.target_v, self.target_a = u, v, a
         return True
+
+    def _release(self, x: np.ndarray) -> None:
+        """This step's gains from the targets ``x`` (bound rows, world) when the crush release is on (in place: the
+        attachments carry the same arrays every step)."""
+        c = self.crush
+        if c is not None:
+            release_gains(x, c.rows, c.v0, c.touched, c.floor, self._kp0, self._kd0, self._kp, self._kd, self._ratio)
 
     def _bound_attachments(self) -> Attachments:
         """The bound points' attachments at the last targets (level 0 left out if kinematic), with the driver's
