@@ -43,6 +43,36 @@ def test_the_spanning_elements_are_those_bound_to_two_bones_or_more():
         crush_release(BINDING, MESH.tets, MESH.vertices, order, 1.0)
 
 
+def test_elements_on_a_held_bone_are_never_released():
+    """A bone named held (a finger: digit_bones) keeps its spanning elements' vertices at their gains: no element
+    with a corner on it is in the release; holding every bone leaves nothing to release."""
+    order = np.arange(MESH.n_vertices)
+    bones = BINDING.bone[MESH.tets]
+    spanning = (bones != bones[:, :1]).any(axis=1)
+    held = int(bones[spanning].max())                                   # a bone some spanning elements reach
+    c = crush_release(BINDING, MESH.tets, MESH.vertices, order, 0.5, held_bones=np.array([held]))
+    keep = spanning & ~(bones == held).any(axis=1)
+    assert 0 < c.rows.shape[0] == int(keep.sum()) < int(spanning.sum())
+    np.testing.assert_array_equal(np.sort(c.rows, axis=1), np.sort(MESH.tets[keep], axis=1))
+    assert crush_release(BINDING, MESH.tets, MESH.vertices, order, 0.5,
+                         held_bones=np.arange(BINDING.n_bones)) is None
+
+
+def test_a_human_skeleton_s_fingers_and_toes_are_the_held_bones():
+    """The CMU walk's skeleton: its finger and toe bones by role, and nothing else; a chain that is no human holds
+    none."""
+    from clusterfem_ros.motion import load_motion
+    from clusterfem_ros.scene_setup import digit_bones
+    from clusterfem_ros.skeleton.bone_roles import label_skeleton
+    from clusterfem_ros.skeleton.kinematics import Skeleton
+    from tests.shared_data import walk_clip
+    skeleton = Skeleton.from_urdf_string(load_motion("bvh", walk_clip()).urdf)
+    roles = label_skeleton(skeleton).roles
+    held = digit_bones(skeleton)
+    assert len(held) >= 4 and {roles[k] for k in held} == {"finger", "toe"}
+    assert sorted(held) == [k for k, r in enumerate(roles) if r in ("finger", "toe")]
+
+
 @pytest.mark.parametrize("seed", [3, 17])
 def test_the_kernel_matches_its_numpy_twin(seed):
     """Random targets around the rest shape (some elements crushed, some inverted, some stretched)."""

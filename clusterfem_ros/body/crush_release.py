@@ -45,10 +45,11 @@ class CrushRelease:
 
 
 def crush_release(binding: Binding, tets: np.ndarray, rest_vertices: np.ndarray, bound: np.ndarray,
-                  floor: float) -> CrushRelease | None:
+                  floor: float, held_bones: np.ndarray | None = None) -> CrushRelease | None:
     """The ``CrushRelease`` of the elements of ``tets`` (m, 4) whose corners are all in ``bound`` (the driver's bound
-    vertices, in its row order) and bound to two or more bones; None when ``floor`` is 0 (off) or no element spans
-    bones. ``floor`` in [0, 1)."""
+    vertices, in its row order) and bound to two or more bones, none of them one of ``held_bones`` (bone indices:
+    a hand's fingers, whose flesh has no flesh around it to carry it when let go); None when ``floor`` is 0 (off) or
+    no element spans bones. ``floor`` in [0, 1)."""
     if not (np.isfinite(floor) and 0.0 <= floor < 1.0):
         raise ValueError(f"crush release floor {floor!r} must be in [0, 1): the target volume ratio at which a "
                          "vertex is let go (0 = off)")
@@ -61,6 +62,8 @@ def crush_release(binding: Binding, tets: np.ndarray, rest_vertices: np.ndarray,
     rows = row_of[tets]
     bones = binding.bone[tets]
     span = (rows >= 0).all(axis=1) & (bones != bones[:, :1]).any(axis=1)
+    if held_bones is not None and len(held_bones):
+        span &= ~np.isin(bones, np.asarray(held_bones, dtype=np.int64)).any(axis=1)
     if not span.any():
         return None
     e = x[tets[span, 1:]] - x[tets[span, :1]]

@@ -88,14 +88,15 @@ class SkeletonDriver:
     ``sliding_levels`` levels are held by line constraints along their bones (free to slide along the axis,
     the paper's line constraints) with their level's gains, the others by points on the bones; their slide
     stops at their bone's ends (LineConstraint.within_bone). With ``crush_floor`` > 0 the gains of the points held
-    fall where the targets crush the body's elements ``tets`` (m, 4) that span bones (body/crush_release.py).
+    fall where the targets crush the body's elements ``tets`` (m, 4) that span bones, none of them one of
+    ``crush_held`` (body/crush_release.py).
     """
 
     def __init__(self, binding: Binding, rest_vertices: np.ndarray, gains: LevelGains | None = None, *,
                  kinematic: bool = False, difference: str = "backward",
                  points: Sequence[PointConstraint] = (), lines: Sequence[LineConstraint] = (),
                  bone_names: Sequence[str] | None = None, sliding_levels: int = 0,
-                 tets: np.ndarray | None = None, crush_floor: float = 0.0):
+                 tets: np.ndarray | None = None, crush_floor: float = 0.0, crush_held: np.ndarray | None = None):
         rest = np.asarray(rest_vertices, dtype=np.float64)
         if rest.shape != (binding.level.size, 3):
             raise ValueError(f"rest_vertices has shape {rest.shape}, but the binding is for "
@@ -134,7 +135,7 @@ class SkeletonDriver:
         self._kd = np.asarray(self.gains.kd)[lev]
         if crush_floor and tets is None:
             raise ValueError(f"crush_floor = {crush_floor!r} needs the body's elements: pass tets")
-        self.crush = None if tets is None else crush_release(binding, tets, rest, self.bound, crush_floor)
+        self.crush = None if tets is None else crush_release(binding, tets, rest, self.bound, crush_floor, crush_held)
         self._kp0, self._kd0 = self._kp, self._kd                # the levels' gains; _kp, _kd: this step's
         if self.crush is not None:
             self._kp, self._kd = self._kp0.copy(), self._kd0.copy()
