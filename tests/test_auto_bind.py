@@ -104,23 +104,6 @@ def test_toes_out_of_the_foot_are_left_unbound_and_a_leg_swung_out_is_not(skelet
     assert ab.bones_to_unbind(label_skeleton(skeleton, q_mesh), at_rest) == [], at_rest
 
 
-def test_digits_shorter_than_the_elements_are_left_unbound_and_nothing_else_is(skeleton, meshes):
-    """A finger or toe bone shorter than ``shortest`` (two of the body's median element edges: tets that wide make
-    the hand or the foot one lump) binds no flesh, inside the mesh or not; a longer one does, and no other role is
-    ever unbound for its length."""
-    _, _, q_mesh = meshes["T-pose"]
-    roles = label_skeleton(skeleton, q_mesh)
-    starts, ends = skeleton.bone_segments(q_mesh)
-    lengths = dict(zip(skeleton.bone_names, np.linalg.norm(ends - starts, axis=1)))
-    inside = {n: -0.01 for n in skeleton.bone_names}
-    digits = [n for n in skeleton.bone_names if roles.role_of(n).split("_")[-1] in ("finger", "toe")]
-    assert digits, roles.describe()
-    longest = max(lengths[n] for n in digits)
-    assert ab.bones_to_unbind(roles, inside, lengths=lengths, shortest=longest * 1.01) == digits
-    assert ab.bones_to_unbind(roles, inside, lengths=lengths, shortest=min(lengths[n] for n in digits)) == []
-    assert ab.bones_to_unbind(roles, inside, lengths=lengths, shortest=10.0) == digits       # only digits, ever
-
-
 def test_a_skeleton_whose_head_ends_short_has_its_limbs_traced_on_a_mesh_sized_by_its_hips(skeleton, meshes):
     """The mesh sized by a skeleton that ends at its shoulders (as a rig whose head end site stops short of the crown
     looks) is too small for the skeleton's legs: grown about its centre until the hips stand HIP_RATIO of its

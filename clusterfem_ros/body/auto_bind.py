@@ -24,8 +24,7 @@ A character mesh is modelled in some pose (T-pose, A-pose, arms down) and a capt
    (least squares), then the mesh is moved (fit.refine_fit, not scaled) until the bones that bind lie under its
    skin.
 4. **What binds** (``bones_to_unbind``): after the fit (body/fit.py), finger, toe and root-helper bones (by role)
-   with a point outside the mesh are left unbound, and finger and toe bones shorter than DIGIT_ELEMENTS of the body's
-   median element edges (surface_body.median_edge): their flesh follows the hand, foot or pelvis.
+   with a point outside the mesh are left unbound: their flesh follows the hand, foot or pelvis.
 
 ``limb_report`` gives, per limb, how far the bones lie from the limb's middle (one log line).
 """
@@ -46,7 +45,6 @@ UPPER_SPAN = (0.25, 0.6)    # the part of an upper limb whose rings are used (th
 LOWER_SPAN = (0.2, 0.8)
 REGULARIZE = 0.01           # weight of the joints' change in the least squares (keeps the twist)
 UNBIND_MARGIN = 0.005       # [m] a finger or toe bone this far outside the skin binds no flesh
-DIGIT_ELEMENTS = 2.0        # nor one shorter than this many of the body's median element edges
 UNBINDABLE_ROLES = ("finger", "toe", "root")   # a 'root' helper: a bone from the floor up to the pelvis
 HAND_FOREARM = 0.7          # a human's hand (wrist to fingertip) is about 0.74 of the forearm (Drillis & Contini)
 HIP_RATIO = 0.53            # a human's hip joints stand this share of the stature above the soles (Drillis & Contini)
@@ -387,16 +385,11 @@ def limb_report(pose: MeshPose, fit_apply, limbs: dict, starts: np.ndarray, ends
     return "bones from the middle of the mesh's limbs (mean / max): " + ", ".join(parts), out
 
 
-def bones_to_unbind(roles, outside: dict[str, float], margin: float = UNBIND_MARGIN,
-                    lengths: dict[str, float] | None = None, shortest: float = 0.0) -> list[str]:
+def bones_to_unbind(roles, outside: dict[str, float], margin: float = UNBIND_MARGIN) -> list[str]:
     """The finger, toe and root-helper bones (by their role in the tree, UNBINDABLE_ROLES) with a point more than
-    ``margin`` outside the skin (``outside``: bone -> how far its farthest point lies outside [m], <= 0 inside), and
-    the finger and toe bones shorter than ``shortest`` [m] (``lengths``: bone -> length): elements wider than a digit
-    make a hand or a foot one lump, and a digit bone turning inside it (a capture's thumb in a mitten of tets) would
-    tear it from within."""
-    names, lengths = roles.names, lengths or {}
+    ``margin`` outside the skin (``outside``: bone -> how far its farthest point lies outside [m], <= 0 inside)."""
+    names = roles.names
     chosen = {n for n in names if roles.roles[names.index(n)] in UNBINDABLE_ROLES and outside.get(n, 0.0) > margin}
-    chosen |= {n for n in names if roles.roles[names.index(n)] in ("finger", "toe") and lengths.get(n, np.inf) < shortest}
     return [n for n in names if n in chosen]
 
 

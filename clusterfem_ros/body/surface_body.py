@@ -15,7 +15,7 @@ import numpy as np
 
 from ..fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from ..fem.mesh.tetrahedralize import TetResult, pick_group, surface_to_tets
-from .auto_bind import DIGIT_ELEMENTS, UNBIND_MARGIN, auto_bind_pose, bones_to_unbind, rest_configuration
+from .auto_bind import auto_bind_pose, bones_to_unbind, rest_configuration
 from .limb_bridges import bridge_tets, cut_bridges
 from .mesh_frame import resolve_frame
 from .fit import Fit, FitError, bind_configuration, bone_outside_distances, find_data_file, fit_mesh, surface_depth
@@ -79,19 +79,11 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     mesh = TetMesh(fit.apply(tets.mesh.vertices), tets.mesh.tets).validate()    # R proper, scale > 0: tets keep sign
     out = bone_outside_distances(mesh.vertices, triangles, starts, ends)
     if auto:
-        edge = median_edge(mesh)
-        lengths = np.linalg.norm(ends - starts, axis=1)
-        unbound = bones_to_unbind(found.roles, dict(zip(skeleton.bone_names, out)),
-                                  lengths=dict(zip(skeleton.bone_names, lengths)), shortest=DIGIT_ELEMENTS * edge)
-
-        def why(n: str) -> str:
-            k = skeleton.bone_names.index(n)
-            return f"{100 * out[k]:.1f} cm out" if out[k] > UNBIND_MARGIN else f"{100 * lengths[k]:.1f} cm long"
-        say(f"bones left without flesh (finger, toe and root-helper bones outside the mesh, and finger and toe bones "
-            f"shorter than {DIGIT_ELEMENTS:g} elements, {100 * DIGIT_ELEMENTS * edge:.1f} cm: their flesh follows the "
-            f"hand, foot or pelvis): {', '.join(f'{n} ({why(n)})' for n in unbound)}"
-            if unbound else "every bone binds flesh (no finger, toe or root-helper bone outside the mesh, no digit "
-                            "shorter than two elements)")
+        unbound = bones_to_unbind(found.roles, dict(zip(skeleton.bone_names, out)))
+        say(f"bones left without flesh (finger, toe and root-helper bones outside the mesh: their flesh follows the "
+            f"hand, foot or pelvis): "
+            f"{', '.join(f'{n} ({100 * out[skeleton.bone_names.index(n)]:.1f} cm out)' for n in unbound)}"
+            if unbound else "every bone binds flesh (no finger, toe or root-helper bone outside the mesh)")
         mesh, triangles = _cut_limb_bridges(mesh, triangles, starts, ends, found.roles,
                                             np.array([n not in unbound for n in skeleton.bone_names]), say)
     outside = sorted(((n, float(d)) for n, d in zip(skeleton.bone_names, out)
@@ -106,14 +98,6 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     say(f"surface body: {mesh.n_tets} tets / {mesh.n_vertices} vertices, min dihedral "
         f"{tets.min_dihedral_deg:.1f} deg, min radius ratio {tets.min_radius_ratio:.3f}")
     return SurfaceBody(mesh, q, depth, fit, tets, tuple(unbound), distances)
-
-
-def median_edge(mesh: TetMesh) -> float:
-    """The median edge length of the mesh's tets [its units]."""
-    t = mesh.tets
-    pairs = np.concatenate([t[:, [a, b]] for a, b in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))])
-    pairs = np.unique(np.sort(pairs, axis=1), axis=0)
-    return float(np.median(np.linalg.norm(mesh.vertices[pairs[:, 0]] - mesh.vertices[pairs[:, 1]], axis=1)))
 
 
 def _cut_limb_bridges(mesh: TetMesh, triangles: np.ndarray, starts: np.ndarray, ends: np.ndarray, roles,
