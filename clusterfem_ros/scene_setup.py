@@ -26,6 +26,7 @@ from .fem.model import Attachments, Control, FemModel, State, build_model
 from .fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from .numba_cache import is_cached
 from .scene_build import SceneParts, integrator_choice, material_of, say
+from .skeleton.bone_roles import NotHumanoid, label_skeleton
 from .skeleton.joint_limits import joint_limits
 from .skeleton.joint_map import JointMap
 from .skeleton.joint_stream import JointStreamInterpolator
@@ -217,7 +218,6 @@ def digit_bones(skeleton: Skeleton) -> np.ndarray:
     let go: a coarse hand whose finger bones crush it lets its whole flesh go, and the inverted elements throw it
     off (mesh2motion's A-pose on the Mixamo rig at 1500 tets: 0.43 m from the hand in 8 ms). Empty for a skeleton
     that is not a human's."""
-    from .skeleton.bone_roles import NotHumanoid, label_skeleton
     try:
         roles = label_skeleton(skeleton)
     except NotHumanoid:
