@@ -166,7 +166,8 @@ PARAMS: tuple[Param, ...] = (
           "line constraints) between its ends instead of following points on the bone", 0, 16),
     Param("binding.crush_release", 0.0, "a bound vertex lets go of its target as its bones' targets crush its elements "
           "that span bones (a joint folded hard): its gains fall from full at the elements' rest volume to 0 at this "
-          "share of it (body/crush_release.py); 0 = off, the gains of binding.kp / kd everywhere", 0.0, 0.95),
+          "share of it (body/crush_release.py; fingers and toes keep theirs); 0 = off, the gains of binding.kp / kd "
+          "everywhere", 0.0, 0.95),
     Param("anchors.points", [], "world points x, y, z, ... of the body's rest pose [m]: the vertices within anchors.radius "
           "of each are held there by point constraints ([] = none)"),
     Param("anchors.bones", [], "per anchor point, the bone that carries it ('' = fixed in the world); [] = all in the "
