@@ -143,6 +143,19 @@ def test_wall_clock_follows_the_clock_and_counts_the_stages():
     assert log == []
 
 
+def _run_past_a_failure(scene, what: str):
+    """(loop, log): ``scene`` on the wall clock until it has made 100 steps (a failure injected at step 30 and
+    what the loop did about it behind them), then stopped."""
+    t_start = time.perf_counter()
+    loop, log = _loop(scene, now=lambda: time.perf_counter() - t_start)
+    loop.start()
+    try:
+        _wait_for(lambda: scene.steps_done > 100, 30, what)
+    finally:
+        assert loop.stop()
+    return loop, log
+
+
 def test_a_failing_step_is_reported_the_body_reset_and_physics_goes_on():
     scene = Scene.build(SceneConfig().with_values(body__kind="sphere", skeleton__source="none", warping=False))
     real_step = scene.integrator.step
@@ -155,13 +168,7 @@ def test_a_failing_step_is_reported_the_body_reset_and_physics_goes_on():
         return real_step(*args)
 
     scene.integrator.step = step
-    t_start = time.perf_counter()
-    loop, log = _loop(scene, now=lambda: time.perf_counter() - t_start)
-    loop.start()
-    try:
-        _wait_for(lambda: scene.steps_done > 100, 30, "steps after the failure")
-    finally:
-        assert loop.stop()
+    loop, log = _run_past_a_failure(scene, "steps after the failure")
     assert loop.crashes == 1 and not loop.stopped and "injected failure" in loop.error
     assert [lvl for lvl, _ in log] == ["error"] and "RuntimeError" in log[0][1] and "reset" in log[0][1]
 
@@ -187,13 +194,7 @@ def test_a_divergence_whose_reset_fails_too_is_a_failure_and_physics_goes_on():
         real_reset()
 
     scene.integrator.step, scene.reset = step, reset
-    t_start = time.perf_counter()
-    loop, log = _loop(scene, now=lambda: time.perf_counter() - t_start)
-    loop.start()
-    try:
-        _wait_for(lambda: scene.steps_done > 100, 30, "steps after the failed reset")
-    finally:
-        assert loop.stop()
+    loop, log = _run_past_a_failure(scene, "steps after the failed reset")
     assert loop.divergences == 1 and loop.crashes == 1 and not loop.stopped and left == {"step": 0, "reset": 0}
     assert "injected refusal" in loop.error and [lvl for lvl, _ in log] == ["error", "error"]
 
