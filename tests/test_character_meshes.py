@@ -226,3 +226,27 @@ def test_the_surface_group_auto_takes_a_closed_largest_group_else_the_whole_file
     assert pick_group(tmp_path / "ball.stl") == ("", "body.surface_group auto: the whole file (not an OBJ)")
     with pytest.raises(SurfaceError, match="body.surface_group = 'body' picks an OBJ group"):
         read_surface(tmp_path / "ball.stl", "body")
+
+
+def test_the_group_chosen_is_kept_with_the_tets_and_said_on_every_start(tmp_path, monkeypatch):
+    """``surface_to_tets(group='auto')`` chooses once per file (by its sha256) and says the choice every time; the
+    tets are those of the group chosen, under the same cache key as when that group is named."""
+    import trimesh
+
+    from clusterfem_ros.fem.mesh import tetrahedralize as tz
+    ball, small = trimesh.creation.icosphere(subdivisions=3), trimesh.creation.icosphere(subdivisions=1)
+    path = _obj(tmp_path / "body.obj", {"body": (ball.vertices, ball.faces), "eyes": (small.vertices + 3.0, small.faces)})
+    said = []
+    first = tz.surface_to_tets(path, 300, group="auto", cache=tmp_path / "cache", progress=said.append)
+    assert said[0].startswith("body.surface_group auto: group 'body'") and not first.cached
+
+    def no_parse(_):
+        raise AssertionError("the groups were parsed again")
+
+    monkeypatch.setattr(tz, "pick_group", no_parse)
+    said.clear()
+    again = tz.surface_to_tets(path, 300, group="auto", cache=tmp_path / "cache", progress=said.append)
+    named = tz.surface_to_tets(path, 300, group="body", cache=tmp_path / "cache")
+    assert said[0].startswith("body.surface_group auto: group 'body'") and again.cached and named.cached
+    np.testing.assert_array_equal(again.mesh.tets, first.mesh.tets)
+    assert np.ptp(first.mesh.vertices, axis=0).max() < 2.5                  # the ball, not the eyes 3 away

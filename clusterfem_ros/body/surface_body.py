@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 
 from ..fem.mesh.tet_mesh import TetMesh, boundary_triangles
-from ..fem.mesh.tetrahedralize import TetResult, pick_group, surface_to_tets
+from ..fem.mesh.tetrahedralize import TetResult, surface_to_tets
 from .auto_bind import auto_bind_pose, bones_to_unbind, rest_configuration
 from .limb_bridges import bridge_tets, cut_bridges
 from .mesh_frame import resolve_frame
@@ -52,11 +52,7 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     else:
         q = bind_configuration(skeleton, s.bind_pose, s.bind_joints, s.bind_angles, s.bind_bvh, s.bvh_unit,
                                s.bvh_up)
-    group = b.surface_group
-    if group == "auto":
-        group, why = pick_group(path)
-        say(why)
-    tets = surface_to_tets(path, b.target_tets, group=group, progress=progress)
+    tets = surface_to_tets(path, b.target_tets, group=b.surface_group, progress=progress)
     triangles = boundary_triangles(tets.mesh)
     unit, up, forward, read = resolve_frame(tets.mesh.vertices, triangles, b.surface_unit, s.fit_up, s.fit_forward)
     if read:

@@ -229,8 +229,31 @@ def tetrahedralize_surface(vertices: np.ndarray, faces: np.ndarray, target_tets:
     return TetResult(best, dihedral, ratio, attempt, time.perf_counter() - t0, False, None)
 
 
-def _key(path: Path, group: str, target_tets: int, tolerance: float) -> str:
-    h = hashlib.sha256(path.read_bytes()).hexdigest()
+def _file_sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _cached_group(path: Path, folder: Path, sha: str) -> tuple[str, str]:
+    """``pick_group`` of the file, kept in ``folder`` by the file's sha256: an OBJ's groups take longer to parse
+    (0.5 s for MakeHuman's) than its cached tets to load."""
+    file = folder / f"group_{sha[:24]}.json"
+    if file.is_file():
+        try:
+            d = json.loads(file.read_text())
+            return str(d["group"]), str(d["why"])
+        except (ValueError, KeyError):
+            pass                                   # unreadable: chosen again below
+    group, why = pick_group(path)
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".group_", suffix=".json")
+    with os.fdopen(fd, "w") as out:
+        json.dump({"group": group, "why": why}, out)
+    os.replace(tmp, file)
+    return group, why
+
+
+def _key(path: Path, group: str, target_tets: int, tolerance: float, sha: str | None = None) -> str:
+    h = sha or _file_sha(path)
     params = json.dumps({"file_sha256": h, "group": group, "target_tets": int(target_tets),
                          "tolerance": float(tolerance), "faces_per_tet": FACES_PER_TET,
                          "first_edge_factor": FIRST_EDGE_FACTOR, "format": CACHE_FORMAT,
@@ -240,14 +263,19 @@ def _key(path: Path, group: str, target_tets: int, tolerance: float) -> str:
 
 def surface_to_tets(path: str | Path, target_tets: int, group: str = "", tolerance: float = 0.2,
                     cache: Path | None = None, progress: Callable[[str], None] | None = None) -> TetResult:
-    """Read a surface file and tetrahedralize it, or load the tets of an earlier identical request."""
+    """Read a surface file and tetrahedralize it, or load the tets of an earlier identical request; ``group``
+    'auto': ``pick_group``'s, said in one line."""
     say = progress or (lambda _: None)
     path = Path(path)
     if not path.is_file():
         raise SurfaceError(f"surface file {str(path)!r} does not exist: give body.surface_file the path of a "
                            "triangle mesh (.obj, .stl, .ply, .glb)")
     folder = Path(cache) if cache is not None else cache_dir()
-    file = folder / f"tets_{_key(path, group, target_tets, tolerance)}.npz"
+    sha = _file_sha(path)
+    if group == "auto":
+        group, why = _cached_group(path, folder, sha)
+        say(why)
+    file = folder / f"tets_{_key(path, group, target_tets, tolerance, sha)}.npz"
     if file.is_file():
         t0 = time.perf_counter()
         with np.load(file) as d:
