@@ -84,7 +84,7 @@ def main(argv=None) -> None:
     plan = integ.stretch
     if plan is None or plan.energy != "neohookean":
         raise SystemExit(f"{a.scene}: the scene does not run the Neo-Hookean plan (warping_model {integ.name!r})")
-    ones = np.ones_like(plan.weights)
+    ones, lanes = np.ones_like(plan.weights), np.empty(plan.weights.shape[1])
     taken = []
     stiffer = integ._stiffer
 
@@ -93,8 +93,9 @@ def main(argv=None) -> None:
         k = len(taken)
         if k < a.first or k % a.every == 0:
             kept = integ._parts.bound()
-            taken.append((k, scene.sim_time, out[0], element_need(kept, plan.weights, plan.rest_modulus, 4.0, 1.0, 0.0),
-                          element_need(kept, ones, plan.rest_modulus, 4.0, 1.0, 0.0), state.u.copy()))
+            weighed = element_need(kept, plan.weights, plan.rest_modulus, 4.0, 1.0, 0.0, lanes)
+            unweighed = element_need(kept, ones, plan.rest_modulus, 4.0, 1.0, 0.0, lanes)
+            taken.append((k, scene.sim_time, out[0], weighed, unweighed, state.u.copy()))
         else:
             taken.append(None)
         return out

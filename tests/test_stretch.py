@@ -7,7 +7,8 @@ from scipy.spatial.transform import Rotation
 from clusterfem_ros.fem.linear.assembly import shape_gradients
 from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import build_model
-from clusterfem_ros.fem.materials.stretch import StretchPlan, stiffening
+from clusterfem_ros.fem.materials.element_rotation import LANES
+from clusterfem_ros.fem.materials.stretch import StretchPlan, element_need, stiffening
 from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
 
 
@@ -206,3 +207,25 @@ def test_a_damped_body_plans_for_the_stiffening_alone_and_holds_it_briefly():
     for _ in range(15):
         assert damped.element_factor(kept, 0.001) == 8.0                         # held 20 ms
     assert [damped.element_factor(kept, 0.001) for _ in range(10)][-1] == 1.0
+
+
+@pytest.mark.parametrize("accuracy, inverted", [(4.0, 16.0), (1.0, 0.0)])
+def test_element_need_is_the_formula_element_by_element(accuracy, inverted):
+    """element_need against the formula in numpy, exactly: s_e = max(1, |b_e| / rest modulus), a_e = the inverted
+    factor for an inverted element (when > 0) else min(accuracy, max(1, s_e / knee)), the max of r_e s_e a_e; on
+    bounds from rest to 30x stiffer, a few inverted, the last chunk's padding lanes weighing 0. The rows carry the
+    rest of the force pass's workspace after the bounds (kept[:, LANES:]), which must not be read."""
+    rng = np.random.default_rng(7)
+    chunks, rest_modulus, knee = 5, 9.0e4, 4.0
+    kept = rng.uniform(1.0e4, 3.0e6, (chunks, 9 * LANES)) * np.where(rng.random((chunks, 9 * LANES)) < 0.02, -1, 1)
+    kept[:, LANES:] = 1e30                                     # the rotations' slots: never a bound
+    weights = rng.uniform(0.05, 1.0, (chunks, LANES))
+    weights[-1, LANES // 2:] = 0.0                             # padding lanes
+    b = kept[:, :LANES]
+    s = np.maximum(1.0, np.abs(b) / rest_modulus)
+    a = np.minimum(accuracy, np.maximum(1.0, s / knee))
+    if inverted > 0.0:
+        a = np.where(b < 0.0, inverted, a)
+    assert (b < 0.0).any() and (s > knee * accuracy).any()
+    want = float((weights * s * a).max())
+    assert element_need(kept, weights, rest_modulus, knee, accuracy, inverted, np.empty(LANES)) == want

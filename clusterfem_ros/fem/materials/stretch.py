@@ -153,18 +153,26 @@ def weights_by_lane(weights: np.ndarray) -> np.ndarray:
 
 @numba.njit(**HOLDS_GIL)
 def element_need(kept: np.ndarray, weights: np.ndarray, rest_modulus: float, knee: float, accuracy: float,
-                 inverted_factor: float) -> float:
+                 inverted_factor: float, scratch: np.ndarray) -> float:
     """max over elements of r_e s_e a_e: s_e = max(1, |b_e| / rest_modulus) from the tangent bounds the force pass
     left in kept[:, :LANES] (negative: inverted), a_e the accuracy factor min(accuracy, max(1, s_e / knee)), or
-    ``inverted_factor`` for an inverted element when it is larger than 0 (module docstring)."""
+    ``inverted_factor`` for an inverted element when it is larger than 0 (module docstring). A chunk's LANES values
+    go through ``scratch`` (LANES,): written without a running maximum, the lane loop runs on vectors (a third of
+    the time of a loop that keeps one)."""
+    inverted = inverted_factor > 0.0
     worst = 0.0
     for c in range(weights.shape[0]):
+        w, k = weights[c], kept[c]
         for l in range(LANES):
-            r = weights[c, l]
-            b = kept[c, l]
-            s = max(1.0, abs(b) / rest_modulus)
-            a = inverted_factor if (b < 0.0 and inverted_factor > 0.0) else min(accuracy, max(1.0, s / knee))
-            worst = max(worst, r * s * a)
+            b = k[l]
+            s = abs(b) / rest_modulus
+            s = s if s > 1.0 else 1.0
+            a = s / knee
+            a = a if a > 1.0 else 1.0
+            a = a if a < accuracy else accuracy
+            scratch[l] = w[l] * s * (inverted_factor if (b < 0.0) & inverted else a)
+        for l in range(LANES):
+            worst = max(worst, scratch[l])
     return worst
 
 
@@ -206,6 +214,7 @@ class StretchPlan:
             self.rest = np.ascontiguousarray(model.rest, dtype=np.float64)
             self._x = np.empty_like(self.rest)
         self.hold, self.every = float(hold), float(every)
+        self._lanes = np.empty(LANES)  # element_need's workspace
         self.current = 1.0
         self._since = 0.0              # simulated seconds since ``current`` was last needed
         self._due = 0.0                # simulated seconds until the next corotated bound
@@ -227,7 +236,7 @@ class StretchPlan:
         element of weight 1, >= 1 + g times the accuracy factor, rounded up to a quarter octave."""
         kept = np.zeros((1, LANES))
         kept[0, 0] = -bound if inverted else bound
-        need = element_need(kept, _ONE_ELEMENT, self.rest_modulus, self.KNEE, self.ACCURACY, self.INVERTED)
+        need = element_need(kept, _ONE_ELEMENT, self.rest_modulus, self.KNEE, self.ACCURACY, self.INVERTED, self._lanes)
         return self._settle(max(1.0, need), h)
 
     def element_factor(self, kept: np.ndarray, h: float, undamped: bool = False) -> float:
@@ -240,7 +249,7 @@ class StretchPlan:
         # the accuracy and inverted factors keep an undamped body's shadow energy; a damped one dissipates the drift,
         # and their shorter sub-steps would take a placement's crushed elements past physics.max_substeps
         need = element_need(kept, self.weights, self.rest_modulus, self.KNEE, self.ACCURACY if undamped else 1.0,
-                            self.INVERTED if undamped else 0.0)
+                            self.INVERTED if undamped else 0.0, self._lanes)
         return self._settle(max(1.0, need), h)
 
     def _settle(self, stiffer: float, h: float) -> float:
