@@ -88,6 +88,41 @@ def test_the_whole_fit_places_the_bones_in_the_middle_of_the_limbs_and_reports_i
     assert any("A-pose" in line for line in lines), lines
 
 
+def test_a_rest_whose_trunk_leans_is_stood_up_before_its_limbs_are_turned(skeleton, meshes, monkeypatch):
+    """A rest taken from a capture's frame leans as the motion does there (Bandai Namco's dash: 33 deg). Bound on
+    an upright mesh, the trunk is stood up first (straighten_trunk), one line saying so, and the limbs land in the
+    middle of the mesh's; left leaning, the shoulders and hips stand off the mesh's and so do the limbs turned
+    from them."""
+    vertices, triangles, q_mesh = meshes["A-pose"]
+    rest = _q(skeleton, {"abdomen_pitch": 0.45, "chest_pitch": 0.45})            # bent forward, as in a run
+    roles = label_skeleton(skeleton, rest)
+    assert min(ab.trunk_lean(skeleton, rest, roles)) > 20.0
+    lines = []
+    found = ab.auto_bind_pose(skeleton, rest, vertices, triangles, 1.0, "Z", "X", say=lines.append)
+    assert max(ab.trunk_lean(skeleton, found.q, roles)) < 3.0
+    assert any(line.startswith("the skeleton's trunk leans ") and "stood up as the mesh stands" in line
+               for line in lines), lines
+    assert max(_bone_angles(skeleton, found.q, q_mesh).values()) < TOLERANCE_DEG
+    assert all(mean < 0.06 for mean, _ in found.distances.values()), found.report
+    monkeypatch.setattr(ab, "straighten_trunk", lambda sk, q, roles: q.copy())
+    leaning = ab.auto_bind_pose(skeleton, rest, vertices, triangles, 1.0, "Z", "X")
+    assert max(mean for mean, _ in leaning.distances.values()) > 0.08, leaning.report
+
+
+def test_a_rest_that_stands_keeps_its_trunk(skeleton, meshes):
+    """A rig's zero pose (upright within TRUNK_LEAN) keeps its trunk's joints as they are, and no line is said."""
+    vertices, triangles, _ = meshes["A-pose"]
+    rest = _q(skeleton, {"abdomen_pitch": 0.1})
+    roles = label_skeleton(skeleton, rest)
+    assert 3.0 < ab.trunk_lean(skeleton, rest, roles)[0] < ab.TRUNK_LEAN
+    lines = []
+    found = ab.auto_bind_pose(skeleton, rest, vertices, triangles, 1.0, "Z", "X", say=lines.append)
+    trunk = [skeleton.joint_index(n) for n in ("root_yaw", "root_pitch", "root_roll", "abdomen_yaw", "abdomen_pitch",
+                                               "abdomen_roll", "chest_yaw", "chest_pitch", "chest_roll")]
+    assert np.array_equal(found.q[trunk], rest[trunk])
+    assert not any("trunk leans" in line for line in lines), lines
+
+
 def test_toes_out_of_the_foot_are_left_unbound_and_a_leg_swung_out_is_not(skeleton, meshes):
     vertices, triangles, q_mesh = meshes["T-pose"]
     q = q_mesh.copy()

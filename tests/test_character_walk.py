@@ -61,12 +61,17 @@ def test_a_capture_of_another_subject_with_the_same_joint_names_fits_the_charact
 @pytest.mark.parametrize("name", ["cmu_131_03_hop_3dsmax", "mixamo_rig_freebvh"])
 def test_a_capture_with_other_joint_names_and_rest_pose_fits_the_character(walk, name):
     """The 3ds-Max conversion (LeftHip, LeftKnee, ...; arms down at rest) and the Mixamo rig (prefixed names,
-    fingers): the bind pose is found from the mesh, every bone that binds lies inside, and only finger, toe and
-    root-helper bones (by role) are left without flesh."""
+    fingers, eyes): the bind pose is found from the mesh, every bone that binds lies inside, and only finger, toe and
+    root-helper bones (by role) and the head's side parts are left without flesh."""
+    from clusterfem_ros.body.auto_bind import head_parts
     from clusterfem_ros.skeleton.bone_roles import label_skeleton
     body, skeleton, config = _surface_body(_clip(name))
     roles = label_skeleton(skeleton)
-    assert all(roles.role_of(n).split("_")[-1] in ("finger", "toe", "root") for n in body.unbound), body.unbound
+    ends = skeleton.bone_segments(body.bind_q)[1]
+    parts = {skeleton.bone_names[b] for b in head_parts(roles, skeleton.bone_parent, ends)}
+    assert all(roles.role_of(n).split("_")[-1] in ("finger", "toe", "root") or n in parts for n in body.unbound), \
+        body.unbound
+    assert (name == "mixamo_rig_freebvh") == bool(parts) and parts <= set(body.unbound), parts
     assert config["body.surface_unit"] == "auto" and 0.05 < body.fit.scale < 0.2    # decimetres, read from its height
 
 

@@ -15,16 +15,20 @@ A character mesh is modelled in some pose (T-pose, A-pose, arms down) and a capt
    long axis below its ankle (its vertices' principal direction across the floor), turned towards its toe tip;
    the tip alone is no direction, as the farthest vertex of a rounded toe lies anywhere round its rim (the
    declared ``skeleton.fit_forward`` only when the toes lie too near the ankles to tell).
-2. **The skeleton's limbs** (``turn_limbs``): roles from the tree and the rest geometry (skeleton/bone_roles.py);
-   the mesh is turned about the vertical to face the skeleton's way, each limb's upper and lower bone is turned
-   onto the mesh's directions by least squares on the joints of those two bones, then the hand / foot towards
-   the mesh's tip. The trunk, the clavicles and the hip bones keep the rest's angles (the capture plays its own
-   on them: a girdle turned at bind time would move the shoulder or hip under the flesh on every frame).
+2. **The skeleton's trunk and limbs** (``straighten_trunk``, ``turn_limbs``): roles from the tree and the rest
+   geometry (skeleton/bone_roles.py); the mesh is turned about the vertical to face the skeleton's way. A trunk
+   leaning more than TRUNK_LEAN is stood up as the mesh stands (hips to shoulders, shoulders to the head's end
+   along the vertical, least squares on the pelvis, spine, neck and head joints): a rest taken from a capture's
+   frame leans as the motion does there. Then each limb's upper and lower bone is turned onto the mesh's
+   directions by least squares on the joints of those two bones, then the hand / foot towards the mesh's tip.
+   The clavicles and the hip bones keep the rest's angles (the capture plays its own on them: a girdle turned
+   at bind time would move the shoulder or hip under the flesh on every frame).
 3. **The placement**: scale and offset put the mesh's elbows, wrists, knees and ankles nearest the skeleton's
    (least squares), then the mesh is moved (fit.refine_fit, not scaled) until the bones that bind lie under its
    skin.
 4. **What binds** (``bones_to_unbind``): after the fit (body/fit.py), finger, toe and root-helper bones (by role)
-   with a point outside the mesh are left unbound: their flesh follows the hand, foot or pelvis.
+   with a point outside the mesh are left unbound: their flesh follows the hand, foot or pelvis; so are the
+   head's side parts (eyes, a jaw: ``head_parts``), whose flesh follows the head.
 
 ``limb_report`` gives, per limb, how far the bones lie from the limb's middle (one log line).
 """
@@ -47,6 +51,7 @@ REGULARIZE = 0.01           # weight of the joints' change in the least squares 
 UNBIND_MARGIN = 0.005       # [m] a finger or toe bone this far outside the skin binds no flesh
 UNBINDABLE_ROLES = ("finger", "toe", "root")   # a 'root' helper: a bone from the floor up to the pelvis
 HAND_FOREARM = 0.7          # a human's hand (wrist to fingertip) is about 0.74 of the forearm (Drillis & Contini)
+TRUNK_LEAN = 15.0           # [deg] a rest whose hips-to-shoulders line leans more than this is stood up
 HIP_RATIO = 0.53            # a human's hip joints stand this share of the stature above the soles (Drillis & Contini)
 
 
@@ -318,6 +323,56 @@ def facing_rotation(pose: MeshPose, roles) -> np.ndarray:
     return np.column_stack([fwd_s, left_s, z]) @ np.column_stack([fwd_m, left_m, z]).T
 
 
+def trunk_lean(skeleton, q: np.ndarray, roles) -> tuple[float, float]:
+    """Degrees from the vertical (world Z) of the skeleton's trunk at ``q``: the line from its hip joints' centre
+    to its shoulder joints' centre, and the line from there to the head's end."""
+    s, e = skeleton.bone_segments(q)
+    hips, shoulders, head = _trunk_points(roles, s, e)
+    z = np.array([0.0, 0.0, 1.0])
+    return _angle(shoulders - hips, z), _angle(head - shoulders, z)
+
+
+def _trunk_points(roles, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(hip joints' centre, shoulder joints' centre, the head's end): the thighs' and upper arms' starts, the end of
+    the highest-reaching head bone."""
+    limbs = skeleton_limbs(roles, starts, ends)
+    hips = 0.5 * (limbs[("l", "leg")].root + limbs[("r", "leg")].root)
+    shoulders = 0.5 * (limbs[("l", "arm")].root + limbs[("r", "arm")].root)
+    heads = [ends[b] for b, r in enumerate(roles.roles) if r in ("head", "neck")]
+    head = max(heads, key=lambda x: float(x[2])) if heads else shoulders + np.array([0.0, 0.0, 1.0])
+    return hips, shoulders, head
+
+
+def straighten_trunk(skeleton, q0: np.ndarray, roles) -> np.ndarray:
+    """``q0`` with the trunk's joints (the pelvis, spine, neck and head bones' revolute joints) set by least squares
+    so that the trunk stands as a mesh's does: the hips' centre to the shoulders' centre, and the shoulders' centre
+    to the head's end, along the vertical (world Z, the fitted mesh's up). A capture bound on one of its frames
+    (its zero pose lying down) leans as the motion does there (Bandai Namco's dash: the chest 48 deg forward, the
+    shoulders 20 cm before the mesh's), and its limbs, turned onto the mesh's, would then hang off the trunk's
+    flesh. Only a rest leaning more than TRUNK_LEAN is stood up (auto_bind_pose): a rig's own zero pose is the
+    better guess of its trunk's shape than the vertical (CMU's on mesh2motion's T-pose: stood up, its legs land
+    2 cm further from the mesh's). The limbs are turned after, from where this leaves them."""
+    from scipy.optimize import least_squares
+    owned = skeleton.bone_joints()
+    revolute = skeleton.revolute_mask()
+    joints = sorted({j for b, r in enumerate(roles.roles) if r in ("pelvis", "spine", "neck", "head")
+                     for j in owned[b] if revolute[j]})
+    q = np.asarray(q0, dtype=np.float64).copy()
+    if not joints:
+        return q
+    x0 = q[joints].copy()
+    z = np.array([0.0, 0.0, 1.0])
+
+    def residual(xs: np.ndarray) -> np.ndarray:
+        qq = q.copy()
+        qq[joints] = xs
+        hips, shoulders, head = _trunk_points(roles, *skeleton.bone_segments(qq))
+        return np.concatenate([_unit(shoulders - hips) - z, _unit(head - shoulders) - z, REGULARIZE * (xs - x0)])
+
+    q[joints] = least_squares(residual, x0, diff_step=1e-6, max_nfev=200 * len(joints)).x
+    return q
+
+
 def turn_limbs(skeleton, q0: np.ndarray, limbs: dict, targets: dict) -> np.ndarray:
     """``q0`` with the joints of each limb's upper and lower bone set (least squares) so that the bones point along
     ``targets`` ((side, kind) -> (upper direction, lower direction[, hand / foot direction]), skeleton world frame),
@@ -385,12 +440,32 @@ def limb_report(pose: MeshPose, fit_apply, limbs: dict, starts: np.ndarray, ends
     return "bones from the middle of the mesh's limbs (mean / max): " + ", ".join(parts), out
 
 
-def bones_to_unbind(roles, outside: dict[str, float], margin: float = UNBIND_MARGIN) -> list[str]:
+def bones_to_unbind(roles, outside: dict[str, float], margin: float = UNBIND_MARGIN,
+                    parent: np.ndarray | None = None, ends: np.ndarray | None = None) -> list[str]:
     """The finger, toe and root-helper bones (by their role in the tree, UNBINDABLE_ROLES) with a point more than
-    ``margin`` outside the skin (``outside``: bone -> how far its farthest point lies outside [m], <= 0 inside)."""
+    ``margin`` outside the skin (``outside``: bone -> how far its farthest point lies outside [m], <= 0 inside),
+    and with ``parent`` and ``ends`` (the bind pose's bone ends) the head's parts (``head_parts``)."""
     names = roles.names
     chosen = {n for n in names if roles.roles[names.index(n)] in UNBINDABLE_ROLES and outside.get(n, 0.0) > margin}
+    if parent is not None and ends is not None:
+        chosen.update(names[b] for b in head_parts(roles, parent, ends))
     return [n for n in names if n in chosen]
+
+
+def head_parts(roles, parent: np.ndarray, ends: np.ndarray) -> list[int]:
+    """Bones of the neck and head that branch off the chain from the neck to the head's highest end (along
+    roles.up): eyes, a jaw. Inside the head a few centimetres long, they would take the flesh nearest them, up to
+    18 cm away (mesh2motion's head on the Mixamo rig's eyes), and carry it with their own turns against the head's;
+    unbound, that flesh follows the head."""
+    head = [b for b, r in enumerate(roles.roles) if r in ("neck", "head")]
+    if not head:
+        return []
+    top = max(head, key=lambda b: float(ends[b] @ roles.up))
+    chain, b = set(), top
+    while b >= 0:
+        chain.add(b)
+        b = int(parent[b])
+    return [b for b in head if b not in chain]
 
 
 @dataclass
@@ -433,7 +508,14 @@ def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles
     A = facing_rotation(pose, roles)
     targets = {k: (A @ pose.limbs[k].upper_dir, A @ pose.limbs[k].lower_dir,
                    A @ (pose.limbs[k].tip - pose.limbs[k].end)) for k in LIMBS}
-    q = turn_limbs(skeleton, q_rest, limbs, targets)
+    q, before = q_rest, trunk_lean(skeleton, q_rest, roles)
+    if before[0] > TRUNK_LEAN:
+        q = straighten_trunk(skeleton, q_rest, roles)
+        after = trunk_lean(skeleton, q, roles)
+        say(f"the skeleton's trunk leans {before[0]:.0f} deg from the vertical in its rest (its neck and head "
+            f"{before[1]:.0f} deg): stood up as the mesh stands ({after[0]:.0f} / {after[1]:.0f} deg) before its limbs "
+            "are turned onto the mesh's")
+    q = turn_limbs(skeleton, q, limbs, targets)
     R = A @ first.rotation
     marks = np.vstack([first.inverse(np.array([pose.limbs[k].middle_joint, pose.limbs[k].end])) for k in LIMBS])
     # the clavicles and hip bones keep the rest's angles: the capture plays its own on them, and a girdle turned

@@ -30,7 +30,7 @@ class SurfaceBody:
     depth: np.ndarray       # (n,) [m] every vertex's distance to the body's surface
     fit: Fit
     tets: TetResult         # the tets in file units, with their quality and cache facts
-    unbound: tuple[str, ...] = ()   # bones without flesh: fingers, toes, root helpers outside it (bind_pose 'auto')
+    unbound: tuple[str, ...] = ()   # bones without flesh: fingers, toes, root helpers outside it, head parts (auto)
     limb_distances: dict | None = None   # bind_pose 'auto': auto_bind.limb_report's {(side, kind): (mean, max) [m]}
 
 
@@ -75,11 +75,13 @@ def build_surface_body(config, skeleton, progress: Callable[[str], None] | None 
     mesh = TetMesh(fit.apply(tets.mesh.vertices), tets.mesh.tets).validate()    # R proper, scale > 0: tets keep sign
     out = bone_outside_distances(mesh.vertices, triangles, starts, ends)
     if auto:
-        unbound = bones_to_unbind(found.roles, dict(zip(skeleton.bone_names, out)))
-        say(f"bones left without flesh (finger, toe and root-helper bones outside the mesh: their flesh follows the "
-            f"hand, foot or pelvis): "
-            f"{', '.join(f'{n} ({100 * out[skeleton.bone_names.index(n)]:.1f} cm out)' for n in unbound)}"
-            if unbound else "every bone binds flesh (no finger, toe or root-helper bone outside the mesh)")
+        unbound = bones_to_unbind(found.roles, dict(zip(skeleton.bone_names, out)), parent=skeleton.bone_parent,
+                                  ends=ends)
+        say(f"bones left without flesh (finger, toe and root-helper bones outside the mesh, the head's side parts: "
+            f"their flesh follows the hand, foot, pelvis or head): "
+            f"{', '.join(_unbound_why(n, out[skeleton.bone_names.index(n)]) for n in unbound)}"
+            if unbound else "every bone binds flesh (no finger, toe or root-helper bone outside the mesh, no side "
+                            "part of the head)")
         mesh, triangles = _cut_limb_bridges(mesh, triangles, starts, ends, found.roles,
                                             np.array([n not in unbound for n in skeleton.bone_names]), say)
     outside = sorted(((n, float(d)) for n, d in zip(skeleton.bone_names, out)
@@ -108,6 +110,10 @@ def _cut_limb_bridges(mesh: TetMesh, triangles: np.ndarray, starts: np.ndarray, 
     say(f"cut {int(bridges.sum())} tets ({share:.1%} of the body's volume) joining flesh of the left and right "
         "limbs: the mesh's limbs touch or lie closer than its tets are wide")
     return cut, boundary_triangles(cut)
+
+
+def _unbound_why(name: str, out: float) -> str:
+    return f"{name} ({100 * out:.1f} cm out)" if out > 0.0 else f"{name} (a part of the head)"
 
 
 def unbound_islands(tets: np.ndarray, n_vertices: int, driven: np.ndarray) -> list[tuple[int, np.ndarray]]:
