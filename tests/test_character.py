@@ -8,7 +8,11 @@ from clusterfem_ros.body.binding import bind_to_skeleton
 from clusterfem_ros.body.fit import FitError, bind_configuration
 from clusterfem_ros.body.surface_body import unbound_islands
 from clusterfem_ros.config import ConfigError, SceneConfig
-from clusterfem_ros.fem.mesh.tetrahedralize import MAX_ATTEMPTS, SurfaceError, _steer_edge, surface_to_tets, tet_quality
+from clusterfem_ros.fem.mesh import tetrahedralize
+from clusterfem_ros.fem.mesh.tet_mesh import TetMesh
+from clusterfem_ros.fem.mesh.tetrahedralize import (MAX_ATTEMPTS, SurfaceError, TetResult, _steer_edge, near_pieces,
+                                                   surface_to_tets, tet_quality)
+from clusterfem_ros.fem.mesh.voxel_mesh import box_mesh
 from clusterfem_ros.skeleton.trajectory import JointTrajectory
 from clusterfem_ros.skeleton.urdf_builder import UrdfBuilder
 from tests import naive
@@ -108,6 +112,46 @@ def test_a_count_the_surface_cannot_come_down_to_gives_the_nearest_after_all_att
     best, n_attempts = _steer_edge(floor_of_900, 1.0, 400, 0.2)
     assert n_attempts == MAX_ATTEMPTS == len(runs) and best.n_tets == 901
     assert all(b > a for a, b in zip(runs, runs[1:]))    # each miss asks for a longer edge
+
+
+def _two_boxes(gap: float) -> TetMesh:
+    """A 0.4 m box of 0.1 m tets and a 0.1 m one ``gap`` beyond its +x face."""
+    big, small = box_mesh((0.4, 0.4, 0.4), (4, 4, 4)), box_mesh((0.1, 0.1, 0.1), (1, 1, 1))
+    shift = np.array([0.4 + gap, 0.0, 0.0]) + big.vertices.min(axis=0) - small.vertices.min(axis=0)
+    return TetMesh(np.vstack([big.vertices, small.vertices + shift]),
+                   np.vstack([big.tets, small.tets + big.n_vertices]))
+
+
+def test_a_piece_within_two_tet_edges_of_the_body_counts_as_cut_off_and_a_far_one_does_not():
+    edge = 0.1
+    assert near_pieces(box_mesh((0.4, 0.4, 0.4), (4, 4, 4)), edge) == 0
+    assert near_pieces(_two_boxes(0.5 * edge), edge) == 1
+    assert near_pieces(_two_boxes(1.9 * edge), edge) == 1
+    assert near_pieces(_two_boxes(2.1 * edge), edge) == 0
+
+
+def test_tets_that_come_in_near_pieces_are_meshed_again_from_more_of_the_surface(monkeypatch):
+    """A decimation coarse enough to cut a wrist (the mesher's pieces near each other) is doubled until the tets
+    are whole, up to the whole surface; the attempts of every round are counted, and the line says why."""
+    keeps, lines = [], []
+    whole, cut = box_mesh((0.4, 0.4, 0.4), (4, 4, 4)), _two_boxes(0.05)
+
+    def decimated(v0, f0, keep, target, tolerance, say, source, t0):
+        keeps.append(keep)
+        mesh = cut if keep < 4000 else whole
+        return TetResult(mesh, 30.0, 0.5, 2, 0.0, False, None), 0.1
+
+    monkeypatch.setattr(tetrahedralize, "_tetrahedralize_decimated", decimated)
+    faces = np.zeros((10000, 3), dtype=np.int64)
+    out = tetrahedralize.tetrahedralize_surface(np.zeros((3, 3)), faces, 1500, progress=lines.append)
+    assert keeps == [750, 1500, 3000, 6000] and out.mesh is whole and out.attempts == 8
+    assert sum("came in 2 pieces within 2 tet edges" in line for line in lines) == 3, lines
+    keeps.clear()
+    monkeypatch.setattr(tetrahedralize, "_tetrahedralize_decimated",
+                        lambda *a: (TetResult(cut, 30.0, 0.5, 1, 0.0, False, None), 0.1) if not keeps.append(a[2])
+                        else None)
+    assert tetrahedralize.tetrahedralize_surface(np.zeros((3, 3)), faces, 1500).mesh is cut   # the whole surface
+    assert keeps == [750, 1500, 3000, 6000, 10000]                                             # cuts it too: kept
 
 
 def test_the_naive_quality_of_hand_made_tets():

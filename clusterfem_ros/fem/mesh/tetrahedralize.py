@@ -8,6 +8,9 @@ refuses self-intersecting surfaces (see benchmarks/mesher_compare.py for the com
 fTetWild takes an edge length, not a count, and keeps the surface's detail, so the count is reached in
 two ways: the surface is first decimated (fast-simplification) to about ``FACES_PER_TET`` faces per
 requested tet, and the edge length starts from the volume of a regular tet of the body's volume / target.
+A coarse decimation can thin a wrist or an ankle until the mesher cuts it: where the tets come in pieces one of
+which lies within ``SPLIT_EDGES`` tet edges of the largest (``near_pieces``: the hands of mesh2motion's A-pose
+at 1500 tets, 750 faces), the surface is meshed again from twice as many faces, up to the whole surface.
 The edge length is then corrected by the cube root of the count ratio until the count is within
 ``tolerance``. fTetWild is not repeatable: on a capsule, 40 runs at one edge length gave 344 to 683 tets,
 18 % of them more than 20 % from the median of 438 (``python -m benchmarks.mesher_compare --repeat 40``).
@@ -26,7 +29,7 @@ import json
 import os
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -37,7 +40,8 @@ from .tet_mesh import MeshError, TetMesh, orient, remove_unreferenced
 FACES_PER_TET = 0.5         # surface faces kept per requested tet before meshing
 FIRST_EDGE_FACTOR = 1.12    # fTetWild gives ~40 % more tets than volume / regular-tet volume: start longer
 MAX_ATTEMPTS = 12           # fTetWild runs before giving up (see the module docstring)
-CACHE_FORMAT = 1            # bump when the cached content or the way it is made changes
+CACHE_FORMAT = 2            # bump when the cached content or the way it is made changes
+SPLIT_EDGES = 2.0           # a piece of the tets this many edge lengths from the largest was cut off it
 
 
 class SurfaceError(MeshError):
@@ -188,15 +192,53 @@ def _steer_edge(run: Callable[[int, float], TetMesh], edge: float, target_tets: 
 def tetrahedralize_surface(vertices: np.ndarray, faces: np.ndarray, target_tets: int, tolerance: float = 0.2,
                            progress: Callable[[str], None] | None = None, source: str = "the surface") -> TetResult:
     """Tets filling the surface, their count within ``tolerance`` of ``target_tets`` (see the module docstring)."""
-    import fast_simplification
-    import trimesh
     say = progress or (lambda _: None)
     t0 = time.perf_counter()
-    v, f = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    v0, f0 = np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
     keep = int(max(200, FACES_PER_TET * target_tets))
+    attempts = 0
+    while True:
+        result, edge = _tetrahedralize_decimated(v0, f0, keep, target_tets, tolerance, say, source, t0)
+        attempts += result.attempts
+        near = near_pieces(result.mesh, edge)
+        if not near or keep >= len(f0):
+            return replace(result, attempts=attempts)
+        keep = min(2 * keep, len(f0))
+        say(f"the tets of {source} came in {near + 1} pieces within {SPLIT_EDGES:g} tet edges of each other (a "
+            f"thin limb cut where the surface was decimated): meshing again from {keep} of its {len(f0)} "
+            "triangles")
+
+
+def near_pieces(mesh: TetMesh, edge: float) -> int:
+    """How many pieces of the tets (connected through shared vertices), other than the largest, come within
+    SPLIT_EDGES x ``edge`` of the largest: parts the mesher cut off the body rather than parts apart in the
+    surface."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+    t = mesh.tets
+    if len(t) == 0:
+        return 0
+    pairs = np.concatenate([t[:, [a, b]] for a, b in ((0, 1), (0, 2), (0, 3))])
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(mesh.n_vertices,) * 2)
+    k, label = connected_components(graph, directed=False)
+    if k == 1:
+        return 0
+    main = int(np.argmax(np.bincount(label)))
+    gap, _ = cKDTree(mesh.vertices[label == main]).query(mesh.vertices[label != main],
+                                                         distance_upper_bound=SPLIT_EDGES * edge)
+    return int(np.unique(label[label != main][np.isfinite(gap)]).size)
+
+
+def _tetrahedralize_decimated(v0: np.ndarray, f0: np.ndarray, keep: int, target_tets: int, tolerance: float, say,
+                              source: str, t0: float) -> tuple[TetResult, float]:
+    """(tetrahedralize_surface's result from the surface decimated to ``keep`` faces, the edge length it took)."""
+    import fast_simplification
+    import trimesh
+    v, f = v0, f0
     if len(f) > keep:
         v, f = fast_simplification.simplify(v, f, target_reduction=1.0 - keep / len(f))
-        say(f"decimated {source} from {len(faces)} to {len(f)} triangles for ~{target_tets} tets")
+        say(f"decimated {source} from {len(f0)} to {len(f)} triangles for ~{target_tets} tets")
     surf = trimesh.Trimesh(v, f, process=False)
     diag = float(np.linalg.norm(np.ptp(v, axis=0)))
     # an open surface has no volume of its own: half its bounding box is the guess for the first edge length
@@ -206,6 +248,8 @@ def tetrahedralize_surface(vertices: np.ndarray, faces: np.ndarray, target_tets:
                            "close it: give the surface of a solid")
     edge = FIRST_EDGE_FACTOR * (volume * 6.0 * np.sqrt(2.0) / target_tets) ** (1.0 / 3.0)
 
+    edges = {}
+
     def run(attempt: int, edge: float) -> TetMesh:
         say(f"fTetWild attempt {attempt}: edge length {edge:.4g} (file units), aiming at {target_tets} tets ...")
         mesh = _mesh_once(v, f, edge, diag)
@@ -213,6 +257,7 @@ def tetrahedralize_surface(vertices: np.ndarray, faces: np.ndarray, target_tets:
         if mesh.n_tets == 0:
             raise SurfaceError(f"fTetWild found no inside in {source}: it is an open surface (a sheet, not a shell) "
                                "the mesher cannot close; close its holes or give a solid's surface")
+        edges[id(mesh)] = edge
         return mesh
 
     best, attempt = _steer_edge(run, edge, target_tets, tolerance)
@@ -226,7 +271,7 @@ def tetrahedralize_surface(vertices: np.ndarray, faces: np.ndarray, target_tets:
                            "(file units^3): fTetWild could not close it the way it was meant; repair the surface")
     best.validate()
     dihedral, ratio = tet_quality(best.vertices, best.tets)
-    return TetResult(best, dihedral, ratio, attempt, time.perf_counter() - t0, False, None)
+    return TetResult(best, dihedral, ratio, attempt, time.perf_counter() - t0, False, None), edges[id(best)]
 
 
 def _file_sha(path: Path) -> str:
