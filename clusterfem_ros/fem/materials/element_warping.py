@@ -56,12 +56,14 @@ import numpy as np
 from numba import prange
 
 from ..linear.assembly import shape_gradients
+from ..kernels.cluster_slices import aligned_zeros
 from ..kernels.cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .kernel_args import checked_rows, output_rows, pick_build
 from ..model import FemModel
 from .warping_models import WARPING_MODELS  # noqa: F401 (re-export)
 from ...numba_config import SERIAL, compiled, serial_and_parallel
 from .element_rotation import LANES, chunk_rotations
+from .corner_rows import ROW
 
 # Elements are processed in chunks of LANES (fem/materials/element_rotation.py), each chunk's 3x3 matrices as flat
 # (9 LANES,) arrays, entry k of lane l at k LANES + l (structure of arrays: every per-element loop below runs
@@ -235,13 +237,13 @@ def _element_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, r
 
 # Argument groups (ElementFrames): ``elems`` = (corner, grad, vol, lame), the fixed element data by chunk;
 # ``gather`` = (vptr, slot), each vertex's element-corner rows in element order; ``work`` = (rot, buf, how,
-# tmp, fe, e), rotations by chunk (kept between calls: the warm start) and workspace.
+# tmp, fe, e, rows), rotations by chunk (kept between calls: the warm start) and workspace.
 
 def element_pass_source(elems, u, w, work, forces):
     """rot <- the element rotations of u; with ``forces``, fe <- the element forces of w (blocks of chunks in
     parallel)."""
     corner, grad, vol, lame = elems
-    rot, buf, how, tmp, fe, _ = work
+    rot, buf, how, tmp, fe, _, _ = work
     chunks = rot.shape[0]
     blocks = buf.shape[0]
     per = -(-chunks // blocks)
@@ -337,6 +339,8 @@ class ElementFrames:
     fe: np.ndarray          # (chunks, 12 LANES) workspace: element corner forces (-f), component a of corner c
                             #   of lane l at (3 c + a) LANES + l
     e: np.ndarray           # (n + 1, 3) workspace: their sums by vertex (the last row unused)
+    rows: np.ndarray        # (n + 1, 4) workspace: the same sums in padded rows (x, y, z, 0), which the serial
+                            #   Neo-Hookean pass adds to a row at a time (fem/materials/corner_rows.py)
     w: np.ndarray           # (n + 1, 3) workspace: x0 + u + zeta v
     m: int                  # elements
 
@@ -356,14 +360,14 @@ class ElementFrames:
         rot = rot.reshape(chunks, -1)
         elems = lane_elements(model)
         return cls(np.ascontiguousarray(model.rest, dtype=np.float64), elems, (vptr, slot.astype(np.int64)), rot,
-                   np.zeros((blocks, 6, 9 * LANES)), np.zeros((blocks, LANES), dtype=np.int8),
-                   np.zeros((blocks, 3, 3, 3)), np.zeros((chunks, 12 * LANES)), np.zeros((n + 1, 3)),
-                   np.zeros((n + 1, 3)), m)
+                   aligned_zeros((blocks, 6, 9 * LANES)), np.zeros((blocks, LANES), dtype=np.int8),
+                   np.zeros((blocks, 3, 3, 3)), aligned_zeros((chunks, 12 * LANES)), np.zeros((n + 1, 3)),
+                   aligned_zeros((n + 1, ROW)), np.zeros((n + 1, 3)), m)
 
     @property
     def work(self) -> tuple:
-        """The kernels' workspace group: (rot_lanes, buf, how, tmp, fe, e)."""
-        return self.rot_lanes, self.buf, self.how, self.tmp, self.fe, self.e
+        """The kernels' workspace group: (rot_lanes, buf, how, tmp, fe, e, rows)."""
+        return self.rot_lanes, self.buf, self.how, self.tmp, self.fe, self.e, self.rows
 
     @property
     def bounds(self) -> np.ndarray:
