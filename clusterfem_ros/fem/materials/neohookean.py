@@ -242,8 +242,9 @@ def _neohookean_chunk_source(c, buf, how, tmp, forces, corner, grad, vol, lam, m
         _chunk_bounds(D, grad[c], lam, mu, kept[c])
 
 
-_neohookean_chunk = compiled(_neohookean_chunk_source, chunk_forces=_chunk_forces)
-_neohookean_chunk_unplanned = compiled(_neohookean_chunk_source, "_unplanned", chunk_forces=_chunk_forces_unplanned)
+_neohookean_chunk = compiled(_neohookean_chunk_source, "", INLINED, chunk_forces=_chunk_forces)
+_neohookean_chunk_unplanned = compiled(_neohookean_chunk_source, "_unplanned", INLINED,
+                                      chunk_forces=_chunk_forces_unplanned)
 
 
 def _fused_e(elems, gather, u, w, work):
