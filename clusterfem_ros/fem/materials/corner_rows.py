@@ -155,21 +155,28 @@ def add_corner_rows(typingctx, corner, fe, lanes, rows):
         ca, fa, ra = (context.make_array(signature.args[k])(context, builder, args[k]) for k in (0, 1, 3))
         cp, fp, rp = ca.data, double_data(builder, fa), double_data(builder, ra)
         n_lanes = context.cast(builder, args[2], signature.args[2], types.int64)
-        groups = builder.sdiv(builder.add(n_lanes, i64(GROUP - 1)), i64(GROUP))
+        full = builder.sdiv(n_lanes, i64(GROUP))
 
-        def group(first):
+        def group(first, checked):
+            """The group's lanes from ``first``; ``checked``: only those below n_lanes (the last, partial group)."""
             cols = [builder.load(vector_at(builder, fp, builder.add(first, i64(k * LANES)), V4), align=8)
                     for k in range(12)]
             corner_rows = [_rows(builder, *cols[3 * c:3 * c + 3]) for c in range(4)]     # [c][lane]
             index = _corner_indices(builder, cp, first)
             for k in range(GROUP):
-                live = builder.icmp_signed("<", builder.add(first, i64(k)), n_lanes)
-                with builder.if_then(live, likely=True):
+                def add_lane():
                     for c in range(4):
                         at = vector_at(builder, rp, builder.mul(index[k][c], i64(ROW)), V4)
                         builder.store(builder.fadd(builder.load(at, align=8), corner_rows[c][k]), at, align=8)
+                if checked:
+                    with builder.if_then(builder.icmp_signed("<", builder.add(first, i64(k)), n_lanes)):
+                        add_lane()
+                else:
+                    add_lane()
 
-        _group_loop(builder, groups, group)
+        _group_loop(builder, full, lambda first: group(first, False))
+        with builder.if_then(builder.icmp_signed(">", builder.srem(n_lanes, i64(GROUP)), i64(0))):
+            group(builder.mul(full, i64(GROUP)), True)
         return context.get_dummy_value()
 
     return types.void(corner, fe, lanes, rows), codegen
