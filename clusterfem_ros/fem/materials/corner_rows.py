@@ -10,7 +10,8 @@ lanes' rows are transposed into (or out of) the lane-major arrays with vector sh
 
 - ``corner_row_differences(corner, p, out)``: out[3 (c - 1) + a, l] <- p[i_c, a] - p[i_0, a] (c = 1, 2, 3;
   i_c = corner[c, l]), for every lane; ``corner_row_differences_of_two(corner, p, q, out, out_q)`` the same of
-  two arrays with one load of the indices.
+  two arrays with one load of the indices. Differences, so the round-off is relative to the element's size,
+  not to its distance from the origin.
 - ``add_corner_rows(corner, fe, lanes, rows)``: rows[i_c, :3] += component (3 c + a) of fe, lanes 0..lanes-1
   in order, corners 0..3 within a lane.
 
