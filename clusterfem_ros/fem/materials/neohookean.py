@@ -252,15 +252,21 @@ def _fused_e(elems, gather, u, w, work):
     added to their vertices' rows while they are in L1 (add_corner_rows: a 4-wide read-modify-write a corner),
     then e <- the rows' x, y, z. Chunk by chunk and lane by lane is ascending element order, the gather's order
     for every vertex (ElementFrames.gather), so e has the gather's bits; the padding lanes are left out, as the
-    gather leaves them. Same arguments as element_e_source; ``chunk``: bound per build."""
+    gather leaves them. Same arguments as element_e_source. The chunk's two steps (``_neohookean_chunk_source``
+    with forces) are written out here, so the workspace views are made once, not per chunk; ``chunk_forces``:
+    bound per build."""
     corner, grad, vol, lame = elems
-    rot, buf, how, tmp, fe, e, rows = work
+    rot, buf, _, _, fe, e, rows = work
+    D, DW = buf[0, 0], buf[0, 1]
+    lam, mu = lame[0], lame[1]
     vptr = gather[0]
     m = vptr[vptr.shape[0] - 1] // 4                # 4 corners an element
     rows[:, :] = 0.0
     for c in range(rot.shape[0]):
-        chunk(c, buf[0], how[0], tmp[0], True, corner, grad, vol, lame[0], lame[1], u, w, rot, fe)  # noqa: F821
-        add_corner_rows(corner[c], fe[c], min(LANES, m - c * LANES), rows)
+        lanes = corner[c]
+        corner_row_differences_of_two(lanes, u, w, D, DW)
+        chunk_forces(D, DW, grad[c], vol[c], lam, mu, fe[c], rot[c])  # noqa: F821 (bound per build)
+        add_corner_rows(lanes, fe[c], min(LANES, m - c * LANES), rows)
     for i in range(e.shape[0]):
         e[i, 0] = rows[i, 0]
         e[i, 1] = rows[i, 1]
@@ -272,12 +278,12 @@ def _fused_e(elems, gather, u, w, work):
 # without the bounds for the step's later sub-steps (``neohookean_e_unplanned_*``)
 neohookean_pass_serial, neohookean_pass_parallel = serial_and_parallel(
     element_pass_source, "_neohookean", serial={"chunk": _neohookean_chunk}, parallel={"chunk": _neohookean_chunk})
-neohookean_e_serial = compiled(_fused_e, "_neohookean", chunk=_neohookean_chunk)
+neohookean_e_serial = compiled(_fused_e, "_neohookean", chunk_forces=_chunk_forces)
 neohookean_e_parallel = compiled(element_e_source, "_neohookean_parallel", element_pass=neohookean_pass_parallel,
                                  gather_rows=gather_parallel)
 _pass_unplanned_parallel = compiled(element_pass_source, "_neohookean_unplanned_parallel", PARALLEL,
                                     chunk=_neohookean_chunk_unplanned)
-neohookean_e_unplanned_serial = compiled(_fused_e, "_neohookean_unplanned", chunk=_neohookean_chunk_unplanned)
+neohookean_e_unplanned_serial = compiled(_fused_e, "_neohookean_unplanned", chunk_forces=_chunk_forces_unplanned)
 neohookean_e_unplanned_parallel = compiled(element_e_source, "_neohookean_unplanned_parallel",
                                            element_pass=_pass_unplanned_parallel, gather_rows=gather_parallel)
 neohookean_kernel_serial = compiled(element_force_source, "_neohookean", kernel_input=kernel_input_serial,
