@@ -35,10 +35,11 @@ at most half of it.
 
 ``pieces_line``: the serial pass by piece, each timed over the body's chunks in interleaved rounds: the corner
 differences of u and w (fem/materials/corner_rows.py: 8 row loads, 6 row subtractions, 10.5 shuffles and 4.5
-stores a tet, all 4-wide), the lane loop (F, the bound, the damping, P, the corner forces: vectors across tets,
+stores a tet, all 4-wide, as the IR writes them; LLVM trades some shuffles for 2-wide stores), the lane loop (F, the bound, the damping, P, the corner forces: vectors across tets,
 bound by the FMA pipes), the same loop without the bound (a step's later sub-steps), and the corner forces'
 sums by vertex (3 column loads, 8 shuffles and 4 padded-row read-modify-writes a tet, 4-wide). The floor above
-counts the flops alone; the two row pieces are bound by the shuffles, loads and stores, not by flops or bytes.
+counts the flops alone; the two row pieces are bound by their row loads and read-modify-writes, not by flops or
+bytes.
 """
 from __future__ import annotations
 
