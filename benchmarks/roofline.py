@@ -21,8 +21,9 @@ V, the corner forces and their sums by vertex) is about 190. That is a step's fi
 step plans from; its later sub-steps run the pass without the bound (367). Bytes per tet streamed from memory or
 L2 each sub-step: the corner indices (4 x 8), the rest gradients (9 x 8) and volume (8), the corner forces
 written to their element slots (12 x 8; the serial pass adds them to the vertex rows while they are in L1,
-fem/materials/neohookean.py ``_fused_e``): 208; the vertex rows of u and w it reads and of e it adds to
-(4 corners x 3 x 3 x 8 = 288) come from L1/L2 (a vertex is shared by about 20 tets).
+fem/materials/neohookean.py ``_fused_e``): 208; the vertex rows of u and w it reads (4 corners x 2 x 3 x 8 = 192)
+and the padded force rows it adds to (4 corners x 4 x 8, read and written: 256) come from L1/L2 (a vertex is
+shared by about 20 tets).
 
 The host's peak is counted: vector lanes (4 with AVX2, 8 with AVX-512) x 2 flops per FMA x 2 FMA pipes x the
 clock /proc/cpuinfo gives (the nominal one: a core may run faster). Beside it the rate a compiled loop of
@@ -33,11 +34,12 @@ of 1 MB (L2) and of 64 MB (memory), read plus write bytes over the median time. 
 at most half of it.
 
 ``pieces_line``: the serial pass by piece, each timed over the body's chunks in interleaved rounds: the corner
-differences of u and w (scalar loads and stores: 24 loads and 18 stores a tet, no vector gather), the lane loop
-(F, the bound, the damping, P, the corner forces: vectors across tets, bound by the FMA pipes), the same loop
-without the bound (a step's later sub-steps), and the corner forces' sums by vertex (scalar: 24 loads and 12
-stores a tet). The floor above counts the flops alone; the two scalar pieces are bound by the load and store
-ports, not by flops or bytes.
+differences of u and w (fem/materials/corner_rows.py: 8 row loads, 6 row subtractions, 10.5 shuffles and 4.5
+stores a tet, all 4-wide, as the IR writes them; LLVM trades some shuffles for 2-wide stores), the lane loop (F, the bound, the damping, P, the corner forces: vectors across tets,
+bound by the FMA pipes), the same loop without the bound (a step's later sub-steps), and the corner forces'
+sums by vertex (3 column loads, 8 shuffles and 4 padded-row read-modify-writes a tet, 4-wide). The floor above
+counts the flops alone; the two row pieces are bound by their row loads and read-modify-writes, not by flops or
+bytes.
 """
 from __future__ import annotations
 
@@ -50,8 +52,9 @@ import numba
 import numpy as np
 
 from clusterfem_ros.fem.materials import neohookean as nh
+from clusterfem_ros.fem.materials.corner_rows import add_corner_rows, corner_row_differences_of_two
 from clusterfem_ros.fem.materials.element_rotation import LANES
-from clusterfem_ros.fem.materials.element_warping import ElementFrames, element_differences
+from clusterfem_ros.fem.materials.element_warping import ElementFrames
 from .timing import interleaved_seconds
 
 FLOPS = {"differences of u and w": 18, "F and G": 96, "Z = G - F": 9, "cof F and J": 32, "tangent bound": 76,
@@ -139,7 +142,7 @@ def roofline_line(body: str, tets: int, seconds: float, linear_seconds: float) -
 def _differences(corner, u, w, D, DW, reps):
     for _ in range(reps):
         for c in range(corner.shape[0]):
-            element_differences(corner[c], u, w, D, DW, True)
+            corner_row_differences_of_two(corner[c], u, w, D, DW)
 
 
 @numba.njit(cache=True)
@@ -153,10 +156,10 @@ def _lane_loops(grad, vol, lam, mu, kept, fe, D, DW, planned, reps):
 
 
 @numba.njit(cache=True)
-def _sums(corner, fe, e, m, reps):
+def _sums(corner, fe, rows, m, reps):
     for _ in range(reps):
         for c in range(corner.shape[0]):
-            nh._add_corner_forces(corner[c], fe[c], min(LANES, m - c * LANES), e)
+            add_corner_rows(corner[c], fe[c], min(LANES, m - c * LANES), rows)
 
 
 def pass_pieces(model, u: np.ndarray, reps: int = 50) -> dict[str, float]:
@@ -167,14 +170,14 @@ def pass_pieces(model, u: np.ndarray, reps: int = 50) -> dict[str, float]:
     """
     frames = ElementFrames.from_model(model)
     corner, grad, vol, (lam, mu) = frames.elems
-    kept, buf, _, _, fe, e = frames.work
+    kept, buf, _, _, fe, _, rows = frames.work
     D, DW = buf[0, 0], buf[0, 1]
     w = frames.w
     w[:-1] = model.rest + u + model.material.zeta * np.ones_like(u)
     calls = {"differences": lambda: _differences(corner, u, w, D, DW, reps),
              "lane loop": lambda: _lane_loops(grad, vol, lam, mu, kept, fe, D, DW, True, reps),
              "without the bound": lambda: _lane_loops(grad, vol, lam, mu, kept, fe, D, DW, False, reps),
-             "sums by vertex": lambda: _sums(corner, fe, e, frames.m, reps),
+             "sums by vertex": lambda: _sums(corner, fe, rows, frames.m, reps),
              "pass": lambda: [nh.neohookean_e_serial(frames.elems, frames.gather, u, w, frames.work)
                               for _ in range(reps)]}
     samples = interleaved_seconds(calls)

@@ -150,3 +150,10 @@ def release_gains(x: np.ndarray, rows: np.ndarray, v0: np.ndarray, floor: float,
     g = np.clip((ratio - floor) / (1.0 - floor), 0.0, 1.0)
     g[~(ratio < 1.0 - 1.0e-9)] = 1.0              # kept volume (to round-off) or no element: the levels' gains
     return kp0 * g, kd0 * np.sqrt(g)
+
+
+def corner_differences(corner: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """A chunk's corner differences by lane (fem/materials/corner_rows.corner_row_differences): entry
+    (3 (c - 1) + a) LANES + l = p[corner[c, l], a] - p[corner[0, l], a], c = 1, 2, 3; corner (4, LANES)."""
+    d = p[corner[1:]] - p[corner[0]][None]                    # (3, LANES, 3): corner, lane, component
+    return np.ascontiguousarray(np.moveaxis(d, 1, 2)).reshape(-1)

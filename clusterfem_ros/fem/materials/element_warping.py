@@ -23,8 +23,8 @@ Rotations: fem/materials/element_rotation.py, Newton's method on each element's 
 the previous call (two passes to round-off in smooth motion, whatever the strain), the lane polar iteration of
 fem/materials/polar.py and Mueller et al. (2016)'s scalar iteration for inverted or flat elements and chunks Newton
 does not settle. Per chunk of LANES elements one call does the vertex differences, the gradients, the
-rotations and the forces, on (9 LANES,) arrays by lane, so every loop but the differences' gather runs on
-vectors. Chunks are independent: the threaded build runs them in parallel. Each element writes its four
+rotations and the forces, on (9 LANES,) arrays by lane, so every loop runs on vectors (the differences' gather
+too: fem/materials/corner_rows.py). Chunks are independent: the threaded build runs them in parallel. Each element writes its four
 vertex forces to its own slots; a second pass gathers them per vertex in element order, so serial and
 threaded builds give the same bits (no atomics, no colouring).
 
@@ -56,12 +56,14 @@ import numpy as np
 from numba import prange
 
 from ..linear.assembly import shape_gradients
+from ..kernels.cluster_slices import aligned_zeros
 from ..kernels.cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
 from .kernel_args import checked_rows, output_rows, pick_build
 from ..model import FemModel
 from .warping_models import WARPING_MODELS  # noqa: F401 (re-export)
 from ...numba_config import SERIAL, compiled, serial_and_parallel
 from .element_rotation import LANES, chunk_rotations
+from .corner_rows import ROW, corner_row_differences, corner_row_differences_of_two
 
 # Elements are processed in chunks of LANES (fem/materials/element_rotation.py), each chunk's 3x3 matrices as flat
 # (9 LANES,) arrays, entry k of lane l at k LANES + l (structure of arrays: every per-element loop below runs
@@ -74,55 +76,6 @@ BLOCKS = 16
 # The lane steps shared with fem/materials/neohookean.py are inlined by numba, not left to LLVM: called as functions,
 # their indexing kept the element pass from vectorising (the jelly man's warped force took 1.9x as long).
 INLINED = dict(SERIAL, inline="always")
-
-
-@numba.njit(**SERIAL)
-def _corner_differences(corner, l, p, out):
-    """out[3 (c - 1) + a, l] <- p[i_c, a] - p[i_0, a] (c = 1, 2, 3; i_c = corner[c, l]). All twelve loads come
-    first: a store to ``out`` may alias ``p`` for all LLVM knows, so a load after it would be repeated."""
-    i0, i1, i2, i3 = corner[0, l], corner[1, l], corner[2, l], corner[3, l]
-    x0, y0, z0 = p[i0, 0], p[i0, 1], p[i0, 2]
-    x1, y1, z1 = p[i1, 0], p[i1, 1], p[i1, 2]
-    x2, y2, z2 = p[i2, 0], p[i2, 1], p[i2, 2]
-    x3, y3, z3 = p[i3, 0], p[i3, 1], p[i3, 2]
-    out[l], out[LANES + l], out[2 * LANES + l] = x1 - x0, y1 - y0, z1 - z0
-    out[3 * LANES + l], out[4 * LANES + l], out[5 * LANES + l] = x2 - x0, y2 - y0, z2 - z0
-    out[6 * LANES + l], out[7 * LANES + l], out[8 * LANES + l] = x3 - x0, y3 - y0, z3 - z0
-
-
-@numba.njit(**INLINED)
-def _corner_differences_of_two(corner, l, p, q, out, out_q):
-    """_corner_differences of p into out and of q into out_q with one load of the four corner indices (a store
-    to ``out`` may alias ``corner`` for all LLVM knows, so two calls load them twice); inlined (numba IR), which
-    LLVM does not do for a call this size."""
-    i0, i1, i2, i3 = corner[0, l], corner[1, l], corner[2, l], corner[3, l]
-    x0, y0, z0 = p[i0, 0], p[i0, 1], p[i0, 2]
-    x1, y1, z1 = p[i1, 0], p[i1, 1], p[i1, 2]
-    x2, y2, z2 = p[i2, 0], p[i2, 1], p[i2, 2]
-    x3, y3, z3 = p[i3, 0], p[i3, 1], p[i3, 2]
-    a0, b0, c0 = q[i0, 0], q[i0, 1], q[i0, 2]
-    a1, b1, c1 = q[i1, 0], q[i1, 1], q[i1, 2]
-    a2, b2, c2 = q[i2, 0], q[i2, 1], q[i2, 2]
-    a3, b3, c3 = q[i3, 0], q[i3, 1], q[i3, 2]
-    out[l], out[LANES + l], out[2 * LANES + l] = x1 - x0, y1 - y0, z1 - z0
-    out[3 * LANES + l], out[4 * LANES + l], out[5 * LANES + l] = x2 - x0, y2 - y0, z2 - z0
-    out[6 * LANES + l], out[7 * LANES + l], out[8 * LANES + l] = x3 - x0, y3 - y0, z3 - z0
-    out_q[l], out_q[LANES + l], out_q[2 * LANES + l] = a1 - a0, b1 - b0, c1 - c0
-    out_q[3 * LANES + l], out_q[4 * LANES + l], out_q[5 * LANES + l] = a2 - a0, b2 - b0, c2 - c0
-    out_q[6 * LANES + l], out_q[7 * LANES + l], out_q[8 * LANES + l] = a3 - a0, b3 - b0, c3 - c0
-
-
-@numba.njit(**SERIAL)
-def element_differences(corner, u, w, D, DW, forces):
-    """D[3 (c - 1) + a, l] <- u[i_c, a] - u[i_0, a] (c = 1, 2, 3; i_c = corner[c, l]); with ``forces`` DW the
-    same of w: differences, so the round-off is relative to the element's size, not to its distance from the
-    origin."""
-    if forces:
-        for l in range(LANES):
-            _corner_differences_of_two(corner, l, u, w, D, DW)
-    else:
-        for l in range(LANES):
-            _corner_differences(corner, l, u, D)
 
 
 @numba.njit(**INLINED)
@@ -225,7 +178,10 @@ def _element_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, r
     """Chunk c: differences, warm-started gradients, rotations (fem/materials/element_rotation.py) stored in rot[c], and
     with ``forces`` the element forces. buf: (6, 9 LANES) workspace."""
     D, DW, X = buf[0], buf[1], buf[2]
-    element_differences(corner[c], u, w, D, DW, forces)
+    if forces:
+        corner_row_differences_of_two(corner[c], u, w, D, DW)
+    else:
+        corner_row_differences(corner[c], u, D)
     _warm_gradients(D, grad[c], rot[c], X)
     R = chunk_rotations(X, D, buf[3], buf[4], buf[5], how, tmp, rot[c])     # D is free once X is made
     rot[c, :] = R
@@ -235,13 +191,13 @@ def _element_chunk(c, buf, how, tmp, forces, corner, grad, vol, lam, mu, u, w, r
 
 # Argument groups (ElementFrames): ``elems`` = (corner, grad, vol, lame), the fixed element data by chunk;
 # ``gather`` = (vptr, slot), each vertex's element-corner rows in element order; ``work`` = (rot, buf, how,
-# tmp, fe, e), rotations by chunk (kept between calls: the warm start) and workspace.
+# tmp, fe, e, rows), rotations by chunk (kept between calls: the warm start) and workspace.
 
 def element_pass_source(elems, u, w, work, forces):
     """rot <- the element rotations of u; with ``forces``, fe <- the element forces of w (blocks of chunks in
     parallel)."""
     corner, grad, vol, lame = elems
-    rot, buf, how, tmp, fe, _ = work
+    rot, buf, how, tmp, fe, _, _ = work
     chunks = rot.shape[0]
     blocks = buf.shape[0]
     per = -(-chunks // blocks)
@@ -337,6 +293,8 @@ class ElementFrames:
     fe: np.ndarray          # (chunks, 12 LANES) workspace: element corner forces (-f), component a of corner c
                             #   of lane l at (3 c + a) LANES + l
     e: np.ndarray           # (n + 1, 3) workspace: their sums by vertex (the last row unused)
+    rows: np.ndarray        # (n + 1, 4) workspace: the same sums in padded rows (x, y, z, 0), which the serial
+                            #   Neo-Hookean pass adds to a row at a time (fem/materials/corner_rows.py)
     w: np.ndarray           # (n + 1, 3) workspace: x0 + u + zeta v
     m: int                  # elements
 
@@ -356,14 +314,14 @@ class ElementFrames:
         rot = rot.reshape(chunks, -1)
         elems = lane_elements(model)
         return cls(np.ascontiguousarray(model.rest, dtype=np.float64), elems, (vptr, slot.astype(np.int64)), rot,
-                   np.zeros((blocks, 6, 9 * LANES)), np.zeros((blocks, LANES), dtype=np.int8),
-                   np.zeros((blocks, 3, 3, 3)), np.zeros((chunks, 12 * LANES)), np.zeros((n + 1, 3)),
-                   np.zeros((n + 1, 3)), m)
+                   aligned_zeros((blocks, 6, 9 * LANES)), np.zeros((blocks, LANES), dtype=np.int8),
+                   np.zeros((blocks, 3, 3, 3)), aligned_zeros((chunks, 12 * LANES)), np.zeros((n + 1, 3)),
+                   aligned_zeros((n + 1, ROW)), np.zeros((n + 1, 3)), m)
 
     @property
     def work(self) -> tuple:
-        """The kernels' workspace group: (rot_lanes, buf, how, tmp, fe, e)."""
-        return self.rot_lanes, self.buf, self.how, self.tmp, self.fe, self.e
+        """The kernels' workspace group: (rot_lanes, buf, how, tmp, fe, e, rows)."""
+        return self.rot_lanes, self.buf, self.how, self.tmp, self.fe, self.e, self.rows
 
     @property
     def bounds(self) -> np.ndarray:

@@ -52,7 +52,10 @@ flat) element, which the step plan takes a shorter step for (fem/materials/stret
 The compiled pass has the element warping's layout (fem/materials/element_warping.py: ``ElementFrames``, chunks of
 LANES elements by lane, element corner forces gathered per vertex in element order, so serial and threaded
 builds give the same bits) without the rotations. The serial build makes no separate gather: it adds each
-chunk's corner forces to their vertices' rows as it makes them (``_fused_e``), in the gather's order.
+chunk's corner forces to their vertices' rows as it makes them (``_fused_e``), in the gather's order. Both builds
+move the corner rows on vectors (fem/materials/corner_rows.py): a vertex row of u or w is one 4-wide load, a
+corner force one 4-wide read-modify-write of a padded row (the serial build's sums), four lanes transposed at a
+time; the same subtractions and additions as scalar code, so the same bits.
 ``neohookean_force`` is the checked public entry; ``reference_force`` and ``energy`` (numpy) are the twins the
 tests and the stability table use.
 
@@ -69,11 +72,11 @@ import numba
 import numpy as np
 
 from ..kernels.cluster_force_kernel import finish_parallel, finish_serial, kernel_input_parallel, kernel_input_serial
+from .corner_rows import add_corner_rows, corner_row_differences, corner_row_differences_of_two
 from .corotational import deformation_gradients
 from .element_rotation import LANES
-from .element_warping import (INLINED, ElementFrames, element_differences, element_e_source, element_force_source,
-                              element_pass_source, gather_parallel, lane_gradient, run_element_kernel,
-                              store_corner_forces)
+from .element_warping import (INLINED, ElementFrames, element_e_source, element_force_source, element_pass_source,
+                              gather_parallel, lane_gradient, run_element_kernel, store_corner_forces)
 from .kernel_args import checked_rows, pick_build
 from ..model import FemModel
 from ...numba_config import PARALLEL, SERIAL, compiled, serial_and_parallel
@@ -231,55 +234,43 @@ def _neohookean_chunk_source(c, buf, how, tmp, forces, corner, grad, vol, lam, m
     build, with or without the bounds). The element warping's chunk signature, so its pass runs this one; the
     rotation workspace (how, tmp) is unused."""
     D, DW = buf[0], buf[1]
-    element_differences(corner[c], u, w, D, DW, forces)
     if forces:
+        corner_row_differences_of_two(corner[c], u, w, D, DW)
         chunk_forces(D, DW, grad[c], vol[c], lam, mu, fe[c], kept[c])  # noqa: F821 (bound per build)
     else:
+        corner_row_differences(corner[c], u, D)
         _chunk_bounds(D, grad[c], lam, mu, kept[c])
 
 
-_neohookean_chunk = compiled(_neohookean_chunk_source, chunk_forces=_chunk_forces)
-_neohookean_chunk_unplanned = compiled(_neohookean_chunk_source, "_unplanned", chunk_forces=_chunk_forces_unplanned)
-
-
-@numba.njit(**SERIAL)
-def _add_corner_forces(corner, fe, lanes, e):
-    """e[i_c] += corner c's force in fe (c = 0..3, i_c = corner[c, l]) for the first ``lanes`` lanes in order.
-    A lane's twelve loads come first: a store to e may alias fe for all LLVM knows (a fifth faster than corner
-    by corner). An element's four vertices differ, so the order within a lane changes no sum."""
-    for l in range(lanes):
-        i0, i1, i2, i3 = corner[0, l], corner[1, l], corner[2, l], corner[3, l]
-        x0, y0, z0 = fe[l], fe[LANES + l], fe[2 * LANES + l]
-        x1, y1, z1 = fe[3 * LANES + l], fe[4 * LANES + l], fe[5 * LANES + l]
-        x2, y2, z2 = fe[6 * LANES + l], fe[7 * LANES + l], fe[8 * LANES + l]
-        x3, y3, z3 = fe[9 * LANES + l], fe[10 * LANES + l], fe[11 * LANES + l]
-        e[i0, 0] += x0
-        e[i0, 1] += y0
-        e[i0, 2] += z0
-        e[i1, 0] += x1
-        e[i1, 1] += y1
-        e[i1, 2] += z1
-        e[i2, 0] += x2
-        e[i2, 1] += y2
-        e[i2, 2] += z2
-        e[i3, 0] += x3
-        e[i3, 1] += y3
-        e[i3, 2] += z3
+_neohookean_chunk = compiled(_neohookean_chunk_source, "", INLINED, chunk_forces=_chunk_forces)
+_neohookean_chunk_unplanned = compiled(_neohookean_chunk_source, "_unplanned", INLINED,
+                                      chunk_forces=_chunk_forces_unplanned)
 
 
 def _fused_e(elems, gather, u, w, work):
-    """The serial pass and gather in one sweep: e <- 0, then each chunk's corner forces added to their vertices'
-    rows while they are in L1. Chunk by chunk and lane by lane is ascending element order, the gather's order
+    """The serial pass and gather in one sweep: the padded rows by vertex <- 0, then each chunk's corner forces
+    added to their vertices' rows while they are in L1 (add_corner_rows: a 4-wide read-modify-write a corner),
+    then e <- the rows' x, y, z. Chunk by chunk and lane by lane is ascending element order, the gather's order
     for every vertex (ElementFrames.gather), so e has the gather's bits; the padding lanes are left out, as the
-    gather leaves them. Same arguments as element_e_source; ``chunk``: bound per build."""
+    gather leaves them. Same arguments as element_e_source. The chunk's two steps (``_neohookean_chunk_source``
+    with forces) are written out here, so the workspace views are made once, not per chunk; ``chunk_forces``:
+    bound per build."""
     corner, grad, vol, lame = elems
-    rot, buf, how, tmp, fe, e = work
+    rot, buf, _, _, fe, e, rows = work
+    D, DW = buf[0, 0], buf[0, 1]
+    lam, mu = lame[0], lame[1]
     vptr = gather[0]
     m = vptr[vptr.shape[0] - 1] // 4                # 4 corners an element
-    e[:, :] = 0.0
+    rows[:, :] = 0.0
     for c in range(rot.shape[0]):
-        chunk(c, buf[0], how[0], tmp[0], True, corner, grad, vol, lame[0], lame[1], u, w, rot, fe)  # noqa: F821
-        _add_corner_forces(corner[c], fe[c], min(LANES, m - c * LANES), e)
+        lanes = corner[c]
+        corner_row_differences_of_two(lanes, u, w, D, DW)
+        chunk_forces(D, DW, grad[c], vol[c], lam, mu, fe[c], rot[c])  # noqa: F821 (bound per build)
+        add_corner_rows(lanes, fe[c], min(LANES, m - c * LANES), rows)
+    for i in range(e.shape[0]):
+        e[i, 0] = rows[i, 0]
+        e[i, 1] = rows[i, 1]
+        e[i, 2] = rows[i, 2]
 
 
 # the element warping's sources around this chunk: the pass over blocks of chunks, the pass and gather (the
@@ -287,12 +278,12 @@ def _fused_e(elems, gather, u, w, work):
 # without the bounds for the step's later sub-steps (``neohookean_e_unplanned_*``)
 neohookean_pass_serial, neohookean_pass_parallel = serial_and_parallel(
     element_pass_source, "_neohookean", serial={"chunk": _neohookean_chunk}, parallel={"chunk": _neohookean_chunk})
-neohookean_e_serial = compiled(_fused_e, "_neohookean", chunk=_neohookean_chunk)
+neohookean_e_serial = compiled(_fused_e, "_neohookean", chunk_forces=_chunk_forces)
 neohookean_e_parallel = compiled(element_e_source, "_neohookean_parallel", element_pass=neohookean_pass_parallel,
                                  gather_rows=gather_parallel)
 _pass_unplanned_parallel = compiled(element_pass_source, "_neohookean_unplanned_parallel", PARALLEL,
                                     chunk=_neohookean_chunk_unplanned)
-neohookean_e_unplanned_serial = compiled(_fused_e, "_neohookean_unplanned", chunk=_neohookean_chunk_unplanned)
+neohookean_e_unplanned_serial = compiled(_fused_e, "_neohookean_unplanned", chunk_forces=_chunk_forces_unplanned)
 neohookean_e_unplanned_parallel = compiled(element_e_source, "_neohookean_unplanned_parallel",
                                            element_pass=_pass_unplanned_parallel, gather_rows=gather_parallel)
 neohookean_kernel_serial = compiled(element_force_source, "_neohookean", kernel_input=kernel_input_serial,
