@@ -29,7 +29,7 @@ from numba.core import cgutils
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
 
-from ..kernels.llvm_ir import I64, V4, double_data, i64, shuffle_mask, vector_at
+from ..kernels.llvm_ir import V4, accumulating_loop, double_data, i64, shuffle_mask, transpose_rows, vector_at
 from .element_rotation import LANES
 
 GROUP = 4          # lanes transposed at a time: one 4-wide row per lane, one 4-wide column per entry
@@ -53,15 +53,6 @@ def _masked_row(builder, data, at):
                              ir.Constant(V4, [0.0] * 4)])
 
 
-def _columns(builder, rows):
-    """Four rows (x, y, z, -) of four lanes -> their x's, y's and z's, three 4-wide vectors."""
-    sh = builder.shuffle_vector
-    lo01, hi01 = sh(rows[0], rows[1], shuffle_mask([0, 4, 2, 6])), sh(rows[0], rows[1], shuffle_mask([1, 5, 3, 7]))
-    lo23, hi23 = sh(rows[2], rows[3], shuffle_mask([0, 4, 2, 6])), sh(rows[2], rows[3], shuffle_mask([1, 5, 3, 7]))
-    return (sh(lo01, lo23, shuffle_mask([0, 1, 4, 5])), sh(hi01, hi23, shuffle_mask([0, 1, 4, 5])),
-            sh(lo01, lo23, shuffle_mask([2, 3, 6, 7])))
-
-
 def _rows(builder, x, y, z):
     """Three 4-wide vectors (x's, y's, z's of four lanes) -> the four lanes' rows (x, y, z, 0)."""
     sh = builder.shuffle_vector
@@ -70,22 +61,6 @@ def _rows(builder, x, y, z):
     z0_lo, z0_hi = sh(z, zero, shuffle_mask([0, 4, 2, 6])), sh(z, zero, shuffle_mask([1, 5, 3, 7]))
     return (sh(xy_lo, z0_lo, shuffle_mask([0, 1, 4, 5])), sh(xy_hi, z0_hi, shuffle_mask([0, 1, 4, 5])),
             sh(xy_lo, z0_lo, shuffle_mask([2, 3, 6, 7])), sh(xy_hi, z0_hi, shuffle_mask([2, 3, 6, 7])))
-
-
-def _group_loop(builder, groups, body):
-    """LLVM IR for ``for g in range(groups): body(first lane of g)``; groups: an i64 value."""
-    entry = builder.basic_block
-    loop = builder.function.append_basic_block("rows.loop")
-    done = builder.function.append_basic_block("rows.done")
-    builder.cbranch(builder.icmp_signed(">", groups, i64(0)), loop, done)
-    builder.position_at_end(loop)
-    g = builder.phi(I64)
-    g.add_incoming(i64(0), entry)
-    body(builder.mul(g, i64(GROUP)))
-    g_next = builder.add(g, i64(1))
-    g.add_incoming(g_next, builder.basic_block)
-    builder.cbranch(builder.icmp_signed("<", g_next, groups), loop, done)
-    builder.position_at_end(done)
 
 
 def _corner_indices(builder, cp, first):
@@ -116,12 +91,12 @@ def _differences_typing(name, corner, sources, outs):
                     r = [_masked_row(builder, src, a) for a in lane]
                     diffs.append([builder.fsub(r[c], r[0]) for c in (1, 2, 3)])
                 for c in range(3):
-                    cols = _columns(builder, [diffs[k][c] for k in range(GROUP)])
+                    cols = transpose_rows(builder, [diffs[k][c] for k in range(GROUP)])
                     for a in range(3):
                         builder.store(cols[a], vector_at(builder, dst, builder.add(first, i64((3 * c + a) * LANES)),
                                                          V4), align=8)
 
-        _group_loop(builder, i64(LANES // GROUP), group)
+        accumulating_loop(builder, i64(0), i64(LANES), GROUP, [], lambda first, _: group(first) or [])
         return context.get_dummy_value()
 
     return types.void(corner, *sources, *outs), codegen
@@ -175,7 +150,8 @@ def add_corner_rows(typingctx, corner, fe, lanes, rows):
                 else:
                     add_lane()
 
-        _group_loop(builder, full, lambda first: group(first, False))
+        accumulating_loop(builder, i64(0), builder.mul(full, i64(GROUP)), GROUP, [],
+                          lambda first, _: group(first, False) or [])
         with builder.if_then(builder.icmp_signed(">", builder.srem(n_lanes, i64(GROUP)), i64(0))):
             group(builder.mul(full, i64(GROUP)), True)
         return context.get_dummy_value()
