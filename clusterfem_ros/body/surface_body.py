@@ -13,7 +13,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..fem.mesh.tet_mesh import TetMesh, boundary_triangles
+from ..fem.mesh.tet_mesh import TetMesh, boundary_triangles, tet_pieces
 from ..fem.mesh.tetrahedralize import TetResult, surface_to_tets
 from .auto_bind import auto_bind_pose, bones_to_unbind, rest_configuration
 from .limb_bridges import bridge_tets, cut_bridges
@@ -118,12 +118,7 @@ def _unbound_why(name: str, out: float) -> str:
 
 def unbound_islands(tets: np.ndarray, n_vertices: int, driven: np.ndarray) -> list[tuple[int, np.ndarray]]:
     """(vertex count, vertex indices) of every connected piece of the tet mesh with no driven vertex."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    rows = np.repeat(tets[:, 0], 3)
-    cols = tets[:, 1:].reshape(-1)
-    graph = coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n_vertices, n_vertices))
-    n, label = connected_components(graph, directed=False)
+    n, label = tet_pieces(n_vertices, tets)
     hit = np.zeros(n, dtype=bool)
     hit[label[driven]] = True
     return [(int((label == k).sum()), np.flatnonzero(label == k)) for k in np.flatnonzero(~hit)]

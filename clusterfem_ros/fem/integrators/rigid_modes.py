@@ -14,18 +14,10 @@ A vertex in no tet is a piece of its own: three translations, no rotation.
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+
+from ..mesh.tet_mesh import tet_pieces
 
 RANK_TOL = 1e-9     # singular values below this (relative) count as zero: rigid motions of unit size
-
-
-def _pieces(n: int, tets: np.ndarray) -> tuple[int, np.ndarray]:
-    """(number of connected pieces, (n,) piece label per vertex): vertices joined through tets."""
-    a = tets[:, [0, 0, 0, 1, 1, 2]].reshape(-1)
-    b = tets[:, [1, 2, 3, 2, 3, 3]].reshape(-1)
-    graph = sp.coo_matrix((np.ones(a.size), (a, b)), shape=(n, n))
-    return connected_components(graph, directed=False)
 
 
 def _piece_motions(x: np.ndarray) -> np.ndarray:
@@ -59,7 +51,7 @@ def rigid_modes(rest: np.ndarray, tets: np.ndarray, mass: np.ndarray, held: np.n
     free_dofs = np.flatnonzero(np.repeat(~held, 3))
     where = np.full(3 * n, -1, dtype=np.int64)
     where[free_dofs] = np.arange(free_dofs.size)
-    count, label = _pieces(n, np.asarray(tets, dtype=np.int64))
+    count, label = tet_pieces(n, tets)
     columns = []
     for piece in range(count):
         verts = np.flatnonzero(label == piece)

@@ -131,6 +131,17 @@ def boundary_triangles(mesh: TetMesh) -> np.ndarray:
     return np.ascontiguousarray(faces[counts[inv.ravel()] == 1])
 
 
+def tet_pieces(n_vertices: int, tets: np.ndarray) -> tuple[int, np.ndarray]:
+    """(number of connected pieces, (n_vertices,) piece label per vertex): vertices joined through tets (a vertex
+    in no tet is a piece of its own)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+    tets = np.asarray(tets, dtype=np.int64)
+    a, b = np.repeat(tets[:, 0], 3), tets[:, 1:].reshape(-1)
+    graph = sp.coo_matrix((np.ones(a.size), (a, b)), shape=(n_vertices, n_vertices))
+    return connected_components(graph, directed=False)
+
+
 def elements_per_vertex(mesh: TetMesh) -> np.ndarray:
     return np.bincount(mesh.tets.ravel(), minlength=mesh.n_vertices)
 

@@ -35,7 +35,7 @@ from typing import Callable
 
 import numpy as np
 
-from .tet_mesh import MeshError, TetMesh, orient, remove_unreferenced
+from .tet_mesh import MeshError, TetMesh, orient, remove_unreferenced, tet_pieces
 
 FACES_PER_TET = 0.5         # surface faces kept per requested tet before meshing
 FIRST_EDGE_FACTOR = 1.12    # fTetWild gives ~40 % more tets than volume / regular-tet volume: start longer
@@ -213,15 +213,10 @@ def near_pieces(mesh: TetMesh, edge: float) -> int:
     """How many pieces of the tets (connected through shared vertices), other than the largest, come within
     SPLIT_EDGES x ``edge`` of the largest: parts the mesher cut off the body rather than parts apart in the
     surface."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
-    t = mesh.tets
-    if len(t) == 0:
+    if mesh.n_tets == 0:
         return 0
-    pairs = np.concatenate([t[:, [a, b]] for a, b in ((0, 1), (0, 2), (0, 3))])
-    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(mesh.n_vertices,) * 2)
-    k, label = connected_components(graph, directed=False)
+    k, label = tet_pieces(mesh.n_vertices, mesh.tets)
     if k == 1:
         return 0
     main = int(np.argmax(np.bincount(label)))
