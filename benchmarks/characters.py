@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from clusterfem_ros.body.mesh_frame import UNITS as MESH_FRAME_UNITS, measure_frame
+from clusterfem_ros.fem.stability import StabilityError
 
 REPO = Path(__file__).resolve().parents[1]
 MANIFEST = REPO / "tests" / "data" / "character_meshes.yaml"
@@ -230,6 +231,9 @@ def walk(path: Path, entry: CharacterMesh, bvh: Path, tets: int, duration: float
     except ValueError as exc:           # FitError, ConfigError, UrdfError: the scene refuses the input, naming it
         return (f"refused ({time.perf_counter() - t0:.0f} s): {type(exc).__name__}: {exc}",
                 [entry.name, bvh.stem, "refused", "", "", "", "", ""])
+    except StabilityError as exc:       # the placement's step cannot be made stable: this row fails, the run goes on
+        return (f"failed ({time.perf_counter() - t0:.0f} s): {type(exc).__name__}: {exc}",
+                [entry.name, bvh.stem, "failed", "", "", "", "", ""])
     limbs = ", ".join(f"{k[0]}{k[1]} {100 * v[1]:.0f}" for k, v in (r.limbs or {}).items())
     line = (f"{r.seconds:g} s played in {time.perf_counter() - t0:.0f} s: {r.resets} resets, {r.withheld} withheld, "
             f"worst volume error {r.worst_volume:.2%}, worst vertex-to-bone {r.worst_distance:.3f} m, "
