@@ -136,7 +136,10 @@ def test_wall_clock_follows_the_clock_and_counts_the_stages():
     busy = loop.busy_s()                       # the thread's time outside its waits: its stages and their glue
     assert staged <= busy < t_end
     cpu = loop.cpu_s()                         # no other thread wants the GIL here: CPU time is most of it
-    assert 0 < cpu <= busy * 1.01
+    # the thread's CPU clock and the wall clock are read at slightly different instants around every wait, and a
+    # loaded VM's CPU clock can run a little ahead of the wall clock over such a short run: 5 ms of slack; the
+    # waits' own time counted in would add the run's idle seconds
+    assert 0 < cpu <= busy * 1.01 + 0.005
     room = loop.headroom()
     assert room["in_node"] == pytest.approx(scene.steps_done * scene.h / busy)
     assert room["alone"] == pytest.approx(scene.steps_done * scene.h / cpu) and room["alone"] >= room["in_node"] * 0.95
