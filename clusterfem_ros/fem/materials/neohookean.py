@@ -160,10 +160,11 @@ def lane_tangent_bound(f00, f01, f02, f10, f11, f12, f20, f21, f22,
     nf = math.sqrt(i1)
     s = math.sqrt(THIRD * (i1 + 2.0 * math.sqrt(max(0.0, i1 * i1 - 3.0 * i2))))         # >= |s_i|
     p = min(i2, THIRD * (i2 + 2.0 * math.sqrt(max(0.0, i2 * i2 - 3.0 * i1 * j * j))))    # >= (s_j s_k)^2
-    frobenius = mu + lam_s * i2 + SQRT2 * lam_s * abs(j - alpha) * nf
-    twist = mu + lam_s * abs(j - alpha) * s
-    scaling = mu + lam_s * p + lam_s * abs(2.0 * j - alpha) * min(2.0 * s, SQRT2 * nf)
-    return min(frobenius, max(twist, scaling))
+    a = abs(j - alpha)
+    frobenius = i2 + SQRT2 * a * nf                                 # each bound less mu, over lam_s
+    twist = a * s
+    scaling = p + abs(2.0 * j - alpha) * min(2.0 * s, SQRT2 * nf)
+    return mu + lam_s * min(frobenius, max(twist, scaling))
 
 
 def _chunk_forces_source(D, DW, grad, vol, lam, mu, fe, bound):
