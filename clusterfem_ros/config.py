@@ -86,6 +86,10 @@ PARAMS: tuple[Param, ...] = (
     Param("material.density", DEFAULT_DENSITY, "density [kg/m^3]", 1.0, 1.0e5),
     Param("material.mass_damping", DEFAULT_MASS_DAMPING, "Rayleigh xi [1/s]: D = xi M + zeta K", 0.0, 1.0e3),
     Param("material.stiffness_damping", DEFAULT_STIFFNESS_DAMPING, "Rayleigh zeta [s]", 0.0, 1.0),
+    Param("material.volume_stiffness", 0.0, "the flesh's near-incompressibility for the body's whole volume: one "
+          "pressure p = kappa K (V0 - V) / V0 on its surface, kappa this multiple of the elements' bulk modulus K "
+          "(fem/volume_pressure.py; keeps the volume where the bones' targets crush a folded joint; 0 = off, "
+          "nothing built)", 0.0, 1000.0),
     Param("method", "clustered", "integrator", choices=METHODS),
     Param("budget.max_error_mm", 0.0, "if > 0: method, physics.step, warping and modal.k become the cheapest measured point whose max vertex error is within this budget [mm] (0 = off)", 0.0, 1000.0),
     Param("budget.measured_points", "", "CSV of measured (method, step, error, cost) points for the budget choice; '' = the shipped clusterfem_ros/data/speed_error.csv"),
@@ -354,6 +358,7 @@ class MaterialSection:
     density: float                  # rho [kg/m^3]
     mass_damping: float             # Rayleigh xi [1/s]
     stiffness_damping: float        # Rayleigh zeta [s]
+    volume_stiffness: float         # kappa: the whole volume's pressure, a multiple of the bulk modulus
 
 
 @dataclass(frozen=True)

@@ -85,6 +85,7 @@ class Scene:
         self.surface_vertices = parts.surface_vertices
         self.surface_triangles = parts.surface_triangles
         self.rest_volume = parts.rest_volume
+        self.pressure = parts.pressure    # the whole volume's pressure, or None
         self.state = State.rest(self.model)
         self._corners = None            # the tets transposed (4, m), for the volume checks
         self._distance_limit = None     # (limit, its square) (k,): how far each surface vertex may be from its bone
@@ -218,9 +219,14 @@ class Scene:
     def _control(self, t: float, state: State) -> Control:
         """The constraints for the step from t, the skeleton's and the anchors' (``state``: the body at t; sliding
         levels read it)."""
+        f_ext = self._pressure_force(state)
         if self.driver is None:
-            return Control() if self._anchored is None else Control(attachments=self._anchored)
-        return self.driver.control(self._poses(t), self.h, state=state)
+            return Control(f_ext=f_ext) if self._anchored is None else Control(f_ext=f_ext, attachments=self._anchored)
+        return self.driver.control(self._poses(t), self.h, state=state, f_ext=f_ext)
+
+    def _pressure_force(self, state: State | None) -> np.ndarray | None:
+        """The whole volume's pressure force at ``state`` (held over the step), or None without it."""
+        return None if self.pressure is None or state is None else self.pressure.force(state.u)
 
     def start(self, t: float) -> None:
         """Put the body on its skeleton's pose at time t (no transient from the rest pose), and start the clock."""
@@ -259,7 +265,8 @@ class Scene:
         k = 0
         try:
             for k in range(1, SETTLE_MAX_STEPS + 1):
-                self.integrator.step(state, self.driver.control(still, self.h, state=state), self.h)
+                self.integrator.step(state, self.driver.control(still, self.h, state=state,
+                                                                f_ext=self._pressure_force(state)), self.h)
                 if k % SETTLE_CHECK_STEPS == 0:
                     speed = float(np.abs(state.v).max())
                     if not np.isfinite(speed):

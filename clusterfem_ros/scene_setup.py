@@ -22,6 +22,7 @@ from .config import SceneConfig
 from .fem.integrators import make_integrator
 from .fem.integrators.base import Integrator
 from .fem.mass_scaling import scale_mass, scale_to_reference
+from .fem.volume_pressure import VolumePressure, volume_pressure
 from .fem.model import Attachments, Control, FemModel, State, build_model
 from .fem.mesh.tet_mesh import TetMesh, boundary_triangles
 from .numba_cache import is_cached
@@ -55,6 +56,7 @@ class RunningParts:
     surface_vertices: np.ndarray    # (k,) the vertices on the boundary, sorted
     surface_triangles: np.ndarray   # (t, 3) the boundary triangles, into surface_vertices
     rest_volume: float              # [m^3]
+    pressure: VolumePressure | None = None  # the whole volume's pressure (material.volume_stiffness > 0)
 
 
 def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> RunningParts:
@@ -87,12 +89,16 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     elif anchors:                   # world points: their targets, once
         index, x, v, a, kp, kd = point_targets(anchors, model.rest)
         anchored = Attachments(index, x - model.rest[index], v, a, kp, kd)
+    pressure = volume_pressure(model, config.material.volume_stiffness, config.physics.step)
+    if pressure is not None:
+        say(progress, pressure.summary(config.physics.step, model.mass))
     triangles, surface_vertices, surface_triangles = boundary_surface(mesh)
     return RunningParts(config=config, model=model, integrator=integrator, skeleton=skeleton,
                         urdf_xml=parts.urdf_xml, surface_body=parts.surface, bind_all=parts.bind_all,
                         anchors=anchors, anchored=anchored, binding=binding, driver=driver, joints=joints,
                         stream=stream, triangles=triangles, surface_vertices=surface_vertices,
-                        surface_triangles=surface_triangles, rest_volume=float(mesh.volumes().sum()))
+                        surface_triangles=surface_triangles, rest_volume=float(mesh.volumes().sum()),
+                        pressure=pressure)
 
 
 def scaled_mass(config: SceneConfig, model: FemModel, driven: bool,
