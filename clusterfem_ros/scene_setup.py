@@ -22,9 +22,9 @@ from .config import SceneConfig
 from .fem.integrators import make_integrator
 from .fem.integrators.base import Integrator
 from .fem.mass_scaling import scale_mass, scale_to_reference
-from .fem.volume_pressure import VolumePressure, volume_pressure
 from .fem.model import Attachments, Control, FemModel, State, build_model
 from .fem.mesh.tet_mesh import TetMesh, boundary_triangles
+from .fem.volume_pressure import VolumePressure, volume_pressure
 from .numba_cache import is_cached
 from .scene_build import SceneParts, integrator_choice, material_of, say
 from .skeleton.bone_roles import NotHumanoid, label_skeleton

@@ -13,16 +13,19 @@ order. So the body behaves as if its bulk modulus were (1 + kappa) K for a chang
 the elements say for any other deformation. Where a joint folds hard the bones' targets crush the elements
 across it (body/crush_release.py); the pressure pushes the flesh out where it is free to go, as flesh bulges.
 
+Each connected piece of the mesh has its own V0, V and pressure (a loose piece carried by its bone, a hand cut
+off by the mesher, keeps its own volume and does not take up what the trunk loses).
+
 Properties (tests/test_volume_pressure.py): the force is minus the gradient of E_p (finite differences);
 it is zero at the rest volume and for any rigid motion; it sums to zero force and zero torque (a closed
 surface), so it moves no centre of mass and turns no body; V is the tets' total signed volume to round-off.
 
 Cost and step. A pass over the boundary triangles (about 3000 on a 5000-tet body: microseconds). The force is
 evaluated once per physics step, from the state the step starts from, and held over its sub-steps as an
-external force: its stiffness is k g g^T (g = dV/dx), one mode of rate omega^2 = k sum_i |g_i|^2 / m_i, which
-``VolumePressure.mode_rate`` gives at rest. Held over a step the force is symplectic Euler on that mode,
-stable for omega h < 2; ``volume_pressure`` lowers a kappa whose omega h would exceed ``MAX_OMEGA_H`` (half
-that) to the largest that keeps it, and the set-up log line says so.
+external force: its stiffness is k g g^T (g = dV/dx), one mode a piece of rate omega^2 = k sum_i |g_i|^2 / m_i,
+which ``VolumePressure.mode_rates`` gives at rest. Held over a step the force is symplectic Euler on that mode,
+stable for omega h < 2; ``volume_pressure`` lowers the kappa of a piece whose omega h would exceed
+``MAX_OMEGA_H`` (half that) to the largest that keeps it, and the set-up log line says so.
 
 Arrays: triangles (t, 3) int64 outward oriented; positions and forces (n, 3) [m, N].
 """
@@ -35,22 +38,23 @@ import numpy as np
 
 from .linear.material import ParameterError
 from ..numba_config import HOLDS_GIL
-from .mesh.tet_mesh import boundary_triangles
+from .mesh.tet_mesh import boundary_triangles, tet_pieces
 
-MAX_OMEGA_H = 1.0           # the pressure mode's omega h at most this: held over a step, half the limit of 2
+MAX_OMEGA_H = 1.0           # a piece's pressure mode's omega h at most this: held over a step, half the limit of 2
 
 
 @numba.njit(**HOLDS_GIL)
-def _volume_and_gradient(rest, u, triangles, surface, origin, grad):
-    """V enclosed by ``triangles`` at x = rest + u, and grad[i] <- dV/dx_i for the ``surface`` vertices (the
-    others are never written: zero), measured from ``origin`` (a point near the body: V and dV/dx do not depend on
-    it for a closed surface, the round-off does)."""
+def _volumes_and_gradient(rest, u, triangles, piece, surface, origin, six_v, grad):
+    """six_v[q] <- 6 V of piece q (the volume its ``triangles`` enclose at x = rest + u; ``piece`` (t,) the piece
+    of each triangle), grad[i] <- 6 dV/dx_i for the ``surface`` vertices (the others are never written: zero),
+    measured from ``origin`` (a point near the body: V and dV/dx do not depend on it for a closed surface, the
+    round-off does)."""
     for k in range(surface.shape[0]):
         i = surface[k]
         grad[i, 0] = 0.0
         grad[i, 1] = 0.0
         grad[i, 2] = 0.0
-    six_v = 0.0
+    six_v[:] = 0.0
     for t in range(triangles.shape[0]):
         a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
         ax = rest[a, 0] + u[a, 0] - origin[0]
@@ -65,7 +69,7 @@ def _volume_and_gradient(rest, u, triangles, surface, origin, grad):
         bcx, bcy, bcz = by * cz - bz * cy, bz * cx - bx * cz, bx * cy - by * cx      # b x c
         cax, cay, caz = cy * az - cz * ay, cz * ax - cx * az, cx * ay - cy * ax      # c x a
         abx, aby, abz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx      # a x b
-        six_v += ax * bcx + ay * bcy + az * bcz
+        six_v[piece[t]] += ax * bcx + ay * bcy + az * bcz
         grad[a, 0] += bcx
         grad[a, 1] += bcy
         grad[a, 2] += bcz
@@ -75,74 +79,104 @@ def _volume_and_gradient(rest, u, triangles, surface, origin, grad):
         grad[c, 0] += abx
         grad[c, 1] += aby
         grad[c, 2] += abz
-    for k in range(surface.shape[0]):
-        i = surface[k]
-        grad[i, 0] *= 1.0 / 6.0
-        grad[i, 1] *= 1.0 / 6.0
-        grad[i, 2] *= 1.0 / 6.0
-    return six_v / 6.0
 
 
 @numba.njit(**HOLDS_GIL)
-def _scale_rows(grad, surface, factor):
-    """grad[i] *= factor for the ``surface`` vertices."""
+def _scale_rows(grad, surface, vertex_piece, factor):
+    """grad[i] *= factor[piece of i] for the ``surface`` vertices."""
     for k in range(surface.shape[0]):
         i = surface[k]
-        grad[i, 0] *= factor
-        grad[i, 1] *= factor
-        grad[i, 2] *= factor
+        f = factor[vertex_piece[k]]
+        grad[i, 0] *= f
+        grad[i, 1] *= f
+        grad[i, 2] *= f
 
 
 @dataclass
 class VolumePressure:
-    """The whole-volume pressure of one body (see the module docstring); ``force`` reuses its own buffer."""
+    """The whole-volume pressure of one body, a pressure per connected piece (see the module docstring);
+    ``force`` reuses its own buffer."""
     rest: np.ndarray            # (n, 3) rest positions [m]
     triangles: np.ndarray       # (t, 3) outward boundary triangles
-    rest_volume: float          # V0 [m^3]
-    stiffness: float            # k = kappa K / V0 [Pa / m^3]
-    kappa: float                # the multiple of the bulk modulus in use
-    asked: float | None = None  # the multiple asked for, where it was lowered for the step
+    piece: np.ndarray           # (t,) the connected piece of each triangle, 0 .. pieces - 1
+    rest_volumes: np.ndarray    # (pieces,) V0 of each piece [m^3]
+    bulk: float                 # K, the elements' bulk modulus [Pa]
+    kappa: np.ndarray           # (pieces,) the multiple of K in use on each piece
+    asked: float                # the multiple asked for (a piece whose mode is too fast for the step gets less)
 
     def __post_init__(self):
         self._grad = np.zeros_like(self.rest)
         self._surface = np.unique(self.triangles)
+        first = np.zeros(self.rest.shape[0], dtype=np.int64)
+        first[self.triangles.reshape(-1)] = np.repeat(self.piece, 3)
+        self._vertex_piece = first[self._surface]           # the piece of each surface vertex
+        self._six_v = np.zeros(self.rest_volumes.size)
+        self._factor = np.zeros(self.rest_volumes.size)
         self._origin = self.rest.mean(axis=0)
+
+    @property
+    def rest_volume(self) -> float:
+        return float(self.rest_volumes.sum())
+
+    @property
+    def stiffness(self) -> np.ndarray:
+        """k of each piece = kappa K / V0 [Pa / m^3]."""
+        return self.kappa * self.bulk / self.rest_volumes
+
+    def volumes(self, u: np.ndarray) -> np.ndarray:
+        """V of each piece at displacement u, (pieces,) [m^3]; leaves 6 dV/dx in the buffer."""
+        _volumes_and_gradient(self.rest, u, self.triangles, self.piece, self._surface, self._origin, self._six_v,
+                              self._grad)
+        return self._six_v / 6.0
 
     def volume(self, u: np.ndarray) -> float:
         """V enclosed by the boundary at displacement u [m^3]."""
-        return _volume_and_gradient(self.rest, u, self.triangles, self._surface, self._origin, self._grad)
+        return float(self.volumes(u).sum())
 
     def force(self, u: np.ndarray) -> np.ndarray:
-        """f = k (V0 - V) dV/dx at displacement u, (n, 3) [N]: a view of the object's buffer, valid until the next
-        call."""
-        v = _volume_and_gradient(self.rest, u, self.triangles, self._surface, self._origin, self._grad)
-        _scale_rows(self._grad, self._surface, self.stiffness * (self.rest_volume - v))
+        """f = k (V0 - V) dV/dx of each piece at displacement u, (n, 3) [N]: a view of the object's buffer, valid
+        until the next call."""
+        v = self.volumes(u)
+        np.multiply(self.stiffness, self.rest_volumes - v, out=self._factor)
+        self._factor *= 1.0 / 6.0
+        _scale_rows(self._grad, self._surface, self._vertex_piece, self._factor)
         return self._grad
 
     def energy(self, u: np.ndarray) -> float:
-        """E_p = k / 2 (V - V0)^2 [J]."""
-        d = self.volume(u) - self.rest_volume
-        return 0.5 * self.stiffness * d * d
+        """E_p = sum over pieces of k / 2 (V - V0)^2 [J]."""
+        d = self.volumes(u) - self.rest_volumes
+        return float(0.5 * np.sum(self.stiffness * d * d))
+
+    def mode_rates(self, mass: np.ndarray) -> np.ndarray:
+        """omega^2 = k sum_i |dV/dx_i|^2 / m_i of each piece at rest, (pieces,) [1/s^2]: its one mode."""
+        self.volumes(np.zeros_like(self.rest))
+        g2 = np.einsum("ij,ij->i", self._grad[self._surface], self._grad[self._surface]) / 36.0
+        by_piece = np.bincount(self._vertex_piece, g2 / mass[self._surface], minlength=self.rest_volumes.size)
+        return self.stiffness * by_piece
 
     def mode_rate(self, mass: np.ndarray) -> float:
-        """omega^2 = k sum_i |dV/dx_i|^2 / m_i at rest [1/s^2]: the pressure's one mode (module docstring)."""
-        self.volume(np.zeros_like(self.rest))
-        g2 = np.einsum("ij,ij->i", self._grad, self._grad)
-        return float(self.stiffness * np.sum(g2 / mass))
+        """The fastest piece's omega^2 [1/s^2]."""
+        return float(self.mode_rates(mass).max())
 
     def summary(self, h: float, mass: np.ndarray) -> str:
-        w = np.sqrt(self.mode_rate(mass))
-        lowered = (f", lowered from {self.asked:g} so that the mode's omega h stays at {MAX_OMEGA_H:g} for the "
-                   f"{h:g} s step (light surface vertices)" if self.asked is not None else "")
-        return (f"volume pressure: kappa {self.kappa:.3g}{lowered} (k = {self.stiffness:.3g} Pa/m^3 on V0 = "
-                f"{self.rest_volume:.4g} m^3, {self.triangles.shape[0]} boundary triangles), its mode's omega h = "
-                f"{w * h:.3f}")
+        w = np.sqrt(self.mode_rates(mass))
+        low = self.kappa < self.asked
+        lowered = ""
+        if low.any():
+            share = self.rest_volumes[low].sum() / self.rest_volume
+            lowered = (f"; lowered on {int(low.sum())} of {low.size} pieces ({share:.1%} of the volume, kappa down "
+                       f"to {self.kappa.min():.3g}) so that each mode's omega h stays at {MAX_OMEGA_H:g} for the "
+                       f"{h:g} s step (light surface vertices)")
+        return (f"volume pressure: kappa {self.asked:g} on {low.size} piece{'s' if low.size > 1 else ''} "
+                f"(K = {self.bulk:.4g} Pa, V0 = {self.rest_volume:.4g} m^3, {self.triangles.shape[0]} boundary "
+                f"triangles), the fastest mode's omega h = {w.max() * h:.3f}{lowered}")
 
 
 def volume_pressure(model, kappa: float, h: float) -> VolumePressure | None:
     """The ``VolumePressure`` of ``model`` (fem.model.FemModel) for ``kappa`` >= 0 (None for 0: nothing built) and the
-    step h. A kappa whose mode's omega h would exceed MAX_OMEGA_H is lowered to the largest that keeps it (a mesh
-    with light surface vertices has a faster mode); ``summary`` says so."""
+    step h: one pressure per connected piece of the mesh (a piece's volume is its own: a hand's loose piece does
+    not take up what the trunk loses). A piece whose mode's omega h would exceed MAX_OMEGA_H gets the largest kappa
+    that keeps it (a small piece with light surface vertices has a fast mode); ``summary`` says so."""
     kappa = float(kappa)
     if not np.isfinite(kappa) or kappa < 0.0:
         raise ParameterError(f"material.volume_stiffness = {kappa!r}: give a multiple >= 0 of the elements' bulk "
@@ -152,14 +186,17 @@ def volume_pressure(model, kappa: float, h: float) -> VolumePressure | None:
     if kappa == 0.0:
         return None
     lam, mu = model.material.lame
-    bulk = lam + 2.0 * mu / 3.0
     triangles = boundary_triangles(model.mesh)
+    _, labels = tet_pieces(model.n_vertices, model.mesh.tets)
+    _, piece = np.unique(labels[triangles[:, 0]], return_inverse=True)
+    piece = piece.reshape(-1).astype(np.int64)
+    vertex_piece = np.unique(labels[triangles[:, 0]], return_inverse=True)[0]
+    tet_piece = np.searchsorted(vertex_piece, labels[model.mesh.tets[:, 0]])
+    rest_volumes = np.bincount(tet_piece, model.mesh.volumes(), minlength=vertex_piece.size)
     rest = np.ascontiguousarray(model.rest, dtype=np.float64)
-    v0 = float(model.mesh.volumes().sum())
-    p = VolumePressure(rest, triangles, v0, kappa * bulk / v0, kappa)
-    w2 = p.mode_rate(model.mass)
-    if w2 * h * h > MAX_OMEGA_H ** 2:
-        p.kappa = kappa * MAX_OMEGA_H ** 2 / (w2 * h * h)
-        p.stiffness = p.kappa * bulk / v0
-        p.asked = kappa
+    p = VolumePressure(rest, triangles, piece, rest_volumes, lam + 2.0 * mu / 3.0,
+                       np.full(rest_volumes.size, kappa), kappa)
+    w2 = p.mode_rates(model.mass)
+    fast = w2 * h * h > MAX_OMEGA_H ** 2
+    p.kappa[fast] = kappa * MAX_OMEGA_H ** 2 / (w2[fast] * h * h)
     return p
