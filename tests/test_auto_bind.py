@@ -225,3 +225,18 @@ def test_bind_pose_auto_builds_any_other_body_in_the_zero_pose(skeleton):
     from clusterfem_ros.scene_build import jelly_bind_pose
     config = SceneConfig().with_values({"skeleton.bind_pose": "auto", "skeleton.source": "robot_description"})
     assert jelly_bind_pose(config, skeleton) is None
+
+
+def test_a_leaning_rest_traces_the_ankle_at_the_foot_of_the_straighter_shin():
+    """_standing_feet: each leg's ankle height (tip_rise) comes from the pose whose shin stands nearer the vertical,
+    the arms' and the rest of each limb from the rest."""
+    def limb(shin_dir, rise):
+        knee = np.array([0.0, 0.0, 0.5])
+        return ab.SkeletonLimb(0, 1, np.array([0.0, 0.0, 0.9]), knee, knee + 0.4 * np.asarray(shin_dir), 0.2, 2, rise)
+    slanted, vertical = [0.6, 0.0, -0.8], [0.0, 0.0, -1.0]
+    rest = {("l", "leg"): limb(slanted, 0.02), ("r", "leg"): limb(vertical, 0.08), ("l", "arm"): limb(slanted, 0.3)}
+    upright = {("l", "leg"): limb(vertical, 0.07), ("r", "leg"): limb(slanted, 0.01), ("l", "arm"): limb(vertical, 0.5)}
+    out = ab._standing_feet(rest, upright)
+    assert out[("l", "leg")].tip_rise == 0.07 and out[("r", "leg")].tip_rise == 0.08
+    assert out[("l", "arm")] is rest[("l", "arm")]
+    assert np.array_equal(out[("l", "leg")].end, rest[("l", "leg")].end)

@@ -34,7 +34,7 @@ A character mesh is modelled in some pose (T-pose, A-pose, arms down) and a capt
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -373,6 +373,20 @@ def straighten_trunk(skeleton, q0: np.ndarray, roles) -> np.ndarray:
     return q
 
 
+def _standing_feet(rest: dict, upright: dict) -> dict:
+    """The ``rest`` limbs (skeleton_limbs) with each leg's ``tip_rise`` (the ankle's height above the foot's far end,
+    at which the mesh's ankle is traced) taken from the pose whose shin stands nearer the vertical: the rest, or
+    ``upright``, the rest with its trunk stood up (straighten_trunk). A capture's frame bound as the rest
+    (Bandai Namco's dash, mid-stride) has a foot pointed off the ground or a shin slanted, and its ankle's height
+    traced the mesh's knees bent (SMPL's legs 12-15 cm from the mesh's middle, CesiumMan refused); a rest bent at
+    the spine stands its legs straight, which standing the trunk up turns with the pelvis."""
+    def standing(limb) -> float:
+        d = limb.end - limb.middle
+        return float(-d[2] / (np.linalg.norm(d) + 1e-12))
+    return {k: (replace(limb, tip_rise=upright[k].tip_rise)
+                if k[1] == "leg" and standing(upright[k]) > standing(limb) else limb) for k, limb in rest.items()}
+
+
 def turn_limbs(skeleton, q0: np.ndarray, limbs: dict, targets: dict) -> np.ndarray:
     """``q0`` with the joints of each limb's upper and lower bone set (least squares) so that the bones point along
     ``targets`` ((side, kind) -> (upper direction, lower direction[, hand / foot direction]), skeleton world frame),
@@ -497,6 +511,14 @@ def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles
         raise FitError(f"skeleton.bind_pose 'auto' finds the bind pose of a human skeleton, and this one is not "
                        f"({exc}): set skeleton.bind_pose 'neutral' or 'first_frame'") from None
     limbs = skeleton_limbs(roles, starts, ends)
+    q, before = q_rest, trunk_lean(skeleton, q_rest, roles)
+    if before[0] > TRUNK_LEAN:
+        q = straighten_trunk(skeleton, q_rest, roles)
+        after = trunk_lean(skeleton, q, roles)
+        say(f"the skeleton's trunk leans {before[0]:.0f} deg from the vertical in its rest (its neck and head "
+            f"{before[1]:.0f} deg): stood up as the mesh stands ({after[0]:.0f} / {after[1]:.0f} deg) before its limbs "
+            "are turned onto the mesh's")
+        limbs = _standing_feet(limbs, skeleton_limbs(roles, *skeleton.bone_segments(q)))
     first = fit_mesh(vertices, starts, ends, "auto", unit, up, forward)
     first, why = _trace_size(first, vertices, starts, ends, limbs)
     if why:
@@ -508,13 +530,6 @@ def auto_bind_pose(skeleton, q_rest: np.ndarray, vertices: np.ndarray, triangles
     A = facing_rotation(pose, roles)
     targets = {k: (A @ pose.limbs[k].upper_dir, A @ pose.limbs[k].lower_dir,
                    A @ (pose.limbs[k].tip - pose.limbs[k].end)) for k in LIMBS}
-    q, before = q_rest, trunk_lean(skeleton, q_rest, roles)
-    if before[0] > TRUNK_LEAN:
-        q = straighten_trunk(skeleton, q_rest, roles)
-        after = trunk_lean(skeleton, q, roles)
-        say(f"the skeleton's trunk leans {before[0]:.0f} deg from the vertical in its rest (its neck and head "
-            f"{before[1]:.0f} deg): stood up as the mesh stands ({after[0]:.0f} / {after[1]:.0f} deg) before its limbs "
-            "are turned onto the mesh's")
     q = turn_limbs(skeleton, q, limbs, targets)
     R = A @ first.rotation
     marks = np.vstack([first.inverse(np.array([pose.limbs[k].middle_joint, pose.limbs[k].end])) for k in LIMBS])
