@@ -377,9 +377,10 @@ def _standing_feet(rest: dict, upright: dict) -> dict:
     """The ``rest`` limbs (skeleton_limbs) with each leg's ``tip_rise`` (the ankle's height above the foot's far end,
     at which the mesh's ankle is traced) taken from the pose whose shin stands nearer the vertical: the rest, or
     ``upright``, the rest with its trunk stood up (straighten_trunk). A capture's frame bound as the rest
-    (Bandai Namco's dash, mid-stride) has a foot pointed off the ground or a shin slanted, and its ankle's height
-    traced the mesh's knees bent (SMPL's legs 12-15 cm from the mesh's middle, CesiumMan refused); a rest bent at
-    the spine stands its legs straight, which standing the trunk up turns with the pelvis."""
+    (Bandai Namco's dash, mid-stride) has a foot pointed off the ground or a shin slanted, and the mesh's ankles
+    traced at its ankle's height come out too low and its knees bent (on the dash: SMPL's legs 12-15 cm from the
+    mesh's middle instead of 3-8, CesiumMan's lower legs outside it); a rest bent at the spine stands its legs
+    straight, which standing the trunk up turns with the pelvis."""
     def standing(limb) -> float:
         d = limb.end - limb.middle
         return float(-d[2] / (np.linalg.norm(d) + 1e-12))
