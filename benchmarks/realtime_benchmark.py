@@ -40,8 +40,8 @@ TARGETS = {"real_time_factor": 1.00, "headroom": 2.5, "latency_p99_ms": 40.0, "r
 def run_demo(args: list[str], tmp: Path, name: str) -> dict:
     """One demo run with ``args``; its JSON summary (SystemExit with the run's log when it fails)."""
     out, log = tmp / f"{name}.json", tmp / f"{name}.log"
-    cmd = [sys.executable, "-m", "clusterfem_ros.nodes.demo", *args, "--no-png", "--bags", str(tmp / "bags"),
-           "--summary-json", str(out)]
+    cmd = [sys.executable, "-m", "clusterfem_ros.nodes.demo", *args, "--no-png", "--no-video",
+           "--bags", str(tmp / "bags"), "--summary-json", str(out)]
     t0 = time.perf_counter()
     with open(log, "w") as f:
         code = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT).returncode

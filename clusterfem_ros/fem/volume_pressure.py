@@ -44,49 +44,44 @@ MAX_OMEGA_H = 1.0           # a piece's pressure mode's omega h at most this: he
 
 
 @numba.njit(**HOLDS_GIL)
-def _volumes_and_gradient(rest, u, triangles, piece, surface, origin, six_v, grad):
-    """six_v[q] <- 6 V of piece q (the volume its ``triangles`` enclose at x = rest + u; ``piece`` (t,) the piece
-    of each triangle), grad[i] <- 6 dV/dx_i for the ``surface`` vertices (the others are never written: zero),
-    measured from ``origin`` (a point near the body: V and dV/dx do not depend on it for a closed surface, the
-    round-off does)."""
+def _volumes_and_gradient(rest, u, surface, ptr, pairs, vertex_piece, origin, xs, six_v, grad):
+    """six_v[q] <- 6 V of piece q and grad[i] <- 6 dV/dx_i for the ``surface`` vertices (the others are never
+    written: zero), at x = rest + u measured from ``origin`` (a point near the body: V and dV/dx do not depend on it
+    for a closed surface, the round-off does). By vertex, no scatter: surface vertex k's triangles are the pairs
+    pairs[ptr[k]:ptr[k + 1]] of its two other corners in the triangle's cyclic order (into ``surface``), and
+    6 dV/dx_k = sum of x_j x x_l over them; sum_k x_k . (6 dV/dx_k) is three times 6 V."""
     for k in range(surface.shape[0]):
         i = surface[k]
-        grad[i, 0] = 0.0
-        grad[i, 1] = 0.0
-        grad[i, 2] = 0.0
+        xs[k, 0] = rest[i, 0] + u[i, 0] - origin[0]
+        xs[k, 1] = rest[i, 1] + u[i, 1] - origin[1]
+        xs[k, 2] = rest[i, 2] + u[i, 2] - origin[2]
     six_v[:] = 0.0
-    for t in range(triangles.shape[0]):
-        a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
-        ax = rest[a, 0] + u[a, 0] - origin[0]
-        ay = rest[a, 1] + u[a, 1] - origin[1]
-        az = rest[a, 2] + u[a, 2] - origin[2]
-        bx = rest[b, 0] + u[b, 0] - origin[0]
-        by = rest[b, 1] + u[b, 1] - origin[1]
-        bz = rest[b, 2] + u[b, 2] - origin[2]
-        cx = rest[c, 0] + u[c, 0] - origin[0]
-        cy = rest[c, 1] + u[c, 1] - origin[1]
-        cz = rest[c, 2] + u[c, 2] - origin[2]
-        bcx, bcy, bcz = by * cz - bz * cy, bz * cx - bx * cz, bx * cy - by * cx      # b x c
-        cax, cay, caz = cy * az - cz * ay, cz * ax - cx * az, cx * ay - cy * ax      # c x a
-        abx, aby, abz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx      # a x b
-        six_v[piece[t]] += ax * bcx + ay * bcy + az * bcz
-        grad[a, 0] += bcx
-        grad[a, 1] += bcy
-        grad[a, 2] += bcz
-        grad[b, 0] += cax
-        grad[b, 1] += cay
-        grad[b, 2] += caz
-        grad[c, 0] += abx
-        grad[c, 1] += aby
-        grad[c, 2] += abz
+    for k in range(surface.shape[0]):
+        gx = 0.0
+        gy = 0.0
+        gz = 0.0
+        for e in range(ptr[k], ptr[k + 1]):
+            j, m = pairs[e, 0], pairs[e, 1]
+            gx += xs[j, 1] * xs[m, 2] - xs[j, 2] * xs[m, 1]
+            gy += xs[j, 2] * xs[m, 0] - xs[j, 0] * xs[m, 2]
+            gz += xs[j, 0] * xs[m, 1] - xs[j, 1] * xs[m, 0]
+        i = surface[k]
+        grad[i, 0] = gx
+        grad[i, 1] = gy
+        grad[i, 2] = gz
+        six_v[vertex_piece[k]] += (xs[k, 0] * gx + xs[k, 1] * gy + xs[k, 2] * gz) * (1.0 / 3.0)
 
 
 @numba.njit(**HOLDS_GIL)
-def _scale_rows(grad, surface, vertex_piece, factor):
-    """grad[i] *= factor[piece of i] for the ``surface`` vertices."""
+def _pressure_force(rest, u, surface, ptr, pairs, vertex_piece, origin, xs, six_v, grad, stiffness, rest_volumes):
+    """grad[i] <- f_i = k (V0 - V) dV/dx_i of vertex i's piece (``_volumes_and_gradient``, then scaled), in one
+    call: a step pays one dispatch."""
+    _volumes_and_gradient(rest, u, surface, ptr, pairs, vertex_piece, origin, xs, six_v, grad)
+    for q in range(six_v.shape[0]):
+        six_v[q] = stiffness[q] * (rest_volumes[q] - six_v[q] * (1.0 / 6.0)) * (1.0 / 6.0)
     for k in range(surface.shape[0]):
         i = surface[k]
-        f = factor[vertex_piece[k]]
+        f = six_v[vertex_piece[k]]
         grad[i, 0] *= f
         grad[i, 1] *= f
         grad[i, 2] *= f
@@ -107,11 +102,18 @@ class VolumePressure:
     def __post_init__(self):
         self._grad = np.zeros_like(self.rest)
         self._surface = np.unique(self.triangles)
-        first = np.zeros(self.rest.shape[0], dtype=np.int64)
-        first[self.triangles.reshape(-1)] = np.repeat(self.piece, 3)
-        self._vertex_piece = first[self._surface]           # the piece of each surface vertex
+        local = np.searchsorted(self._surface, self.triangles)      # the triangles into the surface vertices
+        first = np.zeros(self._surface.size, dtype=np.int64)
+        first[local.reshape(-1)] = np.repeat(self.piece, 3)
+        self._vertex_piece = first                                  # the piece of each surface vertex
+        centre = local.reshape(-1)                                  # each corner, with the two after it in turn
+        others = np.stack([local[:, [1, 2, 0]].reshape(-1), local[:, [2, 0, 1]].reshape(-1)], axis=1)
+        order = np.argsort(centre, kind="stable")
+        self._pairs = np.ascontiguousarray(others[order])
+        self._ptr = np.concatenate([[0], np.cumsum(np.bincount(centre, minlength=self._surface.size))])
+        self._xs = np.zeros((self._surface.size, 3))
         self._six_v = np.zeros(self.rest_volumes.size)
-        self._factor = np.zeros(self.rest_volumes.size)
+        self.set_kappa(self.kappa)
         self._origin = self.rest.mean(axis=0)
 
     @property
@@ -121,12 +123,17 @@ class VolumePressure:
     @property
     def stiffness(self) -> np.ndarray:
         """k of each piece = kappa K / V0 [Pa / m^3]."""
-        return self.kappa * self.bulk / self.rest_volumes
+        return self._stiffness
+
+    def set_kappa(self, kappa: np.ndarray) -> None:
+        """Use these multiples of K, one a piece."""
+        self.kappa = np.asarray(kappa, dtype=np.float64).copy()
+        self._stiffness = self.kappa * self.bulk / self.rest_volumes
 
     def volumes(self, u: np.ndarray) -> np.ndarray:
         """V of each piece at displacement u, (pieces,) [m^3]; leaves 6 dV/dx in the buffer."""
-        _volumes_and_gradient(self.rest, u, self.triangles, self.piece, self._surface, self._origin, self._six_v,
-                              self._grad)
+        _volumes_and_gradient(self.rest, u, self._surface, self._ptr, self._pairs, self._vertex_piece, self._origin,
+                              self._xs, self._six_v, self._grad)
         return self._six_v / 6.0
 
     def volume(self, u: np.ndarray) -> float:
@@ -136,10 +143,8 @@ class VolumePressure:
     def force(self, u: np.ndarray) -> np.ndarray:
         """f = k (V0 - V) dV/dx of each piece at displacement u, (n, 3) [N]: a view of the object's buffer, valid
         until the next call."""
-        v = self.volumes(u)
-        np.multiply(self.stiffness, self.rest_volumes - v, out=self._factor)
-        self._factor *= 1.0 / 6.0
-        _scale_rows(self._grad, self._surface, self._vertex_piece, self._factor)
+        _pressure_force(self.rest, u, self._surface, self._ptr, self._pairs, self._vertex_piece, self._origin,
+                        self._xs, self._six_v, self._grad, self._stiffness, self.rest_volumes)
         return self._grad
 
     def energy(self, u: np.ndarray) -> float:
@@ -198,5 +203,7 @@ def volume_pressure(model, kappa: float, h: float) -> VolumePressure | None:
                        np.full(rest_volumes.size, kappa), kappa)
     w2 = p.mode_rates(model.mass)
     fast = w2 * h * h > MAX_OMEGA_H ** 2
-    p.kappa[fast] = kappa * MAX_OMEGA_H ** 2 / (w2[fast] * h * h)
+    lowered = p.kappa.copy()
+    lowered[fast] = kappa * MAX_OMEGA_H ** 2 / (w2[fast] * h * h)
+    p.set_kappa(lowered)
     return p
