@@ -20,7 +20,8 @@ Properties (tests/test_volume_pressure.py): the force is minus the gradient of E
 it is zero at the rest volume and for any rigid motion; it sums to zero force and zero torque (a closed
 surface), so it moves no centre of mass and turns no body; V is the tets' total signed volume to round-off.
 
-Cost and step. A pass over the boundary triangles (about 3000 on a 5000-tet body: microseconds). The force is
+Cost and step. One pass over the surface vertices' triangles a step, in the skeleton stage of the node's timing
+(``scripts/run`` prints it; docs/benchmarks.md, A surface character, has the character with and without). The force is
 evaluated once per physics step, from the state the step starts from, and held over its sub-steps as an
 external force: its stiffness is k g g^T (g = dV/dx), one mode a piece of rate omega^2 = k sum_i |g_i|^2 / m_i,
 which ``VolumePressure.mode_rates`` gives at rest. Held over a step the force is symplectic Euler on that mode,
