@@ -459,3 +459,29 @@ def test_a_bind_capture_of_another_skeleton_is_refused(tmp_path):
                    " End Site\n {\n  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 1\nFrame Time: 0.01\n0 0 0\n")
     with pytest.raises(FitError, match=r"capture of another skeleton: it has no joint lift, bend"):
         bind_configuration(Skeleton.from_urdf_string(_urdf()), "first_frame", bvh_file=str(bvh))
+
+
+def test_a_settle_may_take_more_sub_steps_than_a_step_and_gives_the_limit_back(surface, cache, monkeypatch):
+    """A carry that crushes a few elements plans past physics.max_substeps for its first steps; the settle may take
+    SETTLE_SUBSTEPS times the limit (else the body would be placed again on every step), and the steps after it
+    plan against the limit again."""
+    from clusterfem_ros import scene as scene_module
+    from clusterfem_ros.fem.stability import StabilityError
+    scene = _build(surface, cache, monkeypatch)
+    names = scene.skeleton.joint_names
+    q = np.zeros(len(names))
+    q[names.index("bend")] = 1.2
+    scene.push_joint_state(0.0, names, q, np.zeros_like(q))
+    limit, real_step, seen = scene.integrator.max_substeps, scene.integrator.step, []
+
+    def crushed(state, control, h):             # the carry's plan needs twice the limit
+        seen.append(scene.integrator.max_substeps)
+        if scene.integrator.max_substeps < 2 * limit:
+            raise StabilityError(f"step {h} s needs {2 * limit} explicit sub-steps (injected)")
+        return real_step(state, control, h)
+
+    monkeypatch.setattr(scene.integrator, "step", crushed)
+    scene.start(0.0)
+    assert scene.settle_steps > 0 and scene.placed                  # settled, not left as the rigid carry
+    assert set(seen) == {scene_module.SETTLE_SUBSTEPS * limit}
+    assert scene.integrator.max_substeps == limit                   # given back

@@ -332,6 +332,11 @@ class ClusteredExplicit:
         """h_crit for the linear K's largest eigenvalue times ``stiffer`` (a warped body's stretch factor)."""
         return control_critical_step(self.lam_max * stiffer, self.model.material, control)
 
+    def set_max_substeps(self, n: int) -> None:
+        """Refuse a step needing more than ``n`` sub-steps from now on (the cached plan is made again)."""
+        self.max_substeps = int(n)
+        self._plan_key = None
+
     def _plan_for(self, h: float, control: Control, stiffer: float = 1.0):
         """The sub-step plan and its StepInfo, recomputed only when h, the attachments' largest gains or the
         stretch factor change."""

@@ -44,6 +44,10 @@ class StandardExplicit:
         energy = self.material_model.stretch_energy
         self.stretch = StretchPlan(model, energy=energy) if energy is not None and plan_stretch else None
 
+    def set_max_substeps(self, n: int) -> None:
+        """Refuse a step needing more than ``n`` sub-steps from now on."""
+        self.max_substeps = int(n)
+
     def critical_step(self, control: Control | None = None, stiffer: float = 1.0) -> float:
         """h_crit for the linear K's largest eigenvalue times ``stiffer`` (a warped body's stretch factor)."""
         return control_critical_step(self.lam_max * stiffer, self.model.material, control)
