@@ -89,10 +89,10 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     elif anchors:                   # world points: their targets, once
         index, x, v, a, kp, kd = point_targets(anchors, model.rest)
         anchored = Attachments(index, x - model.rest[index], v, a, kp, kd)
-    pressure = volume_pressure(model, config.material.volume_stiffness, config.physics.step)
+    triangles, surface_vertices, surface_triangles = boundary_surface(mesh)
+    pressure = volume_pressure(model, config.material.volume_stiffness, config.physics.step, triangles)
     if pressure is not None:
         say(progress, pressure.summary(config.physics.step, model.mass))
-    triangles, surface_vertices, surface_triangles = boundary_surface(mesh)
     return RunningParts(config=config, model=model, integrator=integrator, skeleton=skeleton,
                         urdf_xml=parts.urdf_xml, surface_body=parts.surface, bind_all=parts.bind_all,
                         anchors=anchors, anchored=anchored, binding=binding, driver=driver, joints=joints,

@@ -382,8 +382,7 @@ def _standing_feet(rest: dict, upright: dict) -> dict:
     mesh's middle instead of 3-8, CesiumMan's lower legs outside it); a rest bent at the spine stands its legs
     straight, which standing the trunk up turns with the pelvis."""
     def standing(limb) -> float:
-        d = limb.end - limb.middle
-        return float(-d[2] / (np.linalg.norm(d) + 1e-12))
+        return float(-_unit(limb.end - limb.middle)[2])
     return {k: (replace(limb, tip_rise=upright[k].tip_rise)
                 if k[1] == "leg" and standing(upright[k]) > standing(limb) else limb) for k, limb in rest.items()}
 

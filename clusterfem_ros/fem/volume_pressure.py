@@ -178,11 +178,12 @@ class VolumePressure:
                 f"triangles), the fastest mode's omega h = {w.max() * h:.3f}{lowered}")
 
 
-def volume_pressure(model, kappa: float, h: float) -> VolumePressure | None:
+def volume_pressure(model, kappa: float, h: float, triangles: np.ndarray | None = None) -> VolumePressure | None:
     """The ``VolumePressure`` of ``model`` (fem.model.FemModel) for ``kappa`` >= 0 (None for 0: nothing built) and the
     step h: one pressure per connected piece of the mesh (a piece's volume is its own: a hand's loose piece does
     not take up what the trunk loses). A piece whose mode's omega h would exceed MAX_OMEGA_H gets the largest kappa
-    that keeps it (a small piece with light surface vertices has a fast mode); ``summary`` says so."""
+    that keeps it (a small piece with light surface vertices has a fast mode); ``summary`` says so. ``triangles``:
+    the mesh's outward boundary triangles where the caller has them (tet_mesh.boundary_triangles otherwise)."""
     kappa = float(kappa)
     if not np.isfinite(kappa) or kappa < 0.0:
         raise ParameterError(f"material.volume_stiffness = {kappa!r}: give a multiple >= 0 of the elements' bulk "
@@ -192,13 +193,12 @@ def volume_pressure(model, kappa: float, h: float) -> VolumePressure | None:
     if kappa == 0.0:
         return None
     lam, mu = model.material.lame
-    triangles = boundary_triangles(model.mesh)
+    triangles = boundary_triangles(model.mesh) if triangles is None else triangles
     _, labels = tet_pieces(model.n_vertices, model.mesh.tets)
-    _, piece = np.unique(labels[triangles[:, 0]], return_inverse=True)
+    ids, piece = np.unique(labels[triangles[:, 0]], return_inverse=True)       # every piece has a boundary
     piece = piece.reshape(-1).astype(np.int64)
-    vertex_piece = np.unique(labels[triangles[:, 0]], return_inverse=True)[0]
-    tet_piece = np.searchsorted(vertex_piece, labels[model.mesh.tets[:, 0]])
-    rest_volumes = np.bincount(tet_piece, model.mesh.volumes(), minlength=vertex_piece.size)
+    tet_piece = np.searchsorted(ids, labels[model.mesh.tets[:, 0]])
+    rest_volumes = np.bincount(tet_piece, model.mesh.volumes(), minlength=ids.size)
     rest = np.ascontiguousarray(model.rest, dtype=np.float64)
     p = VolumePressure(rest, triangles, piece, rest_volumes, lam + 2.0 * mu / 3.0,
                        np.full(rest_volumes.size, kappa), kappa)
