@@ -14,6 +14,7 @@ import numpy as np
 
 from .body.anchors import anchor_constraints
 from .body.binding import Binding, bind_to_skeleton, segment_distance
+from .body.bone_reach import describe as describe_reach, end_bones, reach_to_skin
 from .body.constraints import LevelGains, LineConstraint, PointConstraint, point_targets
 from .body.driver import SkeletonDriver
 from .body.link_binding import bind_to_links
@@ -181,6 +182,11 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
             say(progress, f"the outermost binding level reaches {reach:.3f} m instead of {radii[-1]:g} m: every "
                           "vertex of the capsule body is bound (no one-tet flaps left free)")
             radii[-1] = reach
+    if surface is not None:         # a character's end bones reach on into their flesh (body/bone_reach.py)
+        binds = np.ones(len(skeleton.bone_names), dtype=bool) if mask is None else mask
+        ends, reach = reach_to_skin(starts, ends, end_bones(skeleton.bone_parent, binds), model.rest,
+                                    boundary_triangles(model.mesh))
+        say(progress, describe_reach(skeleton.bone_names, reach))
     binding = bind_to_skeleton(model.rest, starts, ends, radii, mask,
                                rest_rotation=poses.rotation, rest_translation=poses.translation,
                                bone_names=skeleton.bone_names, warn=False, surface_depth=depth, allowed=allowed)
