@@ -12,11 +12,12 @@ where it has them, give its whole place in the parent (some rigs repeat every OF
 joints take the channel less the OFFSET. The chain runs position channels first (BVH positions are in the parent
 frame), then rotations in file order: "Zrotation Yrotation Xrotation" gives R = Rz Ry Rx. The root joint's
 chain starts at the helper link ``bvh_world``; a 6-channel root is the 3 prismatic + 3 revolute floating
-base. Each End Site becomes the tip link ``J_tip``, so leaf bones have a length. A leaf joint whose End Site has
-no length (LAFAN1 writes ``OFFSET 0 0 0`` for the head, hands and toes) or which has none says nothing of where
-its bone ends: its tip continues the bone before it, along the joint's OFFSET for ``LEAF_TIP_FRACTION`` of its
-length, so a head, hand or toe has flesh of its own to carry (a bone of zero length binds none: the crown
-followed the neck, 33 cm from it).
+base. Each End Site becomes the tip link ``J_tip``, so leaf bones have a length. A leaf joint that is its parent's
+only child and whose End Site has no length (LAFAN1 writes ``OFFSET 0 0 0`` for the head, hands and toes) or which
+has none says nothing of where its bone ends: its tip continues the bone before it, along the joint's OFFSET for
+``LEAF_TIP_FRACTION`` of its length, so a head, hand or toe has flesh of its own to carry (a bone of zero length
+binds none: the crown followed the neck, 33 cm from it). A leaf with siblings (Mixamo's HeadTop_End and eyes
+beside each other on the head) marks a point of its parent's part and keeps no length.
 
 Trajectory (``bvh_trajectory``): one column per URDF joint, positions in metres, angles in radians. A
 joint's three Euler angles are continuous over time (``continuous_euler``): of the two triples of each
@@ -109,10 +110,13 @@ def bvh_urdf(motion: BvhMotion, robot_name: str = "bvh_skeleton") -> str:
 
 def leaf_tip(motion: BvhMotion, k: int) -> np.ndarray | None:
     """The tip (file units, in joint k's frame) that ends joint k's bone: its End Site, or for a leaf joint whose
-    End Site has no length (or which has none) its OFFSET times LEAF_TIP_FRACTION (the bone before it, continued);
-    None for an inner joint without End Site (its children end it) and a leaf root."""
+    End Site has no length (or which has none) and which is its parent's only child its OFFSET times
+    LEAF_TIP_FRACTION (the bone before it, continued); None for an inner joint without End Site (its children end
+    it) and a leaf root."""
     j = motion.joints[k]
     leaf = not any(c.parent == k for c in motion.joints)
+    if j.parent >= 0 and sum(c.parent == j.parent for c in motion.joints) > 1:
+        leaf = False                    # a point of the parent's part beside its siblings: the End Site as written
     scale = max((float(np.linalg.norm(c.offset)) for c in motion.joints), default=0.0)
     if j.end_site is not None and (not leaf or float(np.linalg.norm(j.end_site)) > 1e-9 * scale):
         return np.asarray(j.end_site, dtype=np.float64)
