@@ -177,3 +177,15 @@ def test_a_leaf_bone_without_end_site_length_continues_the_bone_before_it():
     m2 = parse_bvh(LEAVES.replace("    OFFSET 0 0 0", "    OFFSET 0 9 0"), unit_m=0.01, floor=False)
     s2, e2 = Skeleton.from_urdf_string(bvh_urdf(m2)).bone_segments(sk.neutral())
     np.testing.assert_allclose(e2[head] - s2[head], 0.09 / 0.12 * (e[neck] - s[neck]), atol=1e-12)
+    # leaves beside each other (Mixamo's HeadTop_End and eyes on the head) mark points of their parent's part
+    eyes = LEAVES.replace("   End Site\n   {\n    OFFSET 0 0 0\n   }\n", "   JOINT Top\n   {\n    OFFSET 0 18 0\n"
+                          "    CHANNELS 3 Zrotation Yrotation Xrotation\n    End Site\n    {\n     OFFSET 0 0 0\n    }\n   }\n"
+                          "   JOINT Eye\n   {\n    OFFSET 3 8 9\n    CHANNELS 3 Zrotation Yrotation Xrotation\n"
+                          "    End Site\n    {\n     OFFSET 0 0 0\n    }\n   }\n")
+    m3 = parse_bvh(eyes.replace("0 90 0 0 0 0 0 0 0 0 0 0", "0 90 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0"), unit_m=0.01,
+                   floor=False)
+    sk3 = Skeleton.from_urdf_string(bvh_urdf(m3))
+    s3, e3 = sk3.bone_segments(sk3.neutral())
+    for name in ("Top", "Eye"):
+        b = sk3.bone_names.index(name)
+        np.testing.assert_allclose(e3[b], s3[b], atol=1e-12)
