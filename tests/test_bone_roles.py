@@ -122,17 +122,18 @@ def _bvh_skeleton(path: Path, rename: dict | None = None) -> Skeleton:
     return Skeleton.from_urdf_string(bvh_urdf(motion))
 
 
-# the Bandai Namco rig's zero pose is no standing human: its bones lie along their parents' X axes and only the
-# captured frames pose them (tests/data/mocap_clips.yaml), so the rest shape cannot tell its roles
-STANDING = [p for p in _bvh_files() if not p.name.startswith("bandai_namco")]
+CLIP_FILES = _bvh_files()
 
 
-@pytest.mark.parametrize("path", STANDING, ids=[p.stem for p in STANDING])
+@pytest.mark.parametrize("path", CLIP_FILES, ids=[p.stem for p in CLIP_FILES])
 def test_captures_of_every_source_get_both_limbs_of_every_major_role(path):
-    """Each fetched clip and each CMU clip present: every major role on both sides (one trunk), sides agreeing
-    with the joint names wherever a name tells a side, and no major bone bare."""
+    """Each fetched clip and each CMU clip present, in the rest the bind turns its limbs from (its zero pose, or
+    frame 0 where no human stands in the zero pose: the Bandai Namco and LAFAN1 rigs lay their bones along their
+    parents' X axes and only the captured frames pose them): every major role on both sides (one trunk), sides
+    agreeing with the joint names wherever a name tells a side, and no major bone bare."""
+    from clusterfem_ros.body.auto_bind import rest_configuration
     sk = _bvh_skeleton(path)
-    roles = label_skeleton(sk)
+    roles = label_skeleton(sk, rest_configuration(sk, str(path))[0])
     have = {roles.role_of(n) for n in sk.bone_names}
     for role in MAJOR:
         assert (role in have) if role in ("pelvis", "spine", "head") else {f"l_{role}", f"r_{role}"} <= have, role

@@ -53,15 +53,15 @@ def _walk(entry, rig: str, tets: int, seconds: float):
     return r
 
 
-@pytest.mark.parametrize("k", range(7))
+@pytest.mark.parametrize("k", range(8))
 def test_each_character_walks_under_a_capture_of_another_rig(k):
     entries = _entries()
-    assert len(entries) == 7
+    assert len(entries) == 8
     _walk(entries[k], RIGS[k % len(RIGS)], 1500, 1.0)
 
 
 @pytest.mark.soak
 @pytest.mark.parametrize("rig", RIGS)
-@pytest.mark.parametrize("k", range(7))
+@pytest.mark.parametrize("k", range(8))
 def test_each_character_walks_under_three_rigs(k, rig):
     _walk(_entries()[k], rig, 5000, 3.0)

@@ -122,3 +122,70 @@ def test_mini_file_crlf_and_malformed_files_name_the_line():
     # file X is file (0, 0, -3) -> ROS (-3, 0, 0)
     np.testing.assert_allclose(s[leg], np.array([0, 1, 8]) * 0.2, atol=1e-12)
     np.testing.assert_allclose(e[leg] - s[leg], np.array([-3, 0, 0]) * 0.2, atol=1e-12)
+
+
+# a head whose End Site has no length (LAFAN1 writes OFFSET 0 0 0) and a hand with no End Site at all
+LEAVES = """HIERARCHY
+ROOT Hips
+{
+ OFFSET 0 0 0
+ CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation
+ JOINT Neck
+ {
+  OFFSET 0 50 0
+  CHANNELS 3 Zrotation Yrotation Xrotation
+  JOINT Head
+  {
+   OFFSET 0 12 0
+   CHANNELS 3 Zrotation Yrotation Xrotation
+   End Site
+   {
+    OFFSET 0 0 0
+   }
+  }
+ }
+ JOINT Arm
+ {
+  OFFSET 20 45 0
+  CHANNELS 3 Zrotation Yrotation Xrotation
+  JOINT Hand
+  {
+   OFFSET 25 0 0
+   CHANNELS 3 Zrotation Yrotation Xrotation
+  }
+ }
+}
+MOTION
+Frames: 1
+Frame Time: 0.01
+0 90 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0
+"""
+
+
+def test_a_leaf_bone_without_end_site_length_continues_the_bone_before_it():
+    from clusterfem_ros.skeleton.bvh_to_urdf import LEAF_TIP_FRACTION
+    m = parse_bvh(LEAVES, unit_m=0.01, floor=False)
+    sk = Skeleton.from_urdf_string(bvh_urdf(m))
+    s, e = sk.bone_segments(sk.neutral())
+    head, hand = sk.bone_names.index("Head"), sk.bone_names.index("Hand")
+    neck, arm = sk.bone_names.index("Neck"), sk.bone_names.index("Arm")
+    # the neck (12 cm) and the arm (25 cm), each continued for the fraction of its length
+    np.testing.assert_allclose(e[head] - s[head], LEAF_TIP_FRACTION * (e[neck] - s[neck]), atol=1e-12)
+    np.testing.assert_allclose(e[hand] - s[hand], LEAF_TIP_FRACTION * (e[arm] - s[arm]), atol=1e-12)
+    assert np.linalg.norm(e[neck] - s[neck]) == pytest.approx(0.12) and LEAF_TIP_FRACTION > 0
+    # an End Site with a length is the tip, as written
+    m2 = parse_bvh(LEAVES.replace("    OFFSET 0 0 0", "    OFFSET 0 9 0"), unit_m=0.01, floor=False)
+    s2, e2 = Skeleton.from_urdf_string(bvh_urdf(m2)).bone_segments(sk.neutral())
+    np.testing.assert_allclose(e2[head] - s2[head], 0.09 / 0.12 * (e[neck] - s[neck]), atol=1e-12)
+    # leaves beside each other (Mixamo's HeadTop_End and eyes on the head) mark points of their parent's part
+    eyes = LEAVES.replace("   End Site\n   {\n    OFFSET 0 0 0\n   }\n", "   JOINT Top\n   {\n    OFFSET 0 18 0\n"
+                          "    CHANNELS 3 Zrotation Yrotation Xrotation\n    End Site\n    {\n     OFFSET 0 0 0\n    }\n   }\n"
+                          "   JOINT Eye\n   {\n    OFFSET 3 8 9\n    CHANNELS 3 Zrotation Yrotation Xrotation\n"
+                          "    End Site\n    {\n     OFFSET 0 0 0\n    }\n   }\n")
+    m3 = parse_bvh(eyes.replace("0 90 0 0 0 0 0 0 0 0 0 0", "0 90 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0 0"), unit_m=0.01,
+                   floor=False)
+    sk3 = Skeleton.from_urdf_string(bvh_urdf(m3))
+    s3, e3 = sk3.bone_segments(sk3.neutral())
+    for name in ("Top", "Eye"):
+        b = sk3.bone_names.index(name)
+        np.testing.assert_allclose(e3[b], s3[b], atol=1e-12)

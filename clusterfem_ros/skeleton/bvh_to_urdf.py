@@ -12,7 +12,12 @@ where it has them, give its whole place in the parent (some rigs repeat every OF
 joints take the channel less the OFFSET. The chain runs position channels first (BVH positions are in the parent
 frame), then rotations in file order: "Zrotation Yrotation Xrotation" gives R = Rz Ry Rx. The root joint's
 chain starts at the helper link ``bvh_world``; a 6-channel root is the 3 prismatic + 3 revolute floating
-base. Each End Site becomes the tip link ``J_tip``, so leaf bones have a length.
+base. Each End Site becomes the tip link ``J_tip``, so leaf bones have a length. A leaf joint that is its parent's
+only child and whose End Site has no length (LAFAN1 writes ``OFFSET 0 0 0`` for the head, hands and toes) or which
+has none says nothing of where its bone ends: its tip continues the bone before it, along the joint's OFFSET for
+``LEAF_TIP_FRACTION`` of its length, so a head, hand or toe has flesh of its own to carry (a bone of zero length
+binds none: the crown followed the neck, 33 cm from it). A leaf with siblings (Mixamo's HeadTop_End and eyes
+beside each other on the head) marks a point of its parent's part and keeps no length.
 
 Trajectory (``bvh_trajectory``): one column per URDF joint, positions in metres, angles in radians. A
 joint's three Euler angles are continuous over time (``continuous_euler``): of the two triples of each
@@ -59,6 +64,7 @@ from .urdf_builder import UrdfBuilder
 ROOT_LINK = "bvh_world"
 MAX_ROTATION_SPEED = 100.0      # rad/s: no captured limb turns faster (see the module docstring)
 MAX_END_SPEED = 25.0            # m/s: nor does the end of a limb move faster
+LEAF_TIP_FRACTION = 0.5         # a leaf bone with no End Site length: half as long as the bone before it
 
 
 def channel_joint_name(joint: str, channel: str) -> str:
@@ -84,7 +90,7 @@ def bvh_urdf(motion: BvhMotion, robot_name: str = "bvh_skeleton") -> str:
     if len(set(names)) != len(names):
         raise ValueError(f"BVH joint names repeat ({sorted({n for n in names if names.count(n) > 1})}): "
                          "rename them so the URDF links are unique")
-    for j in motion.joints:
+    for k, j in enumerate(motion.joints):
         b.link(j.name, mass=1.0)
         parent = ROOT_LINK if j.parent < 0 else motion.joints[j.parent].name
         chain = []
@@ -96,9 +102,27 @@ def bvh_urdf(motion: BvhMotion, robot_name: str = "bvh_skeleton") -> str:
             offset = np.array([0.0 if f"{a}position" in j.channels else x for a, x in zip("XYZ", j.offset)])
         xyz = C @ offset * u + (motion.root_shift if j.parent < 0 else 0.0)
         b.chain(parent, j.name, chain, xyz=xyz, limit=(-1e4, 1e4))
-        if j.end_site is not None:
-            b.tip(j.name, C @ j.end_site * u)
+        tip = leaf_tip(motion, k)
+        if tip is not None:
+            b.tip(j.name, C @ tip * u)
     return b.to_string()
+
+
+def leaf_tip(motion: BvhMotion, k: int) -> np.ndarray | None:
+    """The tip (file units, in joint k's frame) that ends joint k's bone: its End Site, or for a leaf joint whose
+    End Site has no length (or which has none) and which is its parent's only child its OFFSET times
+    LEAF_TIP_FRACTION (the bone before it, continued); None for an inner joint without End Site (its children end
+    it) and a leaf root."""
+    j = motion.joints[k]
+    leaf = not any(c.parent == k for c in motion.joints)
+    if j.parent >= 0 and sum(c.parent == j.parent for c in motion.joints) > 1:
+        leaf = False                    # a point of the parent's part beside its siblings: the End Site as written
+    scale = max((float(np.linalg.norm(c.offset)) for c in motion.joints), default=0.0)
+    if j.end_site is not None and (not leaf or float(np.linalg.norm(j.end_site)) > 1e-9 * scale):
+        return np.asarray(j.end_site, dtype=np.float64)
+    if not leaf or j.parent < 0 or not float(np.linalg.norm(j.offset)) > 1e-9 * scale:
+        return None if j.end_site is None else np.asarray(j.end_site, dtype=np.float64)
+    return LEAF_TIP_FRACTION * np.asarray(j.offset, dtype=np.float64)
 
 
 def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
