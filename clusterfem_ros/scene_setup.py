@@ -184,9 +184,11 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
             radii[-1] = reach
     if surface is not None:         # a character's end bones reach on into their flesh (body/bone_reach.py)
         binds = np.ones(len(skeleton.bone_names), dtype=bool) if mask is None else mask
-        ends, reach = reach_to_skin(starts, ends, end_bones(skeleton.bone_parent, binds), model.rest,
-                                    boundary_triangles(model.mesh))
-        say(progress, describe_reach(skeleton.bone_names, reach))
+        nearest = np.argmin(np.where(binds, segment_distance(model.rest, starts, ends), np.inf), axis=1)
+        share = np.bincount(model.mesh.tets.ravel(), np.repeat(model.mesh.volumes(), 4), model.n_vertices)
+        ends, reach, turn = reach_to_skin(starts, ends, end_bones(skeleton.bone_parent, binds), model.rest,
+                                          boundary_triangles(model.mesh), flesh=(model.rest, share, nearest))
+        say(progress, describe_reach(skeleton.bone_names, reach, turn))
     binding = bind_to_skeleton(model.rest, starts, ends, radii, mask,
                                rest_rotation=poses.rotation, rest_translation=poses.translation,
                                bone_names=skeleton.bone_names, warn=False, surface_depth=depth, allowed=allowed)

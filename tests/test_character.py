@@ -228,6 +228,24 @@ def test_surface_body_walks_one_second_deterministically(surface, cache, monkeyp
     assert np.array_equal(runs[0], runs[1])
 
 
+def test_the_end_bone_binds_on_a_segment_through_its_flesh_to_the_skin(surface, cache, monkeypatch):
+    """The capsule's upper bone ends at z = 0.25 m, 0.15 m under the top of the skin: it is the end bone (no
+    bone below it binds), so the binding's segment runs on to about the depth of its flesh's centre (the radius,
+    0.1 m) under the top; the lower bone keeps the skeleton's segment. The skeleton itself keeps its bones."""
+    scene = _build(surface, cache, monkeypatch)
+    names = scene.skeleton.bone_names
+    upper, lower = names.index("upper"), names.index("lower")
+    R, p = scene.binding.rest_rotation, scene.binding.rest_translation
+    ends = np.einsum("bij,bj->bi", R, scene.binding.axis_local[:, 1]) + p
+    starts, bone_ends = scene.skeleton.bone_segments(scene.surface_body.bind_q)
+    top = scene.model.rest[:, 2].max()
+    assert bone_ends[upper][2] == pytest.approx(0.25, abs=1e-9)
+    assert ends[upper][2] == pytest.approx(top - 0.1, abs=0.02) and abs(ends[upper][:2]).max() < 0.02
+    np.testing.assert_allclose(ends[lower], bone_ends[lower], atol=1e-12)
+    cap = scene.model.rest[:, 2] > 0.3
+    assert scene.binding.distance[cap].max() < 0.11
+
+
 def test_a_settle_the_step_plan_refuses_keeps_the_rigid_carry(surface, cache, monkeypatch):
     """The settle steps from the rigid carry; where that carry crushes elements so far that their plan passes
     physics.max_substeps (a capture's thumb turned inside a mitten hand), the settle stops and the placement is the
