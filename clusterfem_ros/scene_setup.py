@@ -22,6 +22,7 @@ from .body.surface_body import SurfaceBody, unbound_islands
 from .config import SceneConfig
 from .fem.integrators import make_integrator
 from .fem.integrators.base import Integrator
+from .fem.linear.assembly import lumped_mass
 from .fem.mass_scaling import scale_mass, scale_to_reference
 from .fem.model import Attachments, Control, FemModel, State, build_model
 from .fem.mesh.tet_mesh import TetMesh, boundary_triangles
@@ -77,11 +78,12 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     integrator = make_integrator(method, model, **options)
     anchors = anchor(config, model.rest, skeleton, progress)
     anchored = binding = driver = joints = stream = None
+    triangles, surface_vertices, surface_triangles = boundary_surface(mesh)
     if skeleton is not None:
         q0 = parts.surface.bind_q if parts.surface is not None else \
             parts.bind_q if parts.bind_q is not None else skeleton.neutral()
         binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress,
-                        bare=parts.bare_bones, allowed=parts.vertex_bones)
+                        bare=parts.bare_bones, allowed=parts.vertex_bones, triangles=triangles)
                    if parts.cover is None else bind_cover(config, model, skeleton, q0, parts.cover, progress))
         driver = skeleton_driver(config, binding, model.rest, skeleton, anchors, model.mesh.tets)
         if driver.crush is not None:
@@ -90,7 +92,6 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
     elif anchors:                   # world points: their targets, once
         index, x, v, a, kp, kd = point_targets(anchors, model.rest)
         anchored = Attachments(index, x - model.rest[index], v, a, kp, kd)
-    triangles, surface_vertices, surface_triangles = boundary_surface(mesh)
     pressure = volume_pressure(model, config.material.volume_stiffness, config.physics.step, triangles)
     if pressure is not None:
         say(progress, pressure.summary(config.physics.step, model.mass))
@@ -146,14 +147,16 @@ def anchor(config: SceneConfig, rest: np.ndarray, skeleton: Skeleton | None,
 
 def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarray, anchors: list,
          surface: SurfaceBody | None, bind_all: bool, progress: Callable[[str], None] | None = None,
-         bare: tuple[str, ...] = (), allowed: np.ndarray | None = None) -> Binding:
+         bare: tuple[str, ...] = (), allowed: np.ndarray | None = None,
+         triangles: np.ndarray | None = None) -> Binding:
     """The body's vertices bound to the bones of ``skeleton`` posed at ``q0`` (its bind pose), in the levels of
     binding.level_radii (fractions of the flesh's depth with binding.relative_levels), without the bones of
     binding.skip_bones nor the ``bare`` bones of a jelly body (they have no flesh). ``bind_all``: the outermost
     level is widened to reach every vertex. ``allowed`` (n, nb): the bones each vertex may bind to (a jelly body
     on a URDF: the bones of its own voxels). A surface body's
     pieces that no bone and no anchor reaches are carried by their nearest bone when small, else refused
-    (hold_islands)."""
+    (hold_islands), and its end bones reach into their flesh (body/bone_reach.py) up to its boundary
+    ``triangles`` (the mesh's boundary_triangles when not given)."""
     b = config.binding
     poses = skeleton.forward(q0, np.zeros(skeleton.nv))
     starts, ends = skeleton.bone_segments(q0)
@@ -185,9 +188,10 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
     if surface is not None:         # a character's end bones reach on into their flesh (body/bone_reach.py)
         binds = np.ones(len(skeleton.bone_names), dtype=bool) if mask is None else mask
         nearest = np.argmin(np.where(binds, segment_distance(model.rest, starts, ends), np.inf), axis=1)
-        share = np.bincount(model.mesh.tets.ravel(), np.repeat(model.mesh.volumes(), 4), model.n_vertices)
+        share = lumped_mass(model.mesh, 1.0)                # each vertex's share of the volume
+        triangles = boundary_triangles(model.mesh) if triangles is None else triangles
         ends, reach, turn = reach_to_skin(starts, ends, end_bones(skeleton.bone_parent, binds), model.rest,
-                                          boundary_triangles(model.mesh), flesh=(model.rest, share, nearest))
+                                          triangles, flesh=(model.rest, share, nearest))
         say(progress, describe_reach(skeleton.bone_names, reach, turn))
     binding = bind_to_skeleton(model.rest, starts, ends, radii, mask,
                                rest_rotation=poses.rotation, rest_translation=poses.translation,

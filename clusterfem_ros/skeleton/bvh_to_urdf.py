@@ -90,6 +90,8 @@ def bvh_urdf(motion: BvhMotion, robot_name: str = "bvh_skeleton") -> str:
     if len(set(names)) != len(names):
         raise ValueError(f"BVH joint names repeat ({sorted({n for n in names if names.count(n) > 1})}): "
                          "rename them so the URDF links are unique")
+    children = np.bincount([c.parent for c in motion.joints if c.parent >= 0], minlength=len(motion.joints))
+    scale = max((float(np.linalg.norm(c.offset)) for c in motion.joints), default=0.0)
     for k, j in enumerate(motion.joints):
         b.link(j.name, mass=1.0)
         parent = ROOT_LINK if j.parent < 0 else motion.joints[j.parent].name
@@ -102,22 +104,20 @@ def bvh_urdf(motion: BvhMotion, robot_name: str = "bvh_skeleton") -> str:
             offset = np.array([0.0 if f"{a}position" in j.channels else x for a, x in zip("XYZ", j.offset)])
         xyz = C @ offset * u + (motion.root_shift if j.parent < 0 else 0.0)
         b.chain(parent, j.name, chain, xyz=xyz, limit=(-1e4, 1e4))
-        tip = leaf_tip(motion, k)
+        tip = leaf_tip(motion, k, children, scale)
         if tip is not None:
             b.tip(j.name, C @ tip * u)
     return b.to_string()
 
 
-def leaf_tip(motion: BvhMotion, k: int) -> np.ndarray | None:
+def leaf_tip(motion: BvhMotion, k: int, children: np.ndarray, scale: float) -> np.ndarray | None:
     """The tip (file units, in joint k's frame) that ends joint k's bone: its End Site, or for a leaf joint whose
     End Site has no length (or which has none) and which is its parent's only child its OFFSET times
     LEAF_TIP_FRACTION (the bone before it, continued); None for an inner joint without End Site (its children end
-    it) and a leaf root."""
+    it) and a leaf root. ``children`` (joints,) counts each joint's children; lengths under 1e-9 ``scale`` (the
+    longest OFFSET) are none."""
     j = motion.joints[k]
-    leaf = not any(c.parent == k for c in motion.joints)
-    if j.parent >= 0 and sum(c.parent == j.parent for c in motion.joints) > 1:
-        leaf = False                    # a point of the parent's part beside its siblings: the End Site as written
-    scale = max((float(np.linalg.norm(c.offset)) for c in motion.joints), default=0.0)
+    leaf = children[k] == 0 and (j.parent < 0 or children[j.parent] == 1)   # beside siblings: a point of the parent
     if j.end_site is not None and (not leaf or float(np.linalg.norm(j.end_site)) > 1e-9 * scale):
         return np.asarray(j.end_site, dtype=np.float64)
     if not leaf or j.parent < 0 or not float(np.linalg.norm(j.offset)) > 1e-9 * scale:
