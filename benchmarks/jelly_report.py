@@ -7,7 +7,8 @@ masses scaled to the voxel body's critical step: fem/mass_scaling.py) around the
 with the
 scene defaults (``config.PARAMS``: binding.level_radii / kp / kd, the material), driven by
 ``procedural_walk`` through ``SkeletonDriver`` and stepped by the clustered method at a 1 ms physics
-step. Printed per run: simulation steps per second (skeleton, constraints and physics, JIT excluded),
+step, with the whole volume's pressure the scene runs (``material.volume_stiffness`` 'auto': kappa 2 on the jelly
+man, fem/volume_pressure.py; ``--kappa`` another). Printed per run: simulation steps per second (skeleton, constraints and physics, JIT excluded),
 the real-time factor at that step, the explicit sub-steps per step, the maximum relative change of the
 total tet volume over the run, and the innermost level's worst tracking error; beside the paper's
 "1000 steps in 2 s" (500 steps/s on a 1.6 GHz Pentium).
@@ -21,11 +22,12 @@ import time
 import numpy as np
 
 from clusterfem_ros.body import LevelGains, SkeletonDriver, bind_to_skeleton
-from clusterfem_ros.config import PARAMS
+from clusterfem_ros.config import PARAMS, SceneConfig
 from clusterfem_ros.fem.integrators import make_integrator
 from clusterfem_ros.fem.linear.material import Material
 from clusterfem_ros.fem.model import State, build_model
 from clusterfem_ros.fem.mesh.tet_mesh import signed_volumes
+from clusterfem_ros.fem.volume_pressure import volume_pressure
 from .timing import table
 
 PAPER_STEPS_PER_S = 1000 / 2.0
@@ -86,9 +88,18 @@ def build_scene(target_tets: int, duration: float, step: float, skin: str | None
     return skeleton, traj, model, binding, gains
 
 
-def run(skeleton, traj, model, binding, gains, warp: bool | str, duration: float, step: float) -> dict:
+def scene_kappa() -> float:
+    """The default scene's whole-volume pressure kappa (material.volume_stiffness resolved for the jelly man)."""
+    return SceneConfig().material.volume_stiffness
+
+
+def run(skeleton, traj, model, binding, gains, warp: bool | str, duration: float, step: float,
+        kappa: float | None = None) -> dict:
     """Walk for ``duration`` s; time it after a 20-step warm-up (JIT compile) that is then discarded. ``warp``:
-    False (linear), True (the default warping model) or a warping model's name ('element', 'vertex', 'neohookean')."""
+    False (linear), True (the default warping model) or a warping model's name ('element', 'vertex', 'neohookean');
+    ``kappa``: the whole volume's pressure (default: the scene's, ``scene_kappa``; 0 = none), evaluated once a step
+    from the state it starts from and held over its sub-steps, as the scene does."""
+    pressure = volume_pressure(model, scene_kappa() if kappa is None else kappa, step)
     opts = {"warp": bool(warp)}
     if isinstance(warp, str):
         opts["warping_model"] = warp
@@ -103,7 +114,8 @@ def run(skeleton, traj, model, binding, gains, warp: bool | str, duration: float
         vol_err, track, subs = 0.0, 0.0, []
         t0 = time.perf_counter()
         for k in range(steps):
-            control = driver.control(skeleton.forward(*traj.sample(k * step)), step)
+            control = driver.control(skeleton.forward(*traj.sample(k * step)), step, state=state,
+                                     f_ext=None if pressure is None else pressure.force(state.u))
             if timed:
                 track = max(track, float(driver.tracking_error(state)[0]))
             info = integ.step(state, control, step)
@@ -129,6 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--step", type=float, default=1e-3, help="physics step h [s] (default 1e-3)")
     ap.add_argument("--tets", type=int, default=int(scene_default("body.target_tets")),
                     help="approximate tet count of the jelly man (default: the scene's)")
+    ap.add_argument("--kappa", type=float, default=None,
+                    help="the whole volume's pressure, material.volume_stiffness (default: the scene's; 0 = none)")
     args = ap.parse_args(argv)
     try:
         skeleton, traj, model, binding, gains = build_scene(args.tets, args.duration, args.step)
@@ -139,14 +153,15 @@ def main(argv: list[str] | None = None) -> int:
     nq = traj.sample(0.0)[0].size
     print(f"jelly man: {model.mesh.n_vertices} vertices, {model.mesh.n_tets} tets; skeleton {len(skeleton.bone_names)} "
           f"bones, nq = {nq}; {binding.summary()}; gains kp {gains.kp} kd {gains.kd}; h = {args.step:g} s, "
-          f"{args.duration:g} s of walking per run", flush=True)
+          f"{args.duration:g} s of walking per run; volume pressure kappa "
+          f"{scene_kappa() if args.kappa is None else args.kappa:g}", flush=True)
     for w in binding.warnings:
         print(f"  binding: {w}")
     rows = []
     for warp in (False, "element", "vertex", "neohookean"):
         print(f"  running warp={warp} ...", file=sys.stderr, flush=True)
         try:
-            r = run(skeleton, traj, model, binding, gains, warp, args.duration, args.step)
+            r = run(skeleton, traj, model, binding, gains, warp, args.duration, args.step, args.kappa)
         except TypeError as e:
             rows.append([f"clustered, warp={warp}", "n/a", "n/a", "n/a", "n/a", "n/a", f"{e}"])
             continue

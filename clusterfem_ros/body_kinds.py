@@ -21,6 +21,7 @@ class BodyDeclaration:
     needs_skeleton: bool = False    # built around (or bound to) a skeleton: refused with skeleton.source 'none'
     leaf_shapes: bool = False       # the skeleton's URDF is prepared with its leaf links' shapes as flesh
     flesh_depth: bool = False       # it knows each vertex's depth under the skin (binding.relative_levels)
+    volume_stiffness: float = 0.0   # material.volume_stiffness 'auto' runs this whole-volume pressure (0 = none)
 
 
 BODY_DECLARATIONS = Registry("body kind")
@@ -32,13 +33,19 @@ def declare_body_kind(declaration: BodyDeclaration) -> BodyDeclaration:
 
 
 _BUILD = "clusterfem_ros.scene_build"
-for _d in (BodyDeclaration("jelly_man", f"{_BUILD}:build_jelly_man", needs_skeleton=True, leaf_shapes=True),
+# Flesh on a skeleton (the jelly man, a character's surface) keeps its volume where bent joints crush it: the
+# whole volume's pressure at kappa 2 on 'auto' (docs/method.md, Constraints); the paper's shapes, volume meshes and
+# robot covers run the elements alone, as the paper does.
+FLESH_PRESSURE = 2.0
+for _d in (BodyDeclaration("jelly_man", f"{_BUILD}:build_jelly_man", needs_skeleton=True, leaf_shapes=True,
+                           volume_stiffness=FLESH_PRESSURE),
            BodyDeclaration("sphere", f"{_BUILD}:build_paper_shape"),
            BodyDeclaration("cube", f"{_BUILD}:build_paper_shape"),
            BodyDeclaration("torus", f"{_BUILD}:build_paper_shape"),
            BodyDeclaration("mesh", f"{_BUILD}:build_volume_mesh", "body.mesh_file", "the path of a volume mesh"),
            BodyDeclaration("surface", f"{_BUILD}:build_surface", "body.surface_file",
-                           "the path of a triangle surface mesh", needs_skeleton=True, flesh_depth=True),
+                           "the path of a triangle surface mesh", needs_skeleton=True, flesh_depth=True,
+                           volume_stiffness=FLESH_PRESSURE),
            BodyDeclaration("robot_cover", f"{_BUILD}:build_robot_cover", needs_skeleton=True)):
     declare_body_kind(_d)
 BODY_DECLARATIONS.seal()

@@ -9,7 +9,7 @@ from __future__ import annotations
 import difflib
 import re
 import sys
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -47,6 +47,7 @@ class Param:
     choices: tuple[str, ...] | None = None
     item: type = float               # element type of a list parameter
     length_unit: bool = False        # text naming a length unit, or metres per unit as a number (parse_unit)
+    or_auto: bool = False            # a number in [lo, hi], or 'auto' (the scene resolves it: SceneConfig.resolved)
 
 
 PARAMS: tuple[Param, ...] = (
@@ -86,10 +87,11 @@ PARAMS: tuple[Param, ...] = (
     Param("material.density", DEFAULT_DENSITY, "density [kg/m^3]", 1.0, 1.0e5),
     Param("material.mass_damping", DEFAULT_MASS_DAMPING, "Rayleigh xi [1/s]: D = xi M + zeta K", 0.0, 1.0e3),
     Param("material.stiffness_damping", DEFAULT_STIFFNESS_DAMPING, "Rayleigh zeta [s]", 0.0, 1.0),
-    Param("material.volume_stiffness", 0.0, "the flesh's near-incompressibility for the body's whole volume: one "
+    Param("material.volume_stiffness", AUTO, "the flesh's near-incompressibility for the body's whole volume: one "
           "pressure p = kappa K (V0 - V) / V0 on its surface, kappa this multiple of the elements' bulk modulus K "
           "(fem/volume_pressure.py; keeps the volume where the bones' targets crush a folded joint; 0 = off, "
-          "nothing built)", 0.0, 1000.0),
+          "nothing built); 'auto': 2 on flesh on a skeleton (jelly_man, surface), 0 on the paper shapes, volume "
+          "meshes and robot covers", 0.0, 1000.0, or_auto=True),
     Param("method", "clustered", "integrator", choices=METHODS),
     Param("budget.max_error_mm", 0.0, "if > 0: method, physics.step, warping and modal.k become the cheapest measured point whose max vertex error is within this budget [mm] (0 = off)", 0.0, 1000.0),
     Param("budget.measured_points", "", "CSV of measured (method, step, error, cost) points for the budget choice; '' = the shipped clusterfem_ros/data/speed_error.csv"),
@@ -273,10 +275,27 @@ def check_value(name: str, value: Any) -> Any:
     return check_param(_BY_NAME[name], value)
 
 
+def _number_or_auto(p: Param, value: Any) -> float | str:
+    """A value of a parameter that is a number in [lo, hi] or 'auto' (in any case): the float, or AUTO."""
+    if isinstance(value, str) and value.strip().lower() == AUTO:
+        return AUTO
+    try:
+        if isinstance(value, bool):
+            raise TypeError
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"{p.name} = {value!r}: give 'auto' or a number in [{p.lo:g}, {p.hi:g}]") from None
+    if not (p.lo <= number <= p.hi):                   # a nan fails here too
+        raise ConfigError(f"{p.name} = {value!r} is outside [{p.lo:g}, {p.hi:g}]: {p.description}")
+    return number
+
+
 def check_param(p: Param, value: Any) -> Any:
     """Validate a value of the parameter ``p`` (of any node's table: PARAMS, motion.PLAYER_TABLE); returns it
     coerced to the default's type: an integer for a float, a choice in any case or spelt as a YAML 1.1 boolean."""
     name, d = p.name, p.default
+    if p.or_auto:
+        return _number_or_auto(p, value)
     if p.length_unit:                                # a unit name or metres per unit, checked before the file is read
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             value = repr(float(value))
@@ -516,9 +535,16 @@ class SceneConfig:
     def body(self) -> BodySection:
         return self.section("body")
 
+    @property
+    def volume_stiffness(self) -> float:
+        """kappa of the whole volume's pressure: the parameter, with 'auto' resolved by the body kind
+        (body_kinds.BodyDeclaration.volume_stiffness)."""
+        kappa = self.values["material.volume_stiffness"]
+        return BODY_DECLARATIONS[self.values["body.kind"]].volume_stiffness if kappa == AUTO else kappa
+
     @cached_property
     def material(self) -> MaterialSection:
-        return self.section("material")
+        return replace(self.section("material"), volume_stiffness=self.volume_stiffness)
 
     @cached_property
     def modal(self) -> ModalSection:
@@ -557,9 +583,9 @@ class SceneConfig:
         return self.section("recording")
 
     def resolved(self) -> "SceneConfig":
-        """A copy with ``warping_model: auto`` replaced by the model it runs: what a recording keeps, so that its
-        replay runs the same model whatever the default becomes."""
-        return self.with_values(warping_model=self.warping_model)
+        """A copy with ``warping_model`` and ``material.volume_stiffness`` 'auto' replaced by what they run: what a
+        recording keeps, so that its replay runs the same model whatever the defaults become."""
+        return self.with_values({"material.volume_stiffness": self.volume_stiffness}, warping_model=self.warping_model)
 
     def with_values(self, values: dict[str, Any] | None = None, **overrides: Any) -> "SceneConfig":
         """A copy with parameters replaced, from a {name: value} mapping and/or keywords that use '__'
@@ -669,8 +695,14 @@ def _flatten(d: dict, prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def load_scene_file(path: str | Path, node_name: str = NODE_NAME) -> SceneConfig:
-    """Read a ROS 2 parameter YAML (``<node>: ros__parameters: ...``, nested or dotted keys)."""
+# A recording's scene file (SceneConfig.resolved) holds every parameter the node had when it recorded; these came
+# later, or turned 'auto' later, and a recording without them ran these values (the replay reads them so).
+RECORDED_BEFORE = {"material.volume_stiffness": 0.0}
+
+
+def load_scene_file(path: str | Path, node_name: str = NODE_NAME, absent: dict[str, Any] | None = None) -> SceneConfig:
+    """Read a ROS 2 parameter YAML (``<node>: ros__parameters: ...``, nested or dotted keys); ``absent``: values
+    for names the file does not hold, instead of their defaults (RECORDED_BEFORE for a recording's file)."""
     path = Path(path)
     try:
         doc = yaml.safe_load(path.read_text())
@@ -684,7 +716,7 @@ def load_scene_file(path: str | Path, node_name: str = NODE_NAME) -> SceneConfig
     if not isinstance(params, dict):
         raise ConfigError(f"{str(path)!r} has no '{node_name}: ros__parameters:' mapping of parameters")
     try:
-        return from_mapping(_flatten(params))
+        return from_mapping({**(absent or {}), **_flatten(params)})
     except ConfigError as exc:
         raise ConfigError(f"{str(path)!r}: {exc}") from None
 

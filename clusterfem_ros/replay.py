@@ -69,14 +69,14 @@ def main(argv: list[str] | None = None) -> int:
     if not args.tolerance >= 0.0:
         print(f"error: --tolerance {args.tolerance} must be a distance >= 0 [m]", file=sys.stderr)
         return 2
-    from .config import load_scene_file
+    from .config import RECORDED_BEFORE, load_scene_file
     folder = Path(args.bag)
     params = folder / PARAMS_FILE
     if not params.exists():
         print(f"error: {params} is missing: only bags recorded by the clusterfem node can be replayed", file=sys.stderr)
         return 2
     try:
-        return _compare(folder, load_scene_file(params), args.tolerance)
+        return _compare(folder, load_scene_file(params, absent=RECORDED_BEFORE), args.tolerance)
     except Exception as exc:        # a damaged bag or parameter file: one line, not a traceback
         print(f"error: cannot replay {folder}: {exc}", file=sys.stderr)
         return 2

@@ -96,8 +96,24 @@ def test_off_builds_nothing_and_a_bad_value_is_refused():
     for bad in (-1.0, float("nan")):
         with pytest.raises(ParameterError, match="material.volume_stiffness"):
             volume_pressure(model, bad, H)
-    with pytest.raises(ValueError, match="volume_stiffness"):
-        SceneConfig().with_values({"material.volume_stiffness": -2.0})
+    for bad in (-2.0, "stiff", float("nan"), True):
+        with pytest.raises(ValueError, match="volume_stiffness"):
+            SceneConfig().with_values({"material.volume_stiffness": bad})
+
+
+def test_auto_runs_it_on_flesh_on_a_skeleton_and_a_recording_keeps_the_number():
+    """'auto' (the default) is kappa 2 on the jelly man and a character's surface, 0 on the other kinds; the
+    recorded scene (SceneConfig.resolved) holds the number, so a replay runs the same pressure whatever 'auto'
+    becomes; 'AUTO' in any case and a number both pass."""
+    kinds = {"jelly_man": 2.0, "surface": 2.0, "sphere": 0.0, "cube": 0.0, "torus": 0.0, "mesh": 0.0,
+             "robot_cover": 0.0}
+    files = {"body.surface_file": "man.obj", "body.mesh_file": "man.msh"}    # checked when built, not here
+    for kind, kappa in kinds.items():
+        config = SceneConfig().with_values(files, body__kind=kind)
+        assert config.material.volume_stiffness == kappa, kind
+        assert config.resolved()["material.volume_stiffness"] == kappa
+    assert SceneConfig().with_values({"material.volume_stiffness": "AUTO"})["material.volume_stiffness"] == "auto"
+    assert SceneConfig().with_values({"material.volume_stiffness": 3}).material.volume_stiffness == 3.0
 
 
 def test_each_piece_keeps_its_own_volume():
@@ -148,8 +164,23 @@ def test_on_a_squeezed_bar_it_keeps_the_volume_the_elements_give_up():
 
 def test_the_scene_builds_it_only_when_asked_and_says_so():
     base = SceneConfig().with_values(body__kind="sphere", skeleton__source="none", warping=False)
-    assert Scene.build(base).pressure is None
+    assert base["material.volume_stiffness"] == "auto" and base.material.volume_stiffness == 0.0
+    assert Scene.build(base).pressure is None             # 'auto' on a paper shape: the elements alone
+    assert Scene.build(base.with_values({"material.volume_stiffness": 0})).pressure is None
     said = []
     scene = Scene.build(base.with_values({"material.volume_stiffness": 2.0}), progress=said.append)
     assert scene.pressure is not None and (scene.pressure.kappa == 2.0).all()
     assert any(line.startswith("volume pressure: kappa 2") for line in said)
+
+
+def test_a_recording_made_before_auto_replays_without_the_pressure(tmp_path):
+    """A recording's scene file without material.volume_stiffness was made when none ran: the replay's reading
+    (config.RECORDED_BEFORE) gives 0, a plain scene file the default 'auto'; a recorded number is kept."""
+    from clusterfem_ros.config import RECORDED_BEFORE, load_scene_file, scene_file_text
+    old = tmp_path / "old.yaml"
+    old.write_text("clusterfem:\n  ros__parameters:\n    physics:\n      clock: input\n")
+    assert load_scene_file(old, absent=RECORDED_BEFORE).material.volume_stiffness == 0.0
+    assert load_scene_file(old).material.volume_stiffness == 2.0
+    new = tmp_path / "new.yaml"
+    new.write_text(scene_file_text(SceneConfig().resolved()))
+    assert load_scene_file(new, absent=RECORDED_BEFORE)["material.volume_stiffness"] == 2.0

@@ -33,7 +33,7 @@ def descriptor(p) -> ParameterDescriptor:
     d = ParameterDescriptor(description=p.description, dynamic_typing=_typed_by_us(p))
     if p.choices:
         d.additional_constraints = "one of: " + ", ".join(p.choices)
-    if p.lo is not None:
+    if p.lo is not None and not p.or_auto:          # 'auto' or a number: its range is check_param's
         if isinstance(p.default, int) and not isinstance(p.default, bool):
             d.integer_range = [IntegerRange(from_value=int(p.lo), to_value=int(p.hi), step=0)]
         else:
