@@ -7,9 +7,9 @@ masses scaled to the voxel body's critical step: fem/mass_scaling.py) around the
 with the
 scene defaults (``config.PARAMS``: binding.level_radii / kp / kd, the material), driven by
 ``procedural_walk`` through ``SkeletonDriver`` and stepped by the clustered method at a 1 ms physics
-step, with the whole volume's pressure the scene runs (``material.volume_stiffness`` 'auto': kappa 2 on the jelly
-man, fem/volume_pressure.py; ``--kappa`` another). Printed per run: simulation steps per second (skeleton, constraints and physics, JIT excluded),
-the real-time factor at that step, the explicit sub-steps per step, the maximum relative change of the
+step, with the whole volume's pressure the scene runs (``material.volume_stiffness`` 'auto': kappa 2 on the
+jelly man, fem/volume_pressure.py; ``--kappa`` another). Printed per run: simulation steps per second
+(skeleton, constraints, pressure and physics, JIT excluded), the real-time factor at that step, the explicit sub-steps per step, the maximum relative change of the
 total tet volume over the run, and the innermost level's worst tracking error; beside the paper's
 "1000 steps in 2 s" (500 steps/s on a 1.6 GHz Pentium).
 """
