@@ -182,8 +182,9 @@ def test_the_character_scene_binds_a_turned_copy_of_its_mesh_with_nothing_declar
     said = []
     body = build_surface_body(config, skeleton, progress=said.append)
     assert any(s.startswith("surface frame read from its shape") and "up Z, forward -Y" in s for s in said), said
-    # the bind turns the mesh about the vertical onto the skeleton's heading (body/auto_bind.py): a degree or so
-    np.testing.assert_allclose(body.fit.rotation @ [0, -1, 0], [1, 0, 0], atol=0.03)
+    # the bind turns the mesh about the vertical onto the skeleton's heading (body/auto_bind.py): a degree or two,
+    # as fTetWild's tets differ from run to run (2.1 deg seen once); a wrong axis read is 90 deg off
+    np.testing.assert_allclose(body.fit.rotation @ [0, -1, 0], [1, 0, 0], atol=0.05)
     np.testing.assert_allclose(body.fit.rotation @ [0, 0, 1], [0, 0, 1], atol=1e-9)
     assert 0.5 * metres < body.fit.scale < 2.0 * metres
 
