@@ -83,7 +83,7 @@ def set_up(parts: SceneParts, progress: Callable[[str], None] | None = None) -> 
         q0 = parts.surface.bind_q if parts.surface is not None else \
             parts.bind_q if parts.bind_q is not None else skeleton.neutral()
         binding = (bind(config, model, skeleton, q0, anchors, parts.surface, parts.bind_all, progress,
-                        bare=parts.bare_bones, allowed=parts.vertex_bones, triangles=triangles)
+                        triangles=triangles, bare=parts.bare_bones, allowed=parts.vertex_bones)
                    if parts.cover is None else bind_cover(config, model, skeleton, q0, parts.cover, progress))
         driver = skeleton_driver(config, binding, model.rest, skeleton, anchors, model.mesh.tets)
         if driver.crush is not None:
@@ -147,8 +147,7 @@ def anchor(config: SceneConfig, rest: np.ndarray, skeleton: Skeleton | None,
 
 def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarray, anchors: list,
          surface: SurfaceBody | None, bind_all: bool, progress: Callable[[str], None] | None = None,
-         bare: tuple[str, ...] = (), allowed: np.ndarray | None = None,
-         triangles: np.ndarray | None = None) -> Binding:
+         *, triangles: np.ndarray, bare: tuple[str, ...] = (), allowed: np.ndarray | None = None) -> Binding:
     """The body's vertices bound to the bones of ``skeleton`` posed at ``q0`` (its bind pose), in the levels of
     binding.level_radii (fractions of the flesh's depth with binding.relative_levels), without the bones of
     binding.skip_bones nor the ``bare`` bones of a jelly body (they have no flesh). ``bind_all``: the outermost
@@ -156,7 +155,7 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
     on a URDF: the bones of its own voxels). A surface body's
     pieces that no bone and no anchor reaches are carried by their nearest bone when small, else refused
     (hold_islands), and its end bones reach into their flesh (body/bone_reach.py) up to its boundary
-    ``triangles`` (the mesh's boundary_triangles when not given)."""
+    ``triangles`` (the mesh's outward boundary_triangles)."""
     b = config.binding
     poses = skeleton.forward(q0, np.zeros(skeleton.nv))
     starts, ends = skeleton.bone_segments(q0)
@@ -189,7 +188,6 @@ def bind(config: SceneConfig, model: FemModel, skeleton: Skeleton, q0: np.ndarra
         binds = np.ones(len(skeleton.bone_names), dtype=bool) if mask is None else mask
         nearest = np.argmin(np.where(binds, segment_distance(model.rest, starts, ends), np.inf), axis=1)
         share = lumped_mass(model.mesh, 1.0)                # each vertex's share of the volume
-        triangles = boundary_triangles(model.mesh) if triangles is None else triangles
         ends, reach, turn = reach_to_skin(starts, ends, end_bones(skeleton.bone_parent, binds), model.rest,
                                           triangles, flesh=(model.rest, share, nearest))
         say(progress, describe_reach(skeleton.bone_names, reach, turn))
