@@ -275,27 +275,14 @@ def check_value(name: str, value: Any) -> Any:
     return check_param(_BY_NAME[name], value)
 
 
-def _number_or_auto(p: Param, value: Any) -> float | str:
-    """A value of a parameter that is a number in [lo, hi] or 'auto' (in any case): the float, or AUTO."""
-    if isinstance(value, str) and value.strip().lower() == AUTO:
-        return AUTO
-    try:
-        if isinstance(value, bool):
-            raise TypeError
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ConfigError(f"{p.name} = {value!r}: give 'auto' or a number in [{p.lo:g}, {p.hi:g}]") from None
-    if not (p.lo <= number <= p.hi):                   # a nan fails here too
-        raise ConfigError(f"{p.name} = {value!r} is outside [{p.lo:g}, {p.hi:g}]: {p.description}")
-    return number
-
-
 def check_param(p: Param, value: Any) -> Any:
     """Validate a value of the parameter ``p`` (of any node's table: PARAMS, motion.PLAYER_TABLE); returns it
     coerced to the default's type: an integer for a float, a choice in any case or spelt as a YAML 1.1 boolean."""
     name, d = p.name, p.default
-    if p.or_auto:
-        return _number_or_auto(p, value)
+    if p.or_auto:                                    # 'auto' in any case, else checked as a float parameter
+        if isinstance(value, str) and value.strip().lower() == AUTO:
+            return AUTO
+        d = float(p.lo)
     if p.length_unit:                                # a unit name or metres per unit, checked before the file is read
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             value = repr(float(value))
@@ -328,6 +315,7 @@ def check_param(p: Param, value: Any) -> Any:
             value = _text_value(p, value)
     except (TypeError, ValueError):
         want = f"a list of {p.item.__name__}" if isinstance(d, list) else f"{type(d).__name__} like {d!r}"
+        want = f"'auto' or {want}" if p.or_auto else want
         hint = (": YAML reads an unquoted y, yes, on, true (n, no, off, false) as a boolean; quote the value"
                 if isinstance(d, str) and isinstance(value, bool) else "")
         raise ConfigError(f"{name} = {value!r}: expected {want}{hint}") from None
